@@ -1,0 +1,295 @@
+//! Scalar volumes: voxel storage (u8, u16, f32), dimensions, spacing, synthetic fields and loaders.
+//!
+//! Voxel `(x, y, z)` is stored at linear index `x + dims.x * (y + dims.y * z)` (x fastest). Values are
+//! exposed *normalised* the way the GPU sees them: u8 / 255, u16 / 65535 (UNORM formats) and f32 as
+//! is (SFLOAT). Every sampler in the crate, CPU and GPU, works on normalised values.
+
+mod loader;
+mod synthetic;
+
+pub use loader::{load_raw, RawDescriptor};
+pub use synthetic::{marschner_lobb, sphere, wall, SyntheticField};
+
+use glam::{UVec3, Vec3};
+use std::path::PathBuf;
+
+/// The scalar type of a volume's voxels.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+pub enum ScalarType {
+    /// Unsigned 8-bit, normalised to [0, 1].
+    U8,
+    /// Unsigned 16-bit, normalised to [0, 1].
+    U16,
+    /// 32-bit float, used as is.
+    F32,
+}
+
+impl ScalarType {
+    /// Bytes per voxel.
+    pub const fn size_bytes(self) -> usize {
+        match self {
+            ScalarType::U8 => 1,
+            ScalarType::U16 => 2,
+            ScalarType::F32 => 4,
+        }
+    }
+
+    /// Parses `u8`, `u16` or `f32` (case-insensitive).
+    pub fn parse(name: &str) -> Option<Self> {
+        match name.to_ascii_lowercase().as_str() {
+            "u8" | "uint8" => Some(ScalarType::U8),
+            "u16" | "uint16" => Some(ScalarType::U16),
+            "f32" | "float" | "float32" => Some(ScalarType::F32),
+            _ => None,
+        }
+    }
+}
+
+/// Voxel values in one of the supported scalar types.
+#[derive(Clone, Debug, PartialEq)]
+pub enum VoxelData {
+    /// 8-bit unsigned voxels.
+    U8(Vec<u8>),
+    /// 16-bit unsigned voxels.
+    U16(Vec<u16>),
+    /// 32-bit float voxels (finite values only).
+    F32(Vec<f32>),
+}
+
+impl VoxelData {
+    /// Number of voxels stored.
+    pub fn len(&self) -> usize {
+        match self {
+            VoxelData::U8(v) => v.len(),
+            VoxelData::U16(v) => v.len(),
+            VoxelData::F32(v) => v.len(),
+        }
+    }
+
+    /// True when no voxel is stored.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The scalar type of the stored voxels.
+    pub fn scalar_type(&self) -> ScalarType {
+        match self {
+            VoxelData::U8(_) => ScalarType::U8,
+            VoxelData::U16(_) => ScalarType::U16,
+            VoxelData::F32(_) => ScalarType::F32,
+        }
+    }
+
+    /// The voxels as native-endian bytes, ready for a staging buffer.
+    pub fn as_bytes(&self) -> &[u8] {
+        match self {
+            VoxelData::U8(v) => v,
+            VoxelData::U16(v) => bytemuck::cast_slice(v),
+            VoxelData::F32(v) => bytemuck::cast_slice(v),
+        }
+    }
+
+    /// The normalised value of voxel `index` (see the module docs).
+    #[inline]
+    pub fn normalized(&self, index: usize) -> f32 {
+        match self {
+            VoxelData::U8(v) => f32::from(v[index]) / 255.0,
+            VoxelData::U16(v) => f32::from(v[index]) / 65535.0,
+            VoxelData::F32(v) => v[index],
+        }
+    }
+}
+
+/// Errors from building or loading a volume.
+#[derive(Debug, thiserror::Error)]
+pub enum VolumeError {
+    /// A dimension is zero.
+    #[error("volume dimension {axis} is zero (dims {dims:?}); every axis needs at least one voxel")]
+    ZeroDimension {
+        /// 'x', 'y' or 'z'.
+        axis: char,
+        /// The dimensions given.
+        dims: [u32; 3],
+    },
+    /// The voxel count or byte size does not fit in memory-size arithmetic.
+    #[error("volume dimensions {dims:?} overflow the addressable size")]
+    SizeOverflow {
+        /// The dimensions given.
+        dims: [u32; 3],
+    },
+    /// The number of voxels does not match the dimensions.
+    #[error("volume data holds {actual} voxels but dims {dims:?} need {expected}")]
+    VoxelCountMismatch {
+        /// The dimensions given.
+        dims: [u32; 3],
+        /// Voxels the dimensions imply.
+        expected: usize,
+        /// Voxels supplied.
+        actual: usize,
+    },
+    /// A spacing component is not a positive finite number.
+    #[error("voxel spacing {spacing:?} must be positive and finite on every axis")]
+    InvalidSpacing {
+        /// The spacing given.
+        spacing: [f32; 3],
+    },
+    /// A float voxel is NaN or infinite (policy: rejected at load, never rendered as black).
+    #[error("voxel {index} (x={x}, y={y}, z={z}) is {value}; volumes must hold finite values")]
+    NonFinite {
+        /// Linear index of the first offending voxel.
+        index: usize,
+        /// Its x coordinate.
+        x: u32,
+        /// Its y coordinate.
+        y: u32,
+        /// Its z coordinate.
+        z: u32,
+        /// The value found.
+        value: f32,
+    },
+    /// The file could not be read.
+    #[error("cannot read volume file {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What the OS said.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file size does not match the described dimensions and type.
+    #[error("{path}: file holds {actual} bytes but {dims:?} x {scalar:?} (+{header} header bytes) needs {expected}")]
+    FileSizeMismatch {
+        /// The file.
+        path: PathBuf,
+        /// The dimensions described.
+        dims: [u32; 3],
+        /// The scalar type described.
+        scalar: ScalarType,
+        /// Header bytes skipped.
+        header: u64,
+        /// Bytes expected.
+        expected: u64,
+        /// Bytes in the file.
+        actual: u64,
+    },
+    /// A synthetic field parameter is out of range.
+    #[error("invalid synthetic field parameter: {0}")]
+    InvalidParameter(String),
+}
+
+/// A scalar volume: dimensions, voxel spacing and voxel values.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Volume {
+    dims: UVec3,
+    spacing: Vec3,
+    data: VoxelData,
+}
+
+/// Checks dims for zero axes and returns the voxel count with checked arithmetic.
+pub fn checked_voxel_count(dims: UVec3) -> Result<usize, VolumeError> {
+    for (axis, d) in ['x', 'y', 'z'].into_iter().zip(dims.to_array()) {
+        if d == 0 {
+            return Err(VolumeError::ZeroDimension {
+                axis,
+                dims: dims.to_array(),
+            });
+        }
+    }
+    (dims.x as usize)
+        .checked_mul(dims.y as usize)
+        .and_then(|n| n.checked_mul(dims.z as usize))
+        .filter(|n| n.checked_mul(4).is_some())
+        .ok_or(VolumeError::SizeOverflow {
+            dims: dims.to_array(),
+        })
+}
+
+impl Volume {
+    /// Builds a volume, checking dims, spacing, voxel count and (for f32) finiteness.
+    pub fn new(dims: UVec3, spacing: Vec3, data: VoxelData) -> Result<Self, VolumeError> {
+        let expected = checked_voxel_count(dims)?;
+        if !(spacing.is_finite() && spacing.min_element() > 0.0) {
+            return Err(VolumeError::InvalidSpacing {
+                spacing: spacing.to_array(),
+            });
+        }
+        if data.len() != expected {
+            return Err(VolumeError::VoxelCountMismatch {
+                dims: dims.to_array(),
+                expected,
+                actual: data.len(),
+            });
+        }
+        if let VoxelData::F32(values) = &data {
+            if let Some(index) = values.iter().position(|v| !v.is_finite()) {
+                let x = (index % dims.x as usize) as u32;
+                let y = ((index / dims.x as usize) % dims.y as usize) as u32;
+                let z = (index / (dims.x as usize * dims.y as usize)) as u32;
+                return Err(VolumeError::NonFinite {
+                    index,
+                    x,
+                    y,
+                    z,
+                    value: values[index],
+                });
+            }
+        }
+        Ok(Self {
+            dims,
+            spacing,
+            data,
+        })
+    }
+
+    /// Voxel counts along x, y, z.
+    pub fn dims(&self) -> UVec3 {
+        self.dims
+    }
+
+    /// Physical size of one voxel along x, y, z.
+    pub fn spacing(&self) -> Vec3 {
+        self.spacing
+    }
+
+    /// The voxel values.
+    pub fn data(&self) -> &VoxelData {
+        &self.data
+    }
+
+    /// The scalar type of the voxels.
+    pub fn scalar_type(&self) -> ScalarType {
+        self.data.scalar_type()
+    }
+
+    /// Physical extent `dims * spacing`.
+    pub fn physical_extent(&self) -> Vec3 {
+        self.dims.as_vec3() * self.spacing
+    }
+
+    /// Linear index of voxel `(x, y, z)`; the caller keeps coordinates inside `dims`.
+    #[inline]
+    pub fn index(&self, x: u32, y: u32, z: u32) -> usize {
+        x as usize + self.dims.x as usize * (y as usize + self.dims.y as usize * z as usize)
+    }
+
+    /// Normalised value of voxel `(x, y, z)` (coordinates inside `dims`).
+    #[inline]
+    pub fn value(&self, x: u32, y: u32, z: u32) -> f32 {
+        self.data.normalized(self.index(x, y, z))
+    }
+
+    /// Normalised value with coordinates clamped to the volume (clamp-to-edge addressing).
+    #[inline]
+    pub fn value_clamped(&self, x: i64, y: i64, z: i64) -> f32 {
+        let c = |v: i64, d: u32| v.clamp(0, i64::from(d) - 1) as u32;
+        self.value(c(x, self.dims.x), c(y, self.dims.y), c(z, self.dims.z))
+    }
+
+    /// Smallest and largest normalised voxel value.
+    pub fn value_range(&self) -> (f32, f32) {
+        (0..self.data.len()).fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), i| {
+            let v = self.data.normalized(i);
+            (lo.min(v), hi.max(v))
+        })
+    }
+}

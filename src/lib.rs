@@ -1,4 +1,21 @@
 //! mixvol: a Vulkan-native, explicitly memory-managed volume ray-caster.
+//!
+//! Modules, one per concept:
+//! - [`volume`]: voxel storage, synthetic fields, loaders.
+//! - [`optics`]: transfer functions, opacity correction, compositing.
+//! - [`scene`]: camera, render settings and the per-frame parameter block.
+//! - [`reference`]: the CPU reference ray-caster (the oracle for every GPU test).
+//! - [`gpu`]: the ash backend (context, memory, shaders, ray-cast pipeline).
+//! - [`renderer`]: the façade that turns a volume + scene into an image.
 #![warn(missing_docs, unsafe_op_in_unsafe_fn, clippy::undocumented_unsafe_blocks)]
 
+pub mod bricks;
+pub mod error;
+pub mod gpu;
+pub mod optics;
+pub mod reference;
+pub mod renderer;
+pub mod scene;
 pub mod volume;
+
+pub use error::{Error, Result};

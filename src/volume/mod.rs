@@ -7,8 +7,11 @@
 mod loader;
 mod synthetic;
 
-pub use loader::{load_raw, RawDescriptor};
-pub use synthetic::{marschner_lobb, sphere, wall, SyntheticField};
+pub use loader::{load_raw, save_raw, RawDescriptor};
+pub use synthetic::{
+    marschner_lobb, marschner_lobb_value, sphere, wall, SyntheticField,
+    DEFAULT_SPHERE_RADIUS_FRACTION,
+};
 
 use glam::{UVec3, Vec3};
 use std::path::PathBuf;
@@ -150,6 +153,15 @@ pub enum VolumeError {
     /// The file could not be read.
     #[error("cannot read volume file {path}: {source}")]
     Io {
+        /// The file.
+        path: PathBuf,
+        /// What the OS said.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file could not be written.
+    #[error("cannot write volume file {path}: {source}")]
+    Write {
         /// The file.
         path: PathBuf,
         /// What the OS said.

@@ -1,0 +1,17 @@
+// Per-frame ray-casting parameters. Mirrors `RaycastParams` in src/scene.rs field by field
+// (std140, every member a vec4, 128 bytes).
+#ifndef PARAMS_GLSL
+#define PARAMS_GLSL
+
+struct RaycastParams {
+    vec4 eye;       // xyz: eye (perspective) or image-plane centre (orthographic); w: 0 persp, 1 ortho
+    vec4 forward;   // xyz: unit view direction; w: near (smallest ray parameter t)
+    vec4 right;     // xyz: right vector scaled to half the image width at unit distance; w: far
+    vec4 up;        // xyz: up vector scaled to half the image height at unit distance; w: unused
+    vec4 box_min;   // xyz: world-space volume box minimum; w: step length (world units)
+    vec4 box_max;   // xyz: world-space volume box maximum; w: reference length d0 (world units)
+    vec4 tf_window; // x: value at TF position 0; y: 1 / (value range); z: early-termination alpha; w: max steps
+    vec4 viewport;  // x: width, y: height (pixels); zw: unused
+};
+
+#endif

@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# Runs the whole test suite: unit tests, CPU-reference tests and the GPU tests, which create
+# their Vulkan contexts with VK_LAYER_KHRONOS_validation (synchronization validation on) and fail
+# on any validation warning or error. Installs what it needs first.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/setup.sh
+cargo test --release --locked "$@"

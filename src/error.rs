@@ -1,0 +1,70 @@
+//! The crate's error type: runtime conditions a caller can act on.
+
+use crate::volume::VolumeError;
+
+/// Everything that can go wrong at run time in this crate.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// A Vulkan call failed.
+    #[error("Vulkan call {call} failed: {result}")]
+    Vulkan {
+        /// The entry point that failed.
+        call: &'static str,
+        /// The result code it returned.
+        result: ash::vk::Result,
+    },
+    /// The Vulkan loader could not be loaded.
+    #[error("cannot load the Vulkan loader (is libvulkan1 installed?): {0}")]
+    Loader(String),
+    /// gpu-allocator refused an allocation.
+    #[error("GPU memory allocation '{name}' failed: {source}")]
+    Allocation {
+        /// The debug name of the allocation.
+        name: String,
+        /// What the allocator said.
+        #[source]
+        source: gpu_allocator::AllocationError,
+    },
+    /// A GLSL source did not compile.
+    #[error("{file}:{line}: {message}")]
+    ShaderCompile {
+        /// The GLSL file that holds the error (an include file where the error is in one).
+        file: String,
+        /// 1-based line number in `file` (0 when the compiler named none).
+        line: u32,
+        /// The compiler's full message.
+        message: String,
+    },
+    /// The device or instance lacks something the renderer needs.
+    #[error("unsupported: {0}")]
+    Unsupported(String),
+    /// The caller passed something unusable.
+    #[error("invalid input: {0}")]
+    InvalidInput(String),
+    /// A volume could not be built or loaded.
+    #[error(transparent)]
+    Volume(#[from] VolumeError),
+    /// An image could not be written.
+    #[error("cannot write image {path}: {message}")]
+    ImageWrite {
+        /// Destination path.
+        path: std::path::PathBuf,
+        /// What the encoder said.
+        message: String,
+    },
+}
+
+/// Result with the crate's [`Error`].
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Attaches the Vulkan entry point name to a `vk::Result` error.
+pub(crate) trait VkResultExt<T> {
+    /// Maps the error into [`Error::Vulkan`] naming `call`.
+    fn vk(self, call: &'static str) -> Result<T>;
+}
+
+impl<T> VkResultExt<T> for std::result::Result<T, ash::vk::Result> {
+    fn vk(self, call: &'static str) -> Result<T> {
+        self.map_err(|result| Error::Vulkan { call, result })
+    }
+}

@@ -1,0 +1,222 @@
+//! Command recording helpers: named accesses turned into synchronization2 barriers, and a
+//! one-shot submitter that records, submits and waits.
+
+use super::context::DeviceShared;
+use super::memory::COLOR_RANGE;
+use crate::error::{Result, VkResultExt};
+use ash::vk;
+use std::sync::Arc;
+
+/// How a resource is used at one point of a command stream. Call sites name the access; one
+/// table turns it into stage, access mask and image layout.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub(crate) enum Access {
+    /// Not used yet (contents may be discarded).
+    Nothing,
+    /// Written by a transfer (copy) command.
+    TransferWrite,
+    /// Read by a transfer (copy) command.
+    TransferRead,
+    /// Sampled in a fragment shader.
+    FragmentSampled,
+    /// Written as a colour attachment.
+    ColorAttachmentWrite,
+    /// Read by the host after the commands complete.
+    HostRead,
+}
+
+impl Access {
+    fn stage_access_layout(self) -> (vk::PipelineStageFlags2, vk::AccessFlags2, vk::ImageLayout) {
+        use vk::{AccessFlags2 as A, ImageLayout as L, PipelineStageFlags2 as S};
+        match self {
+            Access::Nothing => (S::NONE, A::NONE, L::UNDEFINED),
+            Access::TransferWrite => (S::COPY, A::TRANSFER_WRITE, L::TRANSFER_DST_OPTIMAL),
+            Access::TransferRead => (S::COPY, A::TRANSFER_READ, L::TRANSFER_SRC_OPTIMAL),
+            Access::FragmentSampled => (
+                S::FRAGMENT_SHADER,
+                A::SHADER_SAMPLED_READ,
+                L::SHADER_READ_ONLY_OPTIMAL,
+            ),
+            Access::ColorAttachmentWrite => (
+                S::COLOR_ATTACHMENT_OUTPUT,
+                A::COLOR_ATTACHMENT_WRITE,
+                L::COLOR_ATTACHMENT_OPTIMAL,
+            ),
+            Access::HostRead => (S::HOST, A::HOST_READ, L::GENERAL),
+        }
+    }
+}
+
+/// Records an image layout transition + dependency from `prev` to `next` (whole colour image).
+pub(crate) fn image_barrier(
+    device: &ash::Device,
+    cmd: vk::CommandBuffer,
+    image: vk::Image,
+    prev: Access,
+    next: Access,
+) {
+    let (src_stage, src_access, old_layout) = prev.stage_access_layout();
+    let (dst_stage, dst_access, new_layout) = next.stage_access_layout();
+    let barrier = vk::ImageMemoryBarrier2::default()
+        .src_stage_mask(src_stage)
+        .src_access_mask(src_access)
+        .dst_stage_mask(dst_stage)
+        .dst_access_mask(dst_access)
+        .old_layout(old_layout)
+        .new_layout(new_layout)
+        .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+        .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+        .image(image)
+        .subresource_range(COLOR_RANGE);
+    let barriers = [barrier];
+    let dependency = vk::DependencyInfo::default().image_memory_barriers(&barriers);
+    // SAFETY: `cmd` is in the recording state (callers record inside `Submitter::run`).
+    unsafe { device.cmd_pipeline_barrier2(cmd, &dependency) };
+}
+
+/// Records a global memory dependency from `prev` to `next` (buffers; layouts are ignored).
+pub(crate) fn memory_barrier(device: &ash::Device, cmd: vk::CommandBuffer, prev: Access, next: Access) {
+    let (src_stage, src_access, _) = prev.stage_access_layout();
+    let (dst_stage, dst_access, _) = next.stage_access_layout();
+    let barriers = [vk::MemoryBarrier2::default()
+        .src_stage_mask(src_stage)
+        .src_access_mask(src_access)
+        .dst_stage_mask(dst_stage)
+        .dst_access_mask(dst_access)];
+    let dependency = vk::DependencyInfo::default().memory_barriers(&barriers);
+    // SAFETY: `cmd` is in the recording state.
+    unsafe { device.cmd_pipeline_barrier2(cmd, &dependency) };
+}
+
+/// One command pool, one command buffer and one fence: records, submits and waits.
+pub(crate) struct Submitter {
+    pool: vk::CommandPool,
+    cmd: vk::CommandBuffer,
+    fence: vk::Fence,
+    shared: Arc<DeviceShared>,
+}
+
+impl Submitter {
+    pub(crate) fn new(shared: &Arc<DeviceShared>) -> Result<Self> {
+        let device = &shared.device;
+        let pool_info = vk::CommandPoolCreateInfo::default()
+            .queue_family_index(shared.queue_family)
+            .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
+        // SAFETY: valid create info on a live device.
+        let pool = unsafe { device.create_command_pool(&pool_info, None) }
+            .vk("vkCreateCommandPool")?;
+        let mut submitter = Self {
+            pool,
+            cmd: vk::CommandBuffer::null(),
+            fence: vk::Fence::null(),
+            shared: shared.clone(),
+        };
+        let alloc_info = vk::CommandBufferAllocateInfo::default()
+            .command_pool(pool)
+            .level(vk::CommandBufferLevel::PRIMARY)
+            .command_buffer_count(1);
+        // SAFETY: the pool was created above from this device.
+        submitter.cmd = unsafe { device.allocate_command_buffers(&alloc_info) }
+            .vk("vkAllocateCommandBuffers")?[0];
+        // SAFETY: valid create info on a live device.
+        submitter.fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }
+            .vk("vkCreateFence")?;
+        Ok(submitter)
+    }
+
+    /// Records commands with `record`, submits them and waits for completion.
+    pub(crate) fn run(
+        &mut self,
+        record: impl FnOnce(&ash::Device, vk::CommandBuffer) -> Result<()>,
+    ) -> Result<()> {
+        let device = &self.shared.device;
+        let begin = vk::CommandBufferBeginInfo::default()
+            .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+        // SAFETY: the previous submission (if any) completed before `run` returned, so the
+        // command buffer is not pending and may be reset and re-recorded.
+        unsafe {
+            device
+                .reset_command_buffer(self.cmd, vk::CommandBufferResetFlags::empty())
+                .vk("vkResetCommandBuffer")?;
+            device
+                .begin_command_buffer(self.cmd, &begin)
+                .vk("vkBeginCommandBuffer")?;
+        }
+        let recorded = record(device, self.cmd);
+        // SAFETY: the command buffer is recording; ending it is valid even after a failed record.
+        let ended = unsafe { device.end_command_buffer(self.cmd) }.vk("vkEndCommandBuffer");
+        recorded?;
+        ended?;
+        let cmd_infos = [vk::CommandBufferSubmitInfo::default().command_buffer(self.cmd)];
+        let submits = [vk::SubmitInfo2::default().command_buffer_infos(&cmd_infos)];
+        // The command buffer is executable and the fence unsignalled.
+        let _queue = self.shared.queue_lock.lock().unwrap_or_else(|e| e.into_inner());
+        // SAFETY: see above; `_queue` holds the queue's submit lock.
+        unsafe {
+            device
+                .queue_submit2(self.shared.queue, &submits, self.fence)
+                .vk("vkQueueSubmit2")?;
+            let waited = device
+                .wait_for_fences(&[self.fence], true, u64::MAX)
+                .vk("vkWaitForFences");
+            device.reset_fences(&[self.fence]).vk("vkResetFences")?;
+            waited
+        }
+    }
+}
+
+impl Drop for Submitter {
+    fn drop(&mut self) {
+        // SAFETY: `run` always waits for its submission, so nothing is pending; destroying the
+        // pool frees its command buffer. Null handles (half-built) are ignored by Vulkan.
+        unsafe {
+            self.shared.device.destroy_fence(self.fence, None);
+            self.shared.device.destroy_command_pool(self.pool, None);
+        }
+    }
+}
+
+/// A timestamp query pool with `count` queries.
+pub(crate) struct TimestampPool {
+    pub(crate) raw: vk::QueryPool,
+    pub(crate) count: u32,
+    shared: Arc<DeviceShared>,
+}
+
+impl TimestampPool {
+    pub(crate) fn new(shared: &Arc<DeviceShared>, count: u32) -> Result<Self> {
+        let info = vk::QueryPoolCreateInfo::default()
+            .query_type(vk::QueryType::TIMESTAMP)
+            .query_count(count);
+        // SAFETY: valid create info on a live device.
+        let raw = unsafe { shared.device.create_query_pool(&info, None) }.vk("vkCreateQueryPool")?;
+        Ok(Self {
+            raw,
+            count,
+            shared: shared.clone(),
+        })
+    }
+
+    /// Reads all timestamps (in ticks) of a completed submission.
+    pub(crate) fn read(&self) -> Result<Vec<u64>> {
+        let mut ticks = vec![0u64; self.count as usize];
+        // SAFETY: the pool is live and the queries were written by a submission that completed.
+        unsafe {
+            self.shared.device.get_query_pool_results(
+                self.raw,
+                0,
+                &mut ticks,
+                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+            )
+        }
+        .vk("vkGetQueryPoolResults")?;
+        Ok(ticks)
+    }
+}
+
+impl Drop for TimestampPool {
+    fn drop(&mut self) {
+        // SAFETY: owners wait for their submissions before dropping.
+        unsafe { self.shared.device.destroy_query_pool(self.raw, None) };
+    }
+}

@@ -1,0 +1,589 @@
+//! The Vulkan context: instance, optional validation with a recording messenger, one device and
+//! queue, and the gpu-allocator allocator. Everything the backend creates holds an
+//! `Arc<DeviceShared>`, so the device outlives every object made from it.
+
+use crate::error::{Error, Result, VkResultExt};
+use ash::vk;
+use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
+use std::ffi::{c_void, CStr};
+use std::mem::ManuallyDrop;
+use std::sync::{Arc, Mutex, MutexGuard};
+
+const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
+const VALIDATION_FEATURES_EXT: &CStr = c"VK_EXT_validation_features";
+
+/// How to create a [`GpuContext`].
+#[derive(Clone, Debug, Default)]
+pub struct ContextDesc {
+    /// Enable `VK_LAYER_KHRONOS_validation` (with synchronization validation where the layer
+    /// offers `VK_EXT_validation_features`). Missing layer with this set is an error.
+    pub validation: bool,
+    /// Pick the first physical device whose name contains this (case-insensitive); `None` prefers
+    /// discrete, then integrated, then virtual, then CPU devices. The `MIXVOL_DEVICE` environment
+    /// variable sets it when this is `None`.
+    pub device_name: Option<String>,
+}
+
+/// Severity of a recorded debug-utils message.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Severity {
+    /// Diagnostic chatter.
+    Verbose,
+    /// Informational.
+    Info,
+    /// Possible misuse or performance problem: fails a test.
+    Warning,
+    /// Invalid usage: fails a test.
+    Error,
+}
+
+/// One message from the debug-utils messenger (or from the leak check at shutdown).
+#[derive(Clone, Debug)]
+pub struct DebugMessage {
+    /// How bad it is.
+    pub severity: Severity,
+    /// The message id name (a VUID for validation errors), empty where none was given.
+    pub id_name: String,
+    /// The message text.
+    pub text: String,
+}
+
+/// Every message the messenger received, in order. Shared so it can be read after the context is
+/// gone (messages arrive up to `vkDestroyInstance`).
+#[derive(Debug, Default)]
+pub struct MessageLog {
+    messages: Mutex<Vec<DebugMessage>>,
+}
+
+impl MessageLog {
+    fn lock(&self) -> MutexGuard<'_, Vec<DebugMessage>> {
+        // A poisoned log still holds valid messages: keep recording.
+        self.messages.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn push(&self, message: DebugMessage) {
+        self.lock().push(message);
+    }
+
+    /// All messages so far.
+    pub fn all(&self) -> Vec<DebugMessage> {
+        self.lock().clone()
+    }
+
+    /// Warnings and errors so far: a validated test expects none.
+    pub fn warnings_and_errors(&self) -> Vec<DebugMessage> {
+        self.lock()
+            .iter()
+            .filter(|m| m.severity >= Severity::Warning)
+            .cloned()
+            .collect()
+    }
+}
+
+unsafe extern "system" fn record_debug_message(
+    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
+    _types: vk::DebugUtilsMessageTypeFlagsEXT,
+    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
+    user_data: *mut c_void,
+) -> vk::Bool32 {
+    let severity = if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
+        Severity::Error
+    } else if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::WARNING) {
+        Severity::Warning
+    } else if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::INFO) {
+        Severity::Info
+    } else {
+        Severity::Verbose
+    };
+    // SAFETY: the layer passes a valid callback-data pointer for the duration of the call, and
+    // `user_data` is the `Arc<MessageLog>` pointer registered in `GpuContext::new`, which stays
+    // alive until after the messenger and the instance are destroyed.
+    let (log, id_name, text) = unsafe {
+        let data = &*data;
+        let id_name = data
+            .message_id_name_as_c_str()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let text = data
+            .message_as_c_str()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        (&*(user_data as *const MessageLog), id_name, text)
+    };
+    match severity {
+        Severity::Error => log::error!("[vulkan] {id_name}: {text}"),
+        Severity::Warning => log::warn!("[vulkan] {id_name}: {text}"),
+        Severity::Info => log::debug!("[vulkan] {id_name}: {text}"),
+        Severity::Verbose => log::trace!("[vulkan] {id_name}: {text}"),
+    }
+    log.push(DebugMessage {
+        severity,
+        id_name,
+        text,
+    });
+    vk::FALSE
+}
+
+/// What the chosen device can do, queried once at start.
+#[derive(Clone, Debug)]
+pub struct DeviceInfo {
+    /// The device name as reported by the driver.
+    pub name: String,
+    /// The device type (CPU for lavapipe).
+    pub device_type: vk::PhysicalDeviceType,
+    /// Device limits.
+    pub limits: vk::PhysicalDeviceLimits,
+    /// Nanoseconds per timestamp tick.
+    pub timestamp_period_ns: f32,
+    /// Whether the queue writes timestamps.
+    pub timestamps_supported: bool,
+    /// Whether `VK_LAYER_KHRONOS_validation` is active.
+    pub validation: bool,
+    /// Whether synchronization validation is active.
+    pub synchronization_validation: bool,
+}
+
+/// State shared by every object of the backend. Dropped last: waits idle, drops the allocator
+/// (which reports leaks), destroys the device, the messenger and the instance, in that order.
+pub(crate) struct DeviceShared {
+    pub(crate) allocator: ManuallyDrop<Mutex<Allocator>>,
+    pub(crate) device: ash::Device,
+    pub(crate) physical_device: vk::PhysicalDevice,
+    pub(crate) queue: vk::Queue,
+    /// Serialises vkQueueSubmit (the queue requires external synchronisation).
+    pub(crate) queue_lock: Mutex<()>,
+    pub(crate) queue_family: u32,
+    pub(crate) info: DeviceInfo,
+    instance: ash::Instance,
+    debug_utils: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    log: Arc<MessageLog>,
+    log_user_data: *const MessageLog,
+    _entry: ash::Entry,
+}
+
+// SAFETY: the raw pointer `log_user_data` is an `Arc<MessageLog>` reference count owned by this
+// struct (MessageLog is Sync); every other field is Send + Sync.
+unsafe impl Send for DeviceShared {}
+// SAFETY: see the Send impl; shared access never mutates the pointer.
+unsafe impl Sync for DeviceShared {}
+
+impl DeviceShared {
+    /// Locks the allocator (recovering from a poisoned lock: the allocator state stays valid).
+    pub(crate) fn allocator(&self) -> MutexGuard<'_, Allocator> {
+        self.allocator.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Format features of `format` with optimal tiling.
+    pub(crate) fn optimal_format_features(&self, format: vk::Format) -> vk::FormatFeatureFlags {
+        // SAFETY: the physical device handle belongs to `self.instance`, which is alive.
+        unsafe {
+            self.instance
+                .get_physical_device_format_properties(self.physical_device, format)
+                .optimal_tiling_features
+        }
+    }
+
+    /// Errors with `Unsupported` unless `format` has all `required` optimal-tiling features.
+    pub(crate) fn require_format(
+        &self,
+        format: vk::Format,
+        required: vk::FormatFeatureFlags,
+        purpose: &str,
+    ) -> Result<()> {
+        let have = self.optimal_format_features(format);
+        if have.contains(required) {
+            Ok(())
+        } else {
+            Err(Error::Unsupported(format!(
+                "{purpose}: format {format:?} lacks {:?} (has {have:?})",
+                required & !have
+            )))
+        }
+    }
+}
+
+impl Drop for DeviceShared {
+    fn drop(&mut self) {
+        // SAFETY: every object created from the device holds an Arc to this struct, so none is
+        // alive now; waiting idle makes sure the GPU no longer uses freed memory. Destruction
+        // runs in reverse creation order: allocator, device, messenger, instance.
+        unsafe {
+            let _ = self.device.device_wait_idle();
+            let report = self.allocator().generate_report();
+            for leak in &report.allocations {
+                self.log.push(DebugMessage {
+                    severity: Severity::Error,
+                    id_name: "mixvol-leaked-allocation".into(),
+                    text: format!("allocation '{}' ({} bytes) leaked", leak.name, leak.size),
+                });
+            }
+            ManuallyDrop::drop(&mut self.allocator);
+            self.device.destroy_device(None);
+            if let Some((loader, messenger)) = self.debug_utils.take() {
+                loader.destroy_debug_utils_messenger(messenger, None);
+            }
+            self.instance.destroy_instance(None);
+            drop(Arc::from_raw(self.log_user_data));
+        }
+    }
+}
+
+/// A headless Vulkan instance + device + allocator. Cheap to clone (reference counted).
+#[derive(Clone)]
+pub struct GpuContext {
+    pub(crate) shared: Arc<DeviceShared>,
+}
+
+impl std::fmt::Debug for GpuContext {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuContext")
+            .field("device", &self.shared.info.name)
+            .finish()
+    }
+}
+
+fn device_type_rank(t: vk::PhysicalDeviceType) -> u32 {
+    match t {
+        vk::PhysicalDeviceType::DISCRETE_GPU => 0,
+        vk::PhysicalDeviceType::INTEGRATED_GPU => 1,
+        vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
+        vk::PhysicalDeviceType::CPU => 3,
+        _ => 4,
+    }
+}
+
+impl GpuContext {
+    /// Creates the instance, picks a device (see [`ContextDesc`]) and creates device and allocator.
+    pub fn new(desc: &ContextDesc) -> Result<Self> {
+        // SAFETY: loading the system Vulkan loader; we only call it through ash's typed wrappers.
+        let entry = unsafe { ash::Entry::load() }.map_err(|e| Error::Loader(e.to_string()))?;
+        let log = Arc::new(MessageLog::default());
+        let log_user_data = Arc::into_raw(log.clone());
+        // From here on `log_user_data` holds a reference count; `Guard` returns it on early errors.
+        struct UserDataGuard(*const MessageLog, bool);
+        impl Drop for UserDataGuard {
+            fn drop(&mut self) {
+                if !self.1 {
+                    // SAFETY: the pointer came from Arc::into_raw and was not handed to a
+                    // DeviceShared (flag false), so it is reclaimed exactly once here.
+                    unsafe { drop(Arc::from_raw(self.0)) };
+                }
+            }
+        }
+        let mut guard = UserDataGuard(log_user_data, false);
+        let shared = Self::create(entry, desc, log, log_user_data)?;
+        guard.1 = true;
+        Ok(Self {
+            shared: Arc::new(shared),
+        })
+    }
+
+    fn create(
+        entry: ash::Entry,
+        desc: &ContextDesc,
+        log: Arc<MessageLog>,
+        log_user_data: *const MessageLog,
+    ) -> Result<DeviceShared> {
+        // SAFETY: plain queries on a loaded entry.
+        let instance_version = unsafe { entry.try_enumerate_instance_version() }
+            .vk("vkEnumerateInstanceVersion")?
+            .unwrap_or(vk::API_VERSION_1_0);
+        if instance_version < vk::API_VERSION_1_3 {
+            return Err(Error::Unsupported(format!(
+                "Vulkan 1.3 instance required, loader offers {}.{}",
+                vk::api_version_major(instance_version),
+                vk::api_version_minor(instance_version)
+            )));
+        }
+        let mut layers = Vec::new();
+        let mut extensions = Vec::new();
+        let mut sync_validation = false;
+        if desc.validation {
+            // SAFETY: plain queries on a loaded entry.
+            let available = unsafe { entry.enumerate_instance_layer_properties() }
+                .vk("vkEnumerateInstanceLayerProperties")?;
+            let found = available
+                .iter()
+                .any(|l| l.layer_name_as_c_str() == Ok(VALIDATION_LAYER));
+            if !found {
+                return Err(Error::Unsupported(
+                    "validation requested but VK_LAYER_KHRONOS_validation is not installed \
+                     (Debian: vulkan-validationlayers)"
+                        .into(),
+                ));
+            }
+            layers.push(VALIDATION_LAYER.as_ptr());
+            // SAFETY: plain query of the layer's instance extensions.
+            let layer_exts =
+                unsafe { entry.enumerate_instance_extension_properties(Some(VALIDATION_LAYER)) }
+                    .vk("vkEnumerateInstanceExtensionProperties")?;
+            sync_validation = layer_exts
+                .iter()
+                .any(|e| e.extension_name_as_c_str() == Ok(VALIDATION_FEATURES_EXT));
+            if sync_validation {
+                extensions.push(VALIDATION_FEATURES_EXT.as_ptr());
+            }
+            extensions.push(ash::ext::debug_utils::NAME.as_ptr());
+        }
+
+        let app_info = vk::ApplicationInfo::default()
+            .application_name(c"mixvol")
+            .engine_name(c"mixvol")
+            .api_version(vk::API_VERSION_1_3);
+        let enabled_validation = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
+        let mut validation_features =
+            vk::ValidationFeaturesEXT::default().enabled_validation_features(&enabled_validation);
+        let mut messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+            .message_severity(
+                vk::DebugUtilsMessageSeverityFlagsEXT::ERROR
+                    | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
+                    | vk::DebugUtilsMessageSeverityFlagsEXT::INFO
+                    | vk::DebugUtilsMessageSeverityFlagsEXT::VERBOSE,
+            )
+            .message_type(
+                vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+                    | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                    | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+            )
+            .pfn_user_callback(Some(record_debug_message))
+            .user_data(log_user_data as *mut c_void);
+        let mut instance_info = vk::InstanceCreateInfo::default()
+            .application_info(&app_info)
+            .enabled_layer_names(&layers)
+            .enabled_extension_names(&extensions);
+        if desc.validation {
+            // Chained so that messages from vkCreateInstance/vkDestroyInstance are recorded too.
+            instance_info = instance_info.push_next(&mut messenger_info);
+            if sync_validation {
+                instance_info = instance_info.push_next(&mut validation_features);
+            }
+        }
+        // SAFETY: all pointers in the create info refer to locals that outlive the call.
+        let instance =
+            unsafe { entry.create_instance(&instance_info, None) }.vk("vkCreateInstance")?;
+
+        // From here on, clean up the instance on error.
+        let result = (|| {
+            let debug_utils = if desc.validation {
+                let loader = ash::ext::debug_utils::Instance::new(&entry, &instance);
+                // SAFETY: the create info is valid and its user data outlives the messenger.
+                let messenger =
+                    unsafe { loader.create_debug_utils_messenger(&messenger_info, None) }
+                        .vk("vkCreateDebugUtilsMessengerEXT")?;
+                Some((loader, messenger))
+            } else {
+                None
+            };
+            let picked = Self::pick_device(&instance, desc);
+            let (physical_device, queue_family) = match picked {
+                Ok(p) => p,
+                Err(e) => {
+                    if let Some((loader, messenger)) = &debug_utils {
+                        // SAFETY: the messenger was created above from this loader.
+                        unsafe { loader.destroy_debug_utils_messenger(*messenger, None) };
+                    }
+                    return Err(e);
+                }
+            };
+            Ok((debug_utils, physical_device, queue_family))
+        })();
+        let (debug_utils, physical_device, queue_family) = match result {
+            Ok(v) => v,
+            Err(e) => {
+                // SAFETY: nothing else was created from the instance.
+                unsafe { instance.destroy_instance(None) };
+                return Err(e);
+            }
+        };
+
+        // SAFETY: the physical device was enumerated from this instance.
+        let properties = unsafe { instance.get_physical_device_properties(physical_device) };
+        // SAFETY: as above.
+        let families =
+            unsafe { instance.get_physical_device_queue_family_properties(physical_device) };
+        let name = properties
+            .device_name_as_c_str()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+
+        let mut features13 = vk::PhysicalDeviceVulkan13Features::default()
+            .dynamic_rendering(true)
+            .synchronization2(true)
+            .maintenance4(true);
+        let priorities = [1.0f32];
+        let queue_infos = [vk::DeviceQueueCreateInfo::default()
+            .queue_family_index(queue_family)
+            .queue_priorities(&priorities)];
+        let device_info = vk::DeviceCreateInfo::default()
+            .queue_create_infos(&queue_infos)
+            .push_next(&mut features13);
+        // SAFETY: required features were checked in pick_device; pointers outlive the call.
+        let device = match unsafe { instance.create_device(physical_device, &device_info, None) } {
+            Ok(d) => d,
+            Err(result) => {
+                // SAFETY: tear down what exists, in reverse order.
+                unsafe {
+                    if let Some((loader, messenger)) = &debug_utils {
+                        loader.destroy_debug_utils_messenger(*messenger, None);
+                    }
+                    instance.destroy_instance(None);
+                }
+                return Err(Error::Vulkan {
+                    call: "vkCreateDevice",
+                    result,
+                });
+            }
+        };
+        // SAFETY: queue 0 of the family we created.
+        let queue = unsafe { device.get_device_queue(queue_family, 0) };
+        let allocator = Allocator::new(&AllocatorCreateDesc {
+            instance: instance.clone(),
+            device: device.clone(),
+            physical_device,
+            debug_settings: Default::default(),
+            buffer_device_address: false,
+            allocation_sizes: Default::default(),
+        });
+        let allocator = match allocator {
+            Ok(a) => a,
+            Err(source) => {
+                // SAFETY: tear down what exists, in reverse order.
+                unsafe {
+                    device.destroy_device(None);
+                    if let Some((loader, messenger)) = &debug_utils {
+                        loader.destroy_debug_utils_messenger(*messenger, None);
+                    }
+                    instance.destroy_instance(None);
+                }
+                return Err(Error::Allocation {
+                    name: "allocator".into(),
+                    source,
+                });
+            }
+        };
+        let info = DeviceInfo {
+            name,
+            device_type: properties.device_type,
+            limits: properties.limits,
+            timestamp_period_ns: properties.limits.timestamp_period,
+            timestamps_supported: families[queue_family as usize].timestamp_valid_bits > 0,
+            validation: desc.validation,
+            synchronization_validation: desc.validation && sync_validation,
+        };
+        log::info!(
+            "device: {} ({:?}), validation {}, sync validation {}",
+            info.name,
+            info.device_type,
+            info.validation,
+            info.synchronization_validation
+        );
+        Ok(DeviceShared {
+            allocator: ManuallyDrop::new(Mutex::new(allocator)),
+            device,
+            physical_device,
+            queue,
+            queue_lock: Mutex::new(()),
+            queue_family,
+            info,
+            instance,
+            debug_utils,
+            log,
+            log_user_data,
+            _entry: entry,
+        })
+    }
+
+    /// Chooses the physical device and a graphics+compute queue family; checks 1.3 features.
+    fn pick_device(
+        instance: &ash::Instance,
+        desc: &ContextDesc,
+    ) -> Result<(vk::PhysicalDevice, u32)> {
+        let wanted = desc
+            .device_name
+            .clone()
+            .or_else(|| std::env::var("MIXVOL_DEVICE").ok())
+            .map(|s| s.to_lowercase());
+        // SAFETY: plain enumeration on a live instance.
+        let devices = unsafe { instance.enumerate_physical_devices() }
+            .vk("vkEnumeratePhysicalDevices")?;
+        let mut candidates = Vec::new();
+        let mut rejected = Vec::new();
+        for pd in devices {
+            // SAFETY: `pd` was enumerated from `instance`.
+            let props = unsafe { instance.get_physical_device_properties(pd) };
+            let name = props
+                .device_name_as_c_str()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            if let Some(w) = &wanted {
+                if !name.to_lowercase().contains(w) {
+                    continue;
+                }
+            }
+            if props.api_version < vk::API_VERSION_1_3 {
+                rejected.push(format!("{name}: Vulkan 1.3 not supported"));
+                continue;
+            }
+            let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
+            let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f13);
+            // SAFETY: `pd` is valid and the chain is well formed.
+            unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+            let missing: Vec<&str> = [
+                (f13.dynamic_rendering, "dynamicRendering"),
+                (f13.synchronization2, "synchronization2"),
+                (f13.maintenance4, "maintenance4"),
+            ]
+            .iter()
+            .filter(|(have, _)| *have == vk::FALSE)
+            .map(|(_, n)| *n)
+            .collect();
+            if !missing.is_empty() {
+                rejected.push(format!("{name}: missing features {missing:?}"));
+                continue;
+            }
+            // SAFETY: `pd` is valid.
+            let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
+            let family = families.iter().position(|f| {
+                f.queue_flags
+                    .contains(vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE)
+            });
+            match family {
+                Some(family) => {
+                    candidates.push((device_type_rank(props.device_type), pd, family as u32))
+                }
+                None => rejected.push(format!("{name}: no graphics+compute queue")),
+            }
+        }
+        candidates.sort_by_key(|c| c.0);
+        candidates
+            .first()
+            .map(|c| (c.1, c.2))
+            .ok_or_else(|| {
+                Error::Unsupported(format!(
+                    "no usable Vulkan device{}; rejected: [{}]",
+                    wanted.map(|w| format!(" matching '{w}'")).unwrap_or_default(),
+                    rejected.join("; ")
+                ))
+            })
+    }
+
+    /// What the device is and what it can do.
+    pub fn info(&self) -> &DeviceInfo {
+        &self.shared.info
+    }
+
+    /// The shared message log; keep a clone to inspect messages after the context is dropped.
+    pub fn message_log(&self) -> Arc<MessageLog> {
+        self.shared.log.clone()
+    }
+
+    /// Number of live gpu-allocator allocations (0 once every resource is dropped).
+    pub fn live_allocation_count(&self) -> usize {
+        self.shared.allocator().generate_report().allocations.len()
+    }
+
+    /// The ash device, for hosts that record into their own command buffers.
+    pub fn device(&self) -> &ash::Device {
+        &self.shared.device
+    }
+}

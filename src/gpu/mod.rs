@@ -1,0 +1,18 @@
+//! The ash backend. Raw Vulkan calls live here only, behind small owning types:
+//! [`GpuContext`] (instance, device, allocator, validation messenger), buffers and images
+//! (`memory`), shader compilation (`shaders`), command recording (`commands`) and the ray-cast
+//! pipeline (`raycast`).
+
+mod commands;
+mod context;
+mod memory;
+mod raycast;
+pub mod shaders;
+
+pub use context::{ContextDesc, DebugMessage, DeviceInfo, GpuContext, MessageLog, Severity};
+pub use shaders::ShaderStage;
+
+pub(crate) use commands::{image_barrier, memory_barrier, Access, Submitter, TimestampPool};
+pub(crate) use context::DeviceShared;
+pub(crate) use memory::{Buffer, Image, ImageDesc, COLOR_LAYERS};
+pub(crate) use raycast::RaycastPipeline;

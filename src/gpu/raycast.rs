@@ -1,0 +1,257 @@
+//! The ray-cast graphics pipeline: a full-screen triangle whose fragment shader casts one ray per
+//! pixel (dynamic rendering, no render pass objects).
+
+use super::context::DeviceShared;
+use super::shaders::{compile, ShaderStage};
+use crate::error::{Result, VkResultExt};
+use crate::optics::TF_SIZE;
+use crate::scene::RAY_DIR_EPSILON;
+use ash::vk;
+use std::sync::Arc;
+
+/// Macros every ray-cast shader is compiled with: Rust constants defined once.
+fn shader_defines() -> Vec<(&'static str, String)> {
+    vec![
+        ("TF_SIZE", TF_SIZE.to_string()),
+        ("RAY_DIR_EPSILON", format!("{RAY_DIR_EPSILON:e}")),
+    ]
+}
+
+/// Pipeline, layouts, sampler and the one descriptor set the ray-caster binds.
+pub(crate) struct RaycastPipeline {
+    pub(crate) pipeline: vk::Pipeline,
+    pub(crate) layout: vk::PipelineLayout,
+    set_layout: vk::DescriptorSetLayout,
+    pub(crate) sampler: vk::Sampler,
+    pool: vk::DescriptorPool,
+    pub(crate) set: vk::DescriptorSet,
+    shared: Arc<DeviceShared>,
+}
+
+impl RaycastPipeline {
+    pub(crate) fn new(shared: &Arc<DeviceShared>, color_format: vk::Format) -> Result<Self> {
+        let defines = shader_defines();
+        let vert = compile("raycast.vert", ShaderStage::Vertex, &defines)?;
+        let frag = compile("raycast.frag", ShaderStage::Fragment, &defines)?;
+        let device = &shared.device;
+        let mut this = Self {
+            pipeline: vk::Pipeline::null(),
+            layout: vk::PipelineLayout::null(),
+            set_layout: vk::DescriptorSetLayout::null(),
+            sampler: vk::Sampler::null(),
+            pool: vk::DescriptorPool::null(),
+            set: vk::DescriptorSet::null(),
+            shared: shared.clone(),
+        };
+        let bindings = [
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(0)
+                .descriptor_type(vk::DescriptorType::UNIFORM_BUFFER)
+                .descriptor_count(1)
+                .stage_flags(vk::ShaderStageFlags::FRAGMENT),
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(1)
+                .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
+                .descriptor_count(1)
+                .stage_flags(vk::ShaderStageFlags::FRAGMENT),
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(2)
+                .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
+                .descriptor_count(1)
+                .stage_flags(vk::ShaderStageFlags::FRAGMENT),
+        ];
+        // SAFETY (this block and the creations below): valid create infos on a live device; every
+        // handle is stored in `this` at once so Drop releases it on any later error.
+        unsafe {
+            this.set_layout = device
+                .create_descriptor_set_layout(
+                    &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
+                    None,
+                )
+                .vk("vkCreateDescriptorSetLayout")?;
+            let set_layouts = [this.set_layout];
+            this.layout = device
+                .create_pipeline_layout(
+                    &vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts),
+                    None,
+                )
+                .vk("vkCreatePipelineLayout")?;
+            let sampler_info = vk::SamplerCreateInfo::default()
+                .mag_filter(vk::Filter::LINEAR)
+                .min_filter(vk::Filter::LINEAR)
+                .mipmap_mode(vk::SamplerMipmapMode::NEAREST)
+                .address_mode_u(vk::SamplerAddressMode::CLAMP_TO_EDGE)
+                .address_mode_v(vk::SamplerAddressMode::CLAMP_TO_EDGE)
+                .address_mode_w(vk::SamplerAddressMode::CLAMP_TO_EDGE)
+                .max_lod(0.0);
+            this.sampler = device
+                .create_sampler(&sampler_info, None)
+                .vk("vkCreateSampler")?;
+            let pool_sizes = [
+                vk::DescriptorPoolSize {
+                    ty: vk::DescriptorType::UNIFORM_BUFFER,
+                    descriptor_count: 1,
+                },
+                vk::DescriptorPoolSize {
+                    ty: vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+                    descriptor_count: 2,
+                },
+            ];
+            this.pool = device
+                .create_descriptor_pool(
+                    &vk::DescriptorPoolCreateInfo::default()
+                        .max_sets(1)
+                        .pool_sizes(&pool_sizes),
+                    None,
+                )
+                .vk("vkCreateDescriptorPool")?;
+            this.set = device
+                .allocate_descriptor_sets(
+                    &vk::DescriptorSetAllocateInfo::default()
+                        .descriptor_pool(this.pool)
+                        .set_layouts(&set_layouts),
+                )
+                .vk("vkAllocateDescriptorSets")?[0];
+            this.pipeline = Self::create_pipeline(device, this.layout, color_format, &vert, &frag)?;
+        }
+        Ok(this)
+    }
+
+    /// # Safety
+    /// `layout` must be a live pipeline layout of `device`.
+    unsafe fn create_pipeline(
+        device: &ash::Device,
+        layout: vk::PipelineLayout,
+        color_format: vk::Format,
+        vert: &[u32],
+        frag: &[u32],
+    ) -> Result<vk::Pipeline> {
+        // SAFETY: SPIR-V words from shaderc; modules are destroyed before returning.
+        unsafe {
+            let vert_module = device
+                .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(vert), None)
+                .vk("vkCreateShaderModule")?;
+            let frag_module = match device
+                .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(frag), None)
+            {
+                Ok(m) => m,
+                Err(result) => {
+                    device.destroy_shader_module(vert_module, None);
+                    return Err(crate::Error::Vulkan {
+                        call: "vkCreateShaderModule",
+                        result,
+                    });
+                }
+            };
+            let stages = [
+                vk::PipelineShaderStageCreateInfo::default()
+                    .stage(vk::ShaderStageFlags::VERTEX)
+                    .module(vert_module)
+                    .name(c"main"),
+                vk::PipelineShaderStageCreateInfo::default()
+                    .stage(vk::ShaderStageFlags::FRAGMENT)
+                    .module(frag_module)
+                    .name(c"main"),
+            ];
+            let vertex_input = vk::PipelineVertexInputStateCreateInfo::default();
+            let input_assembly = vk::PipelineInputAssemblyStateCreateInfo::default()
+                .topology(vk::PrimitiveTopology::TRIANGLE_LIST);
+            let viewport = vk::PipelineViewportStateCreateInfo::default()
+                .viewport_count(1)
+                .scissor_count(1);
+            let raster = vk::PipelineRasterizationStateCreateInfo::default()
+                .polygon_mode(vk::PolygonMode::FILL)
+                .cull_mode(vk::CullModeFlags::NONE)
+                .line_width(1.0);
+            let multisample = vk::PipelineMultisampleStateCreateInfo::default()
+                .rasterization_samples(vk::SampleCountFlags::TYPE_1);
+            let attachments = [vk::PipelineColorBlendAttachmentState::default()
+                .color_write_mask(vk::ColorComponentFlags::RGBA)];
+            let blend = vk::PipelineColorBlendStateCreateInfo::default().attachments(&attachments);
+            let dynamic_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
+            let dynamic = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dynamic_states);
+            let formats = [color_format];
+            let mut rendering =
+                vk::PipelineRenderingCreateInfo::default().color_attachment_formats(&formats);
+            let info = vk::GraphicsPipelineCreateInfo::default()
+                .stages(&stages)
+                .vertex_input_state(&vertex_input)
+                .input_assembly_state(&input_assembly)
+                .viewport_state(&viewport)
+                .rasterization_state(&raster)
+                .multisample_state(&multisample)
+                .color_blend_state(&blend)
+                .dynamic_state(&dynamic)
+                .layout(layout)
+                .push_next(&mut rendering);
+            let result =
+                device.create_graphics_pipelines(vk::PipelineCache::null(), &[info], None);
+            device.destroy_shader_module(vert_module, None);
+            device.destroy_shader_module(frag_module, None);
+            result
+                .map(|p| p[0])
+                .map_err(|(_, result)| crate::Error::Vulkan {
+                    call: "vkCreateGraphicsPipelines",
+                    result,
+                })
+        }
+    }
+
+    /// Points the descriptor set at the parameter buffer, the volume and the transfer function.
+    /// The caller guarantees the set is not in use by pending GPU work.
+    pub(crate) fn write_descriptors(
+        &self,
+        params: vk::Buffer,
+        volume_view: vk::ImageView,
+        tf_view: vk::ImageView,
+    ) {
+        let buffer_info = [vk::DescriptorBufferInfo {
+            buffer: params,
+            offset: 0,
+            range: vk::WHOLE_SIZE,
+        }];
+        let image_info = |view| {
+            [vk::DescriptorImageInfo {
+                sampler: self.sampler,
+                image_view: view,
+                image_layout: vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
+            }]
+        };
+        let volume_info = image_info(volume_view);
+        let tf_info = image_info(tf_view);
+        let writes = [
+            vk::WriteDescriptorSet::default()
+                .dst_set(self.set)
+                .dst_binding(0)
+                .descriptor_type(vk::DescriptorType::UNIFORM_BUFFER)
+                .buffer_info(&buffer_info),
+            vk::WriteDescriptorSet::default()
+                .dst_set(self.set)
+                .dst_binding(1)
+                .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
+                .image_info(&volume_info),
+            vk::WriteDescriptorSet::default()
+                .dst_set(self.set)
+                .dst_binding(2)
+                .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
+                .image_info(&tf_info),
+        ];
+        // SAFETY: all handles are live; the caller guarantees no pending GPU use of the set.
+        unsafe { self.shared.device.update_descriptor_sets(&writes, &[]) };
+    }
+}
+
+impl Drop for RaycastPipeline {
+    fn drop(&mut self) {
+        let device = &self.shared.device;
+        // SAFETY: owners wait idle before dropping; destruction in reverse creation order; null
+        // handles (half-built pipeline) are ignored.
+        unsafe {
+            device.destroy_pipeline(self.pipeline, None);
+            device.destroy_descriptor_pool(self.pool, None);
+            device.destroy_sampler(self.sampler, None);
+            device.destroy_pipeline_layout(self.layout, None);
+            device.destroy_descriptor_set_layout(self.set_layout, None);
+        }
+    }
+}

@@ -1,0 +1,206 @@
+//! Transfer functions, opacity correction and compositing. `glsl/include/optics.glsl` mirrors the
+//! functions here one by one.
+
+use crate::error::{Error, Result};
+use glam::{Vec3, Vec4};
+
+/// Entries in a transfer-function table (and in the GPU 1D texture). Passed to GLSL as `TF_SIZE`.
+pub const TF_SIZE: usize = 256;
+
+/// A 1D RGBA transfer function: [`TF_SIZE`] entries spanning TF positions 0..=1, linearly
+/// interpolated between entry centres. RGB is emitted colour (not premultiplied); A is the
+/// opacity of one reference length d0 (one voxel).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TransferFunction {
+    entries: Vec<Vec4>,
+}
+
+/// Named transfer functions for the CLI and tests.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum TfPreset {
+    /// Grey ramp: colour and opacity grow linearly with the value (opacity up to 0.25).
+    Grey,
+    /// A warm colour map with opacity rising above 0.3, suited to Marschner-Lobb.
+    Fire,
+    /// Colour bands (blue, green, red) with moderate opacity: makes structure visible.
+    Bands,
+    /// Constant white at opacity 0.1 everywhere, values included: for analytic tests.
+    ConstantWhite,
+}
+
+impl TfPreset {
+    /// Parses a preset name (`grey`, `fire`, `bands`, `constant`).
+    pub fn parse(name: &str) -> Option<Self> {
+        match name.to_ascii_lowercase().as_str() {
+            "grey" | "gray" => Some(TfPreset::Grey),
+            "fire" => Some(TfPreset::Fire),
+            "bands" => Some(TfPreset::Bands),
+            "constant" | "constant-white" => Some(TfPreset::ConstantWhite),
+            _ => None,
+        }
+    }
+
+    /// All preset names, for help texts.
+    pub const NAMES: &'static str = "grey, fire, bands, constant";
+}
+
+impl TransferFunction {
+    /// Builds a table from exactly [`TF_SIZE`] entries; components must lie in [0, 1].
+    pub fn from_entries(entries: Vec<Vec4>) -> Result<Self> {
+        if entries.len() != TF_SIZE {
+            return Err(Error::InvalidInput(format!(
+                "transfer function needs {TF_SIZE} entries, got {}",
+                entries.len()
+            )));
+        }
+        if let Some(i) = entries
+            .iter()
+            .position(|e| !(e.is_finite() && e.min_element() >= 0.0 && e.max_element() <= 1.0))
+        {
+            return Err(Error::InvalidInput(format!(
+                "transfer function entry {i} = {:?} is outside [0, 1]",
+                entries[i]
+            )));
+        }
+        Ok(Self { entries })
+    }
+
+    /// Piecewise-linear table through control points `(position, rgba)`, positions ascending in
+    /// [0, 1]; constant beyond the first and last point.
+    pub fn from_control_points(points: &[(f32, Vec4)]) -> Result<Self> {
+        if points.is_empty() {
+            return Err(Error::InvalidInput("transfer function without control points".into()));
+        }
+        if points.windows(2).any(|w| !(w[0].0 <= w[1].0)) {
+            return Err(Error::InvalidInput(
+                "transfer function control points must be in ascending order".into(),
+            ));
+        }
+        let entries = (0..TF_SIZE)
+            .map(|i| {
+                let s = i as f32 / (TF_SIZE - 1) as f32;
+                let upper = points.iter().position(|p| p.0 >= s);
+                match upper {
+                    None => points[points.len() - 1].1,
+                    Some(0) => points[0].1,
+                    Some(j) => {
+                        let (a, b) = (points[j - 1], points[j]);
+                        let w = if b.0 > a.0 { (s - a.0) / (b.0 - a.0) } else { 1.0 };
+                        a.1.lerp(b.1, w)
+                    }
+                }
+            })
+            .collect();
+        Self::from_entries(entries)
+    }
+
+    /// A named preset.
+    pub fn preset(preset: TfPreset) -> Self {
+        let points: &[(f32, Vec4)] = match preset {
+            TfPreset::Grey => &[(0.0, Vec4::ZERO), (1.0, Vec4::new(1.0, 1.0, 1.0, 0.25))],
+            TfPreset::Fire => &[
+                (0.0, Vec4::ZERO),
+                (0.3, Vec4::new(0.4, 0.0, 0.0, 0.0)),
+                (0.55, Vec4::new(0.9, 0.35, 0.05, 0.08)),
+                (0.8, Vec4::new(1.0, 0.8, 0.2, 0.3)),
+                (1.0, Vec4::new(1.0, 1.0, 0.9, 0.6)),
+            ],
+            TfPreset::Bands => &[
+                (0.0, Vec4::ZERO),
+                (0.2, Vec4::new(0.1, 0.2, 0.9, 0.0)),
+                (0.3, Vec4::new(0.1, 0.3, 1.0, 0.1)),
+                (0.5, Vec4::new(0.1, 0.9, 0.3, 0.05)),
+                (0.7, Vec4::new(0.9, 0.9, 0.1, 0.2)),
+                (1.0, Vec4::new(1.0, 0.1, 0.1, 0.5)),
+            ],
+            TfPreset::ConstantWhite => &[(0.0, Vec4::new(1.0, 1.0, 1.0, 0.1))],
+        };
+        Self::from_control_points(points).expect("presets are valid")
+    }
+
+    /// The table entries.
+    pub fn entries(&self) -> &[Vec4] {
+        &self.entries
+    }
+
+    /// Linear lookup at TF position `s` (clamped to [0, 1]) between entry centres, as the GPU's
+    /// linearly filtered 1D texture does.
+    pub fn lookup(&self, s: f32) -> Vec4 {
+        let x = s.clamp(0.0, 1.0) * (TF_SIZE - 1) as f32;
+        let i0 = (x.floor() as usize).min(TF_SIZE - 1);
+        let i1 = (i0 + 1).min(TF_SIZE - 1);
+        let f = x - i0 as f32;
+        self.entries[i0].lerp(self.entries[i1], f)
+    }
+}
+
+/// Maps a normalised sample value through the window `(lo, 1 / (hi - lo))` onto the transfer
+/// function. Mirrors `classify` in optics.glsl.
+pub fn classify(tf: &TransferFunction, window_lo: f32, window_inv_range: f32, value: f32) -> Vec4 {
+    tf.lookup(((value - window_lo) * window_inv_range).clamp(0.0, 1.0))
+}
+
+/// Opacity of a segment `ratio` reference lengths long from the opacity `alpha` of one reference
+/// length: `1 - (1 - alpha)^ratio`, exact at alpha = 0 and 1. Mirrors `correct_opacity`.
+pub fn correct_opacity(alpha: f32, ratio: f32) -> f32 {
+    if alpha >= 1.0 {
+        return 1.0;
+    }
+    if alpha <= 0.0 {
+        return 0.0;
+    }
+    1.0 - (ratio * (1.0 - alpha).log2()).exp2()
+}
+
+/// Front-to-back compositing of emission `rgb` with opacity `alpha` behind the premultiplied
+/// accumulator `acc`. Mirrors `composite`.
+pub fn composite(acc: Vec4, rgb: Vec3, alpha: f32) -> Vec4 {
+    let weight = (1.0 - acc.w) * alpha;
+    (acc.truncate() + weight * rgb).extend(acc.w + weight)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn opacity_correction_composes_over_segments() {
+        // Two half segments must give the opacity of one whole segment.
+        for &a in &[0.01f32, 0.3, 0.9, 0.999] {
+            let half = correct_opacity(a, 0.5);
+            let two_halves = 1.0 - (1.0 - half) * (1.0 - half);
+            assert!((two_halves - a).abs() < 1e-5, "a={a}: {two_halves}");
+        }
+        assert_eq!(correct_opacity(1.0, 0.001), 1.0);
+        assert_eq!(correct_opacity(0.0, 1000.0), 0.0);
+        assert!((correct_opacity(0.5, 1.0) - 0.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn compositing_is_front_to_back_under() {
+        let acc = composite(Vec4::ZERO, Vec3::new(1.0, 0.0, 0.0), 0.5);
+        let acc = composite(acc, Vec3::new(0.0, 1.0, 0.0), 0.5);
+        assert!((acc - Vec4::new(0.5, 0.25, 0.0, 0.75)).abs().max_element() < 1e-6);
+    }
+
+    #[test]
+    fn lookup_interpolates_between_entry_centres() {
+        let tf = TransferFunction::preset(TfPreset::Grey);
+        // Entries are a linear ramp, so lookup is linear in s.
+        for &s in &[0.0f32, 0.1, 0.5, 0.77, 1.0] {
+            let v = tf.lookup(s);
+            assert!((v.w - 0.25 * s).abs() < 1e-5, "s={s}: {v:?}");
+        }
+        assert_eq!(tf.lookup(-3.0), tf.lookup(0.0));
+        assert_eq!(tf.lookup(7.0), tf.lookup(1.0));
+    }
+
+    #[test]
+    fn bad_tables_are_rejected() {
+        assert!(TransferFunction::from_entries(vec![Vec4::ZERO; 3]).is_err());
+        let mut e = vec![Vec4::ZERO; TF_SIZE];
+        e[7] = Vec4::splat(1.5);
+        assert!(TransferFunction::from_entries(e).is_err());
+        assert!(TransferFunction::from_control_points(&[(0.5, Vec4::ZERO), (0.1, Vec4::ZERO)]).is_err());
+    }
+}

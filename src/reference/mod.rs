@@ -1,0 +1,55 @@
+//! The CPU reference ray-caster: the oracle the GPU output is checked against. Plain Rust that
+//! mirrors the GLSL function by function (`camera`, `sampling`, `crate::optics`, [`cast_ray`]).
+
+mod camera;
+mod sampling;
+
+pub use camera::{generate_ray, intersect_box, safe_inverse, Ray};
+pub use sampling::sample_volume;
+
+use crate::optics::{classify, composite, correct_opacity, TransferFunction};
+use crate::scene::RaycastParams;
+use crate::volume::Volume;
+use glam::{Vec2, Vec4};
+
+/// Casts one ray. Mirrors `cast_ray` in `glsl/raycast.frag` step by step; returns premultiplied
+/// RGB and opacity.
+pub fn cast_ray(volume: &Volume, tf: &TransferFunction, p: &RaycastParams, ray: &Ray) -> Vec4 {
+    let (enter, exit) = intersect_box(ray, p.box_min.truncate(), p.box_max.truncate());
+    let t0 = enter.max(p.forward.w);
+    let t1 = exit.min(p.right.w);
+    let mut acc = Vec4::ZERO;
+    if !(t0 < t1) {
+        return acc;
+    }
+    let step_len = p.box_min.w;
+    let inv_d0 = 1.0 / p.box_max.w;
+    let box_size = p.box_max.truncate() - p.box_min.truncate();
+    let steps = ((t1 - t0) / step_len).ceil().min(p.tf_window.w) as i32;
+    for i in 0..steps {
+        let t_start = t0 + i as f32 * step_len;
+        let len = step_len.min(t1 - t_start).max(0.0);
+        let pos = ray.origin + ray.dir * (t_start + 0.5 * len);
+        let value = sample_volume(volume, (pos - p.box_min.truncate()) / box_size);
+        let rgba = classify(tf, p.tf_window.x, p.tf_window.y, value);
+        let alpha = correct_opacity(rgba.w, len * inv_d0);
+        acc = composite(acc, rgba.truncate(), alpha);
+        if acc.w >= p.tf_window.z {
+            break;
+        }
+    }
+    acc
+}
+
+/// Renders a whole image, row-major from the top-left pixel, premultiplied RGBA per pixel.
+pub fn render(volume: &Volume, tf: &TransferFunction, p: &RaycastParams) -> Vec<Vec4> {
+    let (w, h) = (p.viewport.x as u32, p.viewport.y as u32);
+    let mut out = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let ray = generate_ray(p, Vec2::new(x as f32 + 0.5, y as f32 + 0.5));
+            out.push(cast_ray(volume, tf, p, &ray));
+        }
+    }
+    out
+}

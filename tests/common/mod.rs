@@ -1,0 +1,90 @@
+//! Shared helpers for the GPU tests: a validated context, a finish step that fails on any
+//! validation warning/error or leaked allocation, and image comparison with diagnostics.
+#![allow(dead_code)] // reason: each test binary uses a different subset of these helpers.
+
+use glam::{Vec3, Vec4};
+use mixvol::gpu::{ContextDesc, GpuContext, MessageLog};
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// A context with validation on. Fails (never skips) when Vulkan or the layer is missing: the
+/// README's test command installs both.
+pub fn validated_context() -> GpuContext {
+    let ctx = GpuContext::new(&ContextDesc {
+        validation: true,
+        device_name: None,
+    })
+    .expect("Vulkan with VK_LAYER_KHRONOS_validation (scripts/setup.sh installs it)");
+    assert!(ctx.info().validation);
+    ctx
+}
+
+/// Drops the context and asserts that validation reported nothing at warning level or above and
+/// that no allocation leaked (leaks are reported into the same log at shutdown).
+pub fn finish(ctx: GpuContext) {
+    let log: Arc<MessageLog> = ctx.message_log();
+    assert_eq!(ctx.live_allocation_count(), 0, "allocations still live at shutdown");
+    drop(ctx);
+    let problems = log.warnings_and_errors();
+    assert!(
+        problems.is_empty(),
+        "validation reported {} problem(s):\n{}",
+        problems.len(),
+        problems
+            .iter()
+            .map(|m| format!("{:?} {}: {}", m.severity, m.id_name, m.text))
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
+}
+
+/// Per-pixel comparison statistics.
+#[derive(Debug)]
+pub struct Diff {
+    pub max: f32,
+    pub mean: f32,
+    /// Fraction of channels whose difference exceeds the "large" threshold passed in.
+    pub large_fraction: f32,
+}
+
+pub fn diff(a: &[Vec4], b: &[Vec4], large: f32) -> Diff {
+    assert_eq!(a.len(), b.len());
+    let mut max = 0.0f32;
+    let mut sum = 0.0f64;
+    let mut large_count = 0usize;
+    for (x, y) in a.iter().zip(b) {
+        for d in (*x - *y).abs().to_array() {
+            max = max.max(d);
+            sum += d as f64;
+            if d > large {
+                large_count += 1;
+            }
+        }
+    }
+    let n = (a.len() * 4) as f64;
+    Diff {
+        max,
+        mean: (sum / n) as f32,
+        large_fraction: (large_count as f64 / n) as f32,
+    }
+}
+
+/// Writes actual / expected / difference PNGs under target/test-output/ for a failed comparison.
+pub fn write_failure_images(name: &str, width: u32, height: u32, actual: &[Vec4], expected: &[Vec4]) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("test-output");
+    std::fs::create_dir_all(&dir).unwrap();
+    let bg = Vec3::ZERO;
+    let save = |suffix: &str, px: &[Vec4]| {
+        let path = dir.join(format!("{name}-{suffix}.png"));
+        mixvol::renderer::save_png(&mixvol::renderer::pixels_to_rgba8(px, width, height, bg), &path).unwrap();
+    };
+    save("actual", actual);
+    save("expected", expected);
+    let d: Vec<Vec4> = actual
+        .iter()
+        .zip(expected)
+        .map(|(a, e)| ((*a - *e).abs() * 10.0).truncate().extend(1.0))
+        .collect();
+    save("difference-x10", &d);
+    dir
+}

@@ -587,3 +587,47 @@ impl GpuContext {
         &self.shared.device
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gpu_allocator::MemoryLocation;
+
+    #[test]
+    fn a_leaked_allocation_is_reported_at_shutdown() {
+        let ctx = GpuContext::new(&ContextDesc {
+            validation: true,
+            device_name: None,
+        })
+        .unwrap();
+        let log = ctx.message_log();
+        // Allocate straight from the allocator and never free it (an Allocation holds no
+        // reference to the context, so the context still shuts down).
+        let requirements = vk::MemoryRequirements {
+            size: 256,
+            alignment: 16,
+            memory_type_bits: u32::MAX,
+        };
+        let leaked = ctx
+            .shared
+            .allocator()
+            .allocate(&gpu_allocator::vulkan::AllocationCreateDesc {
+                name: "deliberately leaked",
+                requirements,
+                location: MemoryLocation::CpuToGpu,
+                linear: true,
+                allocation_scheme: gpu_allocator::vulkan::AllocationScheme::GpuAllocatorManaged,
+            })
+            .unwrap();
+        assert_eq!(ctx.live_allocation_count(), 1);
+        std::mem::forget(leaked);
+        drop(ctx);
+        let leaks: Vec<_> = log
+            .all()
+            .into_iter()
+            .filter(|m| m.id_name == "mixvol-leaked-allocation")
+            .collect();
+        assert_eq!(leaks.len(), 1, "{leaks:?}");
+        assert!(leaks[0].text.contains("deliberately leaked"));
+    }
+}

@@ -7,7 +7,11 @@
 //! - [`reference`]: the CPU reference ray-caster (the oracle for every GPU test).
 //! - [`gpu`]: the ash backend (context, memory, shaders, ray-cast pipeline).
 //! - [`renderer`]: the façade that turns a volume + scene into an image.
-#![warn(missing_docs, unsafe_op_in_unsafe_fn, clippy::undocumented_unsafe_blocks)]
+#![warn(
+    missing_docs,
+    unsafe_op_in_unsafe_fn,
+    clippy::undocumented_unsafe_blocks
+)]
 
 pub mod bricks;
 pub mod error;

@@ -59,7 +59,7 @@ struct RenderArgs {
     #[arg(long, value_enum, default_value_t = ProjectionArg::Perspective)]
     projection: ProjectionArg,
     /// Eye position x,y,z in world units (the volume box is centred at the origin, longest side 1).
-    #[arg(long, default_value = "1.2,0.9,1.6", value_parser = parse_vec3)]
+    #[arg(long, default_value = "1.0,1.3,1.4", value_parser = parse_vec3)]
     eye: Vec3,
     /// Point looked at, x,y,z.
     #[arg(long, default_value = "0,0,0", value_parser = parse_vec3)]
@@ -77,7 +77,7 @@ struct RenderArgs {
     #[arg(long, default_value_t = 512)]
     height: u32,
     /// Samples per voxel along each ray.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 2.0)]
     samples_per_voxel: f32,
     /// Opacity at which a ray stops early.
     #[arg(long, default_value_t = mixvol::scene::DEFAULT_EARLY_TERMINATION)]
@@ -125,7 +125,9 @@ fn parse_uvec3(s: &str) -> std::result::Result<UVec3, String> {
     }
     let mut out = [0u32; 3];
     for (o, p) in out.iter_mut().zip(&parts) {
-        *o = p.parse().map_err(|_| format!("'{p}' is not a non-negative integer"))?;
+        *o = p
+            .parse()
+            .map_err(|_| format!("'{p}' is not a non-negative integer"))?;
     }
     Ok(UVec3::from_array(out))
 }
@@ -173,10 +175,21 @@ fn render(args: &RenderArgs) -> Result<()> {
         "device: {} ({:?}){}",
         info.name,
         info.device_type,
-        if info.validation { ", validation on" } else { "" }
+        if info.validation {
+            ", validation on"
+        } else {
+            ""
+        }
     );
     let d = volume.dims();
-    println!("volume: {} {}x{}x{} {:?}", args.volume, d.x, d.y, d.z, volume.scalar_type());
+    println!(
+        "volume: {} {}x{}x{} {:?}",
+        args.volume,
+        d.x,
+        d.y,
+        d.z,
+        volume.scalar_type()
+    );
     let tf = TransferFunction::preset(args.tf);
     let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     renderer.set_volume(&volume)?;
@@ -214,7 +227,12 @@ fn render(args: &RenderArgs) -> Result<()> {
         })?;
     }
     frame.save_png(&args.output, args.background)?;
-    println!("wrote {} ({}x{})", args.output.display(), args.width, args.height);
+    println!(
+        "wrote {} ({}x{})",
+        args.output.display(),
+        args.width,
+        args.height
+    );
     let (lo, med, hi) = stats(&mut cpu);
     println!(
         "frame timing over {} frames (after 1 warm-up): cpu min {lo:.2} / median {med:.2} / max {hi:.2} ms",
@@ -225,7 +243,10 @@ fn render(args: &RenderArgs) -> Result<()> {
         println!("  gpu ray-cast pass: min {lo:.2} / median {med:.2} / max {hi:.2} ms");
     }
     if info.device_type == ash::vk::PhysicalDeviceType::CPU {
-        println!("  note: {} is a CPU implementation; these times are not GPU times", info.name);
+        println!(
+            "  note: {} is a CPU implementation; these times are not GPU times",
+            info.name
+        );
     }
     if args.compare {
         let params = renderer.params(&camera, &settings, args.width, args.height)?;
@@ -235,7 +256,11 @@ fn render(args: &RenderArgs) -> Result<()> {
             .zip(&frame.pixels)
             .map(|(a, b)| (*a - *b).abs().max_element())
             .fold(0.0f32, f32::max);
-        println!("cpu reference: max per-channel difference {:.4} ({:.1}/255)", max_diff, max_diff * 255.0);
+        println!(
+            "cpu reference: max per-channel difference {:.4} ({:.1}/255)",
+            max_diff,
+            max_diff * 255.0
+        );
     }
     drop(renderer);
     let log = ctx.message_log();
@@ -245,6 +270,12 @@ fn render(args: &RenderArgs) -> Result<()> {
         println!("validation: {} warnings/errors", problems.len());
         for m in &problems {
             eprintln!("  {:?} {}: {}", m.severity, m.id_name, m.text);
+        }
+        if !problems.is_empty() {
+            return Err(Error::InvalidInput(format!(
+                "validation reported {} problem(s)",
+                problems.len()
+            )));
         }
     }
     Ok(())

@@ -20,7 +20,7 @@ pub struct TransferFunction {
 pub enum TfPreset {
     /// Grey ramp: colour and opacity grow linearly with the value (opacity up to 0.25).
     Grey,
-    /// A warm colour map with opacity rising above 0.3, suited to Marschner-Lobb.
+    /// A warm, nearly opaque shell around the value 0.5 (the classic Marschner-Lobb iso-value).
     Fire,
     /// Colour bands (blue, green, red) with moderate opacity: makes structure visible.
     Bands,
@@ -69,9 +69,14 @@ impl TransferFunction {
     /// [0, 1]; constant beyond the first and last point.
     pub fn from_control_points(points: &[(f32, Vec4)]) -> Result<Self> {
         if points.is_empty() {
-            return Err(Error::InvalidInput("transfer function without control points".into()));
+            return Err(Error::InvalidInput(
+                "transfer function without control points".into(),
+            ));
         }
-        if points.windows(2).any(|w| !(w[0].0 <= w[1].0)) {
+        if points
+            .windows(2)
+            .any(|w| w[0].0.partial_cmp(&w[1].0).is_none_or(|o| o.is_gt()))
+        {
             return Err(Error::InvalidInput(
                 "transfer function control points must be in ascending order".into(),
             ));
@@ -85,7 +90,11 @@ impl TransferFunction {
                     Some(0) => points[0].1,
                     Some(j) => {
                         let (a, b) = (points[j - 1], points[j]);
-                        let w = if b.0 > a.0 { (s - a.0) / (b.0 - a.0) } else { 1.0 };
+                        let w = if b.0 > a.0 {
+                            (s - a.0) / (b.0 - a.0)
+                        } else {
+                            1.0
+                        };
                         a.1.lerp(b.1, w)
                     }
                 }
@@ -100,10 +109,12 @@ impl TransferFunction {
             TfPreset::Grey => &[(0.0, Vec4::ZERO), (1.0, Vec4::new(1.0, 1.0, 1.0, 0.25))],
             TfPreset::Fire => &[
                 (0.0, Vec4::ZERO),
-                (0.3, Vec4::new(0.4, 0.0, 0.0, 0.0)),
-                (0.55, Vec4::new(0.9, 0.35, 0.05, 0.08)),
-                (0.8, Vec4::new(1.0, 0.8, 0.2, 0.3)),
-                (1.0, Vec4::new(1.0, 1.0, 0.9, 0.6)),
+                (0.40, Vec4::new(0.5, 0.05, 0.0, 0.0)),
+                (0.46, Vec4::new(0.9, 0.3, 0.05, 0.08)),
+                (0.50, Vec4::new(1.0, 0.85, 0.4, 0.6)),
+                (0.54, Vec4::new(0.9, 0.3, 0.05, 0.08)),
+                (0.60, Vec4::new(0.5, 0.05, 0.0, 0.0)),
+                (1.0, Vec4::ZERO),
             ],
             TfPreset::Bands => &[
                 (0.0, Vec4::ZERO),
@@ -201,6 +212,8 @@ mod tests {
         let mut e = vec![Vec4::ZERO; TF_SIZE];
         e[7] = Vec4::splat(1.5);
         assert!(TransferFunction::from_entries(e).is_err());
-        assert!(TransferFunction::from_control_points(&[(0.5, Vec4::ZERO), (0.1, Vec4::ZERO)]).is_err());
+        assert!(
+            TransferFunction::from_control_points(&[(0.5, Vec4::ZERO), (0.1, Vec4::ZERO)]).is_err()
+        );
     }
 }

@@ -63,7 +63,12 @@ pub struct Frame {
 }
 
 /// Composites premultiplied pixels over an opaque `background` into 8-bit RGBA.
-pub fn pixels_to_rgba8(pixels: &[Vec4], width: u32, height: u32, background: Vec3) -> image::RgbaImage {
+pub fn pixels_to_rgba8(
+    pixels: &[Vec4],
+    width: u32,
+    height: u32,
+    background: Vec3,
+) -> image::RgbaImage {
     let to_u8 = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
     image::RgbaImage::from_fn(width, height, |x, y| {
         let p = pixels[(y * width + x) as usize];
@@ -136,7 +141,13 @@ fn upload_image(
         .image_subresource(COLOR_LAYERS)
         .image_extent(image.desc.extent);
     submitter.run(|device, cmd| {
-        image_barrier(device, cmd, image.raw, Access::Nothing, Access::TransferWrite);
+        image_barrier(
+            device,
+            cmd,
+            image.raw,
+            Access::Nothing,
+            Access::TransferWrite,
+        );
         // SAFETY: the staging buffer holds exactly the image's texels; the image is in
         // TRANSFER_DST_OPTIMAL after the barrier above.
         unsafe {
@@ -148,7 +159,13 @@ fn upload_image(
                 &[region],
             )
         };
-        image_barrier(device, cmd, image.raw, Access::TransferWrite, Access::FragmentSampled);
+        image_barrier(
+            device,
+            cmd,
+            image.raw,
+            Access::TransferWrite,
+            Access::FragmentSampled,
+        );
         Ok(())
     })
 }
@@ -180,7 +197,8 @@ impl Renderer {
         let tf_format = vk::Format::R32G32B32A32_SFLOAT;
         shared.require_format(
             tf_format,
-            vk::FormatFeatureFlags::SAMPLED_IMAGE_FILTER_LINEAR | vk::FormatFeatureFlags::TRANSFER_DST,
+            vk::FormatFeatureFlags::SAMPLED_IMAGE_FILTER_LINEAR
+                | vk::FormatFeatureFlags::TRANSFER_DST,
             "transfer function",
         )?;
         let mut submitter = Submitter::new(shared)?;
@@ -194,7 +212,12 @@ impl Renderer {
             ),
         )?;
         let default_tf = TransferFunction::preset(crate::optics::TfPreset::Grey);
-        upload_image(shared, &mut submitter, &tf_image, bytemuck::cast_slice(default_tf.entries()))?;
+        upload_image(
+            shared,
+            &mut submitter,
+            &tf_image,
+            bytemuck::cast_slice(default_tf.entries()),
+        )?;
         let params = Buffer::new(
             shared,
             "raycast params",
@@ -238,7 +261,12 @@ impl Renderer {
                 vk::ImageUsageFlags::SAMPLED | vk::ImageUsageFlags::TRANSFER_DST,
             ),
         )?;
-        upload_image(shared, &mut self.submitter, &image, volume.data().as_bytes())?;
+        upload_image(
+            shared,
+            &mut self.submitter,
+            &image,
+            volume.data().as_bytes(),
+        )?;
         self.volume = Some(GpuVolume {
             image,
             dims: volume.dims(),
@@ -374,8 +402,19 @@ impl Renderer {
             // the descriptor set was written above while no work was pending.
             unsafe {
                 device.cmd_reset_query_pool(cmd, queries.raw, 0, queries.count);
-                image_barrier(device, cmd, target.image.raw, Access::Nothing, Access::ColorAttachmentWrite);
-                device.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, queries.raw, 0);
+                image_barrier(
+                    device,
+                    cmd,
+                    target.image.raw,
+                    Access::Nothing,
+                    Access::ColorAttachmentWrite,
+                );
+                device.cmd_write_timestamp2(
+                    cmd,
+                    vk::PipelineStageFlags2::ALL_COMMANDS,
+                    queries.raw,
+                    0,
+                );
                 device.cmd_begin_rendering(cmd, &rendering);
                 device.cmd_set_viewport(cmd, 0, &[viewport]);
                 device.cmd_set_scissor(cmd, 0, &[area]);
@@ -390,8 +429,19 @@ impl Renderer {
                 );
                 device.cmd_draw(cmd, 3, 1, 0, 0);
                 device.cmd_end_rendering(cmd);
-                device.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, queries.raw, 1);
-                image_barrier(device, cmd, target.image.raw, Access::ColorAttachmentWrite, Access::TransferRead);
+                device.cmd_write_timestamp2(
+                    cmd,
+                    vk::PipelineStageFlags2::ALL_COMMANDS,
+                    queries.raw,
+                    1,
+                );
+                image_barrier(
+                    device,
+                    cmd,
+                    target.image.raw,
+                    Access::ColorAttachmentWrite,
+                    Access::TransferRead,
+                );
                 device.cmd_copy_image_to_buffer(
                     cmd,
                     target.image.raw,
@@ -406,7 +456,9 @@ impl Renderer {
         let info = self.ctx.info();
         let gpu_raycast_ms = if info.timestamps_supported {
             let ticks = self.timestamps.read()?;
-            Some(ticks[1].wrapping_sub(ticks[0]) as f64 * f64::from(info.timestamp_period_ns) * 1e-6)
+            Some(
+                ticks[1].wrapping_sub(ticks[0]) as f64 * f64::from(info.timestamp_period_ns) * 1e-6,
+            )
         } else {
             None
         };

@@ -144,7 +144,16 @@ impl RaycastParams {
         width: u32,
         height: u32,
     ) -> Result<Self> {
-        Self::for_dims(volume.dims(), volume.spacing(), volume.value_range(), volume.scalar_type() == crate::volume::ScalarType::F32, camera, settings, width, height)
+        Self::for_dims(
+            volume.dims(),
+            volume.spacing(),
+            volume.value_range(),
+            volume.scalar_type() == crate::volume::ScalarType::F32,
+            camera,
+            settings,
+            width,
+            height,
+        )
     }
 
     /// As [`RaycastParams::new`] from the volume's dims, spacing and value range.
@@ -210,11 +219,10 @@ impl RaycastParams {
                 camera.near, camera.far
             )));
         }
-        let (lo, hi) = settings.value_window.unwrap_or(if is_float {
-            value_range
-        } else {
-            (0.0, 1.0)
-        });
+        let (lo, hi) =
+            settings
+                .value_window
+                .unwrap_or(if is_float { value_range } else { (0.0, 1.0) });
         let inv_range = if hi > lo { 1.0 / (hi - lo) } else { 0.0 };
         let (box_min, box_max) = volume_box(dims, spacing);
         let voxel = ((box_max - box_min) / dims.as_vec3()).min_element();
@@ -226,7 +234,12 @@ impl RaycastParams {
             up: (up * half_h).extend(0.0),
             box_min: box_min.extend(step),
             box_max: box_max.extend(voxel),
-            tf_window: Vec4::new(lo, inv_range, settings.early_termination, settings.max_steps as f32),
+            tf_window: Vec4::new(
+                lo,
+                inv_range,
+                settings.early_termination,
+                settings.max_steps as f32,
+            ),
             viewport: Vec4::new(width as f32, height as f32, 0.0, 0.0),
         })
     }

@@ -30,7 +30,13 @@ const LARGE: f32 = 1.0 / 255.0;
 const LARGE_FRACTION_TOLERANCE: f32 = 0.005;
 const MAX_TOLERANCE: f32 = 6.0 / 255.0;
 
-fn compare(name: &str, volume: &Volume, tf: TfPreset, cameras: &[(&str, Camera)], settings: RenderSettings) {
+fn compare(
+    name: &str,
+    volume: &Volume,
+    tf: TfPreset,
+    cameras: &[(&str, Camera)],
+    settings: RenderSettings,
+) {
     let ctx = common::validated_context();
     {
         let tf = TransferFunction::preset(tf);
@@ -73,13 +79,22 @@ fn cameras() -> Vec<(&'static str, Camera)> {
         ..Camera::orthographic(Vec3::new(-2.0, 0.0, 0.0), Vec3::ZERO, 1.1)
     };
     vec![
-        ("perspective-outside", Camera::perspective(Vec3::new(1.1, 0.7, 1.5), Vec3::ZERO, 40.0)),
+        (
+            "perspective-outside",
+            Camera::perspective(Vec3::new(1.1, 0.7, 1.5), Vec3::ZERO, 40.0),
+        ),
         // Every ray exactly parallel to the z axis (two direction components are exactly zero).
         ("orthographic-axis-z", ortho_z),
         ("orthographic-axis-x", ortho_x),
-        ("orthographic-oblique", Camera::orthographic(Vec3::new(1.5, -1.0, 1.2), Vec3::ZERO, 1.6)),
+        (
+            "orthographic-oblique",
+            Camera::orthographic(Vec3::new(1.5, -1.0, 1.2), Vec3::ZERO, 1.6),
+        ),
         // Eye inside the volume box: rays start at the eye.
-        ("perspective-inside", Camera::perspective(Vec3::new(0.1, 0.05, 0.2), Vec3::new(0.0, 0.0, -1.0), 70.0)),
+        (
+            "perspective-inside",
+            Camera::perspective(Vec3::new(0.1, 0.05, 0.2), Vec3::new(0.0, 0.0, -1.0), 70.0),
+        ),
         // Near plane cutting the volume.
         (
             "perspective-near-clip",
@@ -93,24 +108,42 @@ fn cameras() -> Vec<(&'static str, Camera)> {
 
 #[test]
 fn marschner_lobb_u8_matches_reference_on_all_cameras() {
-    let volume = SyntheticField::MarschnerLobb.generate(UVec3::splat(48), ScalarType::U8).unwrap();
+    let volume = SyntheticField::MarschnerLobb
+        .generate(UVec3::splat(48), ScalarType::U8)
+        .unwrap();
     // The grey ramp keeps the TF slope small, so the 8-bit filtered values (see the module docs)
     // are not amplified; u16/f32 below use the steep `Bands` preset.
-    compare("ml-u8", &volume, TfPreset::Grey, &cameras(), RenderSettings::default());
+    compare(
+        "ml-u8",
+        &volume,
+        TfPreset::Grey,
+        &cameras(),
+        RenderSettings::default(),
+    );
 }
 
 #[test]
 fn marschner_lobb_u16_and_f32_match_reference() {
     let camera = cameras();
     for scalar in [ScalarType::U16, ScalarType::F32] {
-        let volume = SyntheticField::MarschnerLobb.generate(UVec3::new(40, 36, 44), scalar).unwrap();
-        compare(&format!("ml-{scalar:?}"), &volume, TfPreset::Bands, &camera, RenderSettings::default());
+        let volume = SyntheticField::MarschnerLobb
+            .generate(UVec3::new(40, 36, 44), scalar)
+            .unwrap();
+        compare(
+            &format!("ml-{scalar:?}"),
+            &volume,
+            TfPreset::Bands,
+            &camera,
+            RenderSettings::default(),
+        );
     }
 }
 
 #[test]
 fn sphere_with_fine_steps_and_early_termination_matches_reference() {
-    let volume = SyntheticField::Sphere.generate(UVec3::splat(40), ScalarType::U8).unwrap();
+    let volume = SyntheticField::Sphere
+        .generate(UVec3::splat(40), ScalarType::U8)
+        .unwrap();
     let settings = RenderSettings {
         samples_per_voxel: 2.5,
         early_termination: 0.9,
@@ -122,11 +155,24 @@ fn sphere_with_fine_steps_and_early_termination_matches_reference() {
 
 #[test]
 fn anisotropic_spacing_matches_reference() {
-    let ml = SyntheticField::MarschnerLobb.generate(UVec3::new(32, 32, 16), ScalarType::F32).unwrap();
+    let ml = SyntheticField::MarschnerLobb
+        .generate(UVec3::new(32, 32, 16), ScalarType::F32)
+        .unwrap();
     let volume = Volume::new(ml.dims(), Vec3::new(1.0, 1.0, 2.0), ml.data().clone()).unwrap();
     let cams = [(
         "perspective-outside",
-        Camera { projection: Projection::Perspective { fov_y_degrees: 45.0 }, ..cameras()[0].1 },
+        Camera {
+            projection: Projection::Perspective {
+                fov_y_degrees: 45.0,
+            },
+            ..cameras()[0].1
+        },
     )];
-    compare("anisotropic", &volume, TfPreset::Bands, &cams, RenderSettings::default());
+    compare(
+        "anisotropic",
+        &volume,
+        TfPreset::Bands,
+        &cams,
+        RenderSettings::default(),
+    );
 }

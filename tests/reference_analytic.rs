@@ -33,20 +33,34 @@ fn homogeneous_slab_matches_the_closed_form_for_any_step() {
         };
         let p = params_for(&volume, &camera, &settings);
         // Axis-parallel ray along -z through the box: 20 voxels of path.
-        let ray = Ray { origin: Vec3::new(0.013, -0.2, 3.0), dir: -Vec3::Z };
+        let ray = Ray {
+            origin: Vec3::new(0.013, -0.2, 3.0),
+            dir: -Vec3::Z,
+        };
         let acc = cast_ray(&volume, &tf, &p, &ray);
         let expected = 1.0 - (1.0 - a0).powf(20.0);
-        assert!((acc.w - expected).abs() < 2e-5, "spv {spv}: alpha {} vs {expected}", acc.w);
+        assert!(
+            (acc.w - expected).abs() < 2e-5,
+            "spv {spv}: alpha {} vs {expected}",
+            acc.w
+        );
         // White emission: premultiplied colour equals opacity.
         assert!((acc.truncate() - Vec3::splat(acc.w)).abs().max_element() < 1e-5);
         // An oblique ray: path length from the slab geometry.
         let dir = Vec3::new(0.3, 0.2, -1.0).normalize();
-        let ray = Ray { origin: Vec3::new(0.0, 0.0, 0.5) - dir * 2.0, dir };
+        let ray = Ray {
+            origin: Vec3::new(0.0, 0.0, 0.5) - dir * 2.0,
+            dir,
+        };
         // Enters through z = +0.5 at (0,0,0.5) ... exits through z = -0.5 (x, y stay inside).
         let path_world = 1.0 / dir.z.abs();
         let expected = 1.0 - (1.0 - a0).powf(path_world * 20.0);
         let acc = cast_ray(&volume, &tf, &p, &ray);
-        assert!((acc.w - expected).abs() < 5e-5, "spv {spv} oblique: {} vs {expected}", acc.w);
+        assert!(
+            (acc.w - expected).abs() < 5e-5,
+            "spv {spv} oblique: {} vs {expected}",
+            acc.w
+        );
     }
 }
 
@@ -57,12 +71,22 @@ fn early_termination_stops_at_the_threshold() {
     let tf = TransferFunction::preset(TfPreset::ConstantWhite);
     let camera = Camera::orthographic(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, 1.0);
     for threshold in [0.5f32, 0.9, 0.99] {
-        let settings = RenderSettings { early_termination: threshold, ..RenderSettings::default() };
+        let settings = RenderSettings {
+            early_termination: threshold,
+            ..RenderSettings::default()
+        };
         let p = params_for(&volume, &camera, &settings);
-        let ray = Ray { origin: Vec3::new(0.0, 0.0, 3.0), dir: -Vec3::Z };
+        let ray = Ray {
+            origin: Vec3::new(0.0, 0.0, 3.0),
+            dir: -Vec3::Z,
+        };
         let acc = cast_ray(&volume, &tf, &p, &ray);
         // One more voxel of alpha 0.1 adds at most 0.1 * (1 - threshold).
-        assert!(acc.w >= threshold && acc.w < threshold + 0.1 * (1.0 - threshold) + 1e-6, "{threshold}: {}", acc.w);
+        assert!(
+            acc.w >= threshold && acc.w < threshold + 0.1 * (1.0 - threshold) + 1e-6,
+            "{threshold}: {}",
+            acc.w
+        );
     }
 }
 
@@ -71,7 +95,9 @@ fn early_termination_stops_at_the_threshold() {
 #[test]
 fn sphere_chord_length_gives_the_expected_opacity() {
     let n = 64u32;
-    let volume = SyntheticField::Sphere.generate(UVec3::splat(n), ScalarType::U8).unwrap();
+    let volume = SyntheticField::Sphere
+        .generate(UVec3::splat(n), ScalarType::U8)
+        .unwrap();
     // Opaque where the value exceeds 0.5: a sharp step in the TF at the iso-value 0.5.
     let mut entries = vec![Vec4::ZERO; mixvol::optics::TF_SIZE];
     for (i, e) in entries.iter_mut().enumerate() {
@@ -81,12 +107,19 @@ fn sphere_chord_length_gives_the_expected_opacity() {
     }
     let tf = TransferFunction::from_entries(entries).unwrap();
     let camera = Camera::orthographic(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, 1.0);
-    let settings = RenderSettings { samples_per_voxel: 8.0, early_termination: 2.0, ..RenderSettings::default() };
+    let settings = RenderSettings {
+        samples_per_voxel: 8.0,
+        early_termination: 2.0,
+        ..RenderSettings::default()
+    };
     let p = params_for(&volume, &camera, &settings);
     let radius_voxels = 0.8 * n as f32 / 2.0;
     for offset_voxels in [0.0f32, 10.0, 20.0] {
         let x = offset_voxels / n as f32;
-        let ray = Ray { origin: Vec3::new(x, 0.0, 3.0), dir: -Vec3::Z };
+        let ray = Ray {
+            origin: Vec3::new(x, 0.0, 3.0),
+            dir: -Vec3::Z,
+        };
         let chord = 2.0 * (radius_voxels * radius_voxels - offset_voxels * offset_voxels).sqrt();
         let alpha = cast_ray(&volume, &tf, &p, &ray).w;
         let opacity_for = |len: f32| 1.0 - 0.95f32.powf(len);
@@ -125,7 +158,9 @@ fn sampling_is_exact_for_linear_fields_and_close_to_marschner_lobb() {
         assert!((v - f(voxel)).abs() < 1e-5, "{voxel}: {v} vs {}", f(voxel));
     }
     // Marschner-Lobb at 128^3 (f32): trilinear error is bounded by h^2/8 * max|f''|, about 0.03.
-    let ml = SyntheticField::MarschnerLobb.generate(UVec3::splat(128), ScalarType::F32).unwrap();
+    let ml = SyntheticField::MarschnerLobb
+        .generate(UVec3::splat(128), ScalarType::F32)
+        .unwrap();
     let mut worst = 0.0f32;
     for _ in 0..2000 {
         let tex = Vec3::new(0.05 + 0.9 * rnd(), 0.05 + 0.9 * rnd(), 0.05 + 0.9 * rnd());
@@ -150,5 +185,8 @@ fn generated_rays_follow_the_camera() {
     let a = generate_ray(&p, Vec2::new(0.5, 0.5));
     let b = generate_ray(&p, Vec2::new(63.5, 40.5));
     assert_eq!(a.dir, b.dir);
-    assert!(((a.origin - b.origin).dot(a.dir)).abs() < 1e-5, "origins lie in the image plane");
+    assert!(
+        ((a.origin - b.origin).dot(a.dir)).abs() < 1e-5,
+        "origins lie in the image plane"
+    );
 }

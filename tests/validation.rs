@@ -32,7 +32,9 @@ fn messenger_records_a_deliberate_validation_error() {
         .filter(|m| m.severity == Severity::Error)
         .collect();
     assert!(
-        errors.iter().any(|m| m.id_name.contains("VkBufferCreateInfo-size")),
+        errors
+            .iter()
+            .any(|m| m.id_name.contains("VkBufferCreateInfo-size")),
         "expected the size-0 buffer to be reported, got {errors:?}"
     );
 }
@@ -59,7 +61,10 @@ fn a_full_render_is_validation_clean_and_frees_every_allocation() {
             .render(&Camera::default_view(), &RenderSettings::default(), 40, 24)
             .unwrap();
         renderer.set_volume(&volume).unwrap();
-        assert!(frame.pixels.iter().any(|p| p.w > 0.0), "the sphere must be visible");
+        assert!(
+            frame.pixels.iter().any(|p| p.w > 0.0),
+            "the sphere must be visible"
+        );
     }
     common::finish(ctx);
 }

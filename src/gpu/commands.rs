@@ -75,7 +75,12 @@ pub(crate) fn image_barrier(
 }
 
 /// Records a global memory dependency from `prev` to `next` (buffers; layouts are ignored).
-pub(crate) fn memory_barrier(device: &ash::Device, cmd: vk::CommandBuffer, prev: Access, next: Access) {
+pub(crate) fn memory_barrier(
+    device: &ash::Device,
+    cmd: vk::CommandBuffer,
+    prev: Access,
+    next: Access,
+) {
     let (src_stage, src_access, _) = prev.stage_access_layout();
     let (dst_stage, dst_access, _) = next.stage_access_layout();
     let barriers = [vk::MemoryBarrier2::default()
@@ -103,8 +108,8 @@ impl Submitter {
             .queue_family_index(shared.queue_family)
             .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
         // SAFETY: valid create info on a live device.
-        let pool = unsafe { device.create_command_pool(&pool_info, None) }
-            .vk("vkCreateCommandPool")?;
+        let pool =
+            unsafe { device.create_command_pool(&pool_info, None) }.vk("vkCreateCommandPool")?;
         let mut submitter = Self {
             pool,
             cmd: vk::CommandBuffer::null(),
@@ -150,7 +155,11 @@ impl Submitter {
         let cmd_infos = [vk::CommandBufferSubmitInfo::default().command_buffer(self.cmd)];
         let submits = [vk::SubmitInfo2::default().command_buffer_infos(&cmd_infos)];
         // The command buffer is executable and the fence unsignalled.
-        let _queue = self.shared.queue_lock.lock().unwrap_or_else(|e| e.into_inner());
+        let _queue = self
+            .shared
+            .queue_lock
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
         // SAFETY: see above; `_queue` holds the queue's submit lock.
         unsafe {
             device
@@ -189,7 +198,8 @@ impl TimestampPool {
             .query_type(vk::QueryType::TIMESTAMP)
             .query_count(count);
         // SAFETY: valid create info on a live device.
-        let raw = unsafe { shared.device.create_query_pool(&info, None) }.vk("vkCreateQueryPool")?;
+        let raw =
+            unsafe { shared.device.create_query_pool(&info, None) }.vk("vkCreateQueryPool")?;
         Ok(Self {
             raw,
             count,

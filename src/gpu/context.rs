@@ -504,8 +504,8 @@ impl GpuContext {
             .or_else(|| std::env::var("MIXVOL_DEVICE").ok())
             .map(|s| s.to_lowercase());
         // SAFETY: plain enumeration on a live instance.
-        let devices = unsafe { instance.enumerate_physical_devices() }
-            .vk("vkEnumeratePhysicalDevices")?;
+        let devices =
+            unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
         let mut candidates = Vec::new();
         let mut rejected = Vec::new();
         for pd in devices {
@@ -555,16 +555,15 @@ impl GpuContext {
             }
         }
         candidates.sort_by_key(|c| c.0);
-        candidates
-            .first()
-            .map(|c| (c.1, c.2))
-            .ok_or_else(|| {
-                Error::Unsupported(format!(
-                    "no usable Vulkan device{}; rejected: [{}]",
-                    wanted.map(|w| format!(" matching '{w}'")).unwrap_or_default(),
-                    rejected.join("; ")
-                ))
-            })
+        candidates.first().map(|c| (c.1, c.2)).ok_or_else(|| {
+            Error::Unsupported(format!(
+                "no usable Vulkan device{}; rejected: [{}]",
+                wanted
+                    .map(|w| format!(" matching '{w}'"))
+                    .unwrap_or_default(),
+                rejected.join("; ")
+            ))
+        })
     }
 
     /// What the device is and what it can do.

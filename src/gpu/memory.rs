@@ -55,7 +55,8 @@ impl Buffer {
             }
         };
         // SAFETY: memory and offset come from an allocation made for these requirements.
-        let bound = unsafe { device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) };
+        let bound =
+            unsafe { device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) };
         let buffer = Self {
             raw,
             allocation: Some(allocation),
@@ -189,7 +190,9 @@ impl Image {
     pub(crate) fn new(shared: &Arc<DeviceShared>, name: &str, desc: ImageDesc) -> Result<Self> {
         let e = desc.extent;
         if e.width == 0 || e.height == 0 || e.depth == 0 {
-            return Err(Error::InvalidInput(format!("image '{name}' has a zero extent {e:?}")));
+            return Err(Error::InvalidInput(format!(
+                "image '{name}' has a zero extent {e:?}"
+            )));
         }
         let limits = &shared.info.limits;
         let max = match desc.image_type {
@@ -244,7 +247,8 @@ impl Image {
             shared: shared.clone(),
         };
         // SAFETY: memory and offset come from an allocation made for these requirements.
-        let bound = unsafe { device.bind_image_memory(raw, allocation.memory(), allocation.offset()) };
+        let bound =
+            unsafe { device.bind_image_memory(raw, allocation.memory(), allocation.offset()) };
         image.allocation = Some(allocation);
         bound.vk("vkBindImageMemory")?;
         let view_info = vk::ImageViewCreateInfo::default()
@@ -253,7 +257,8 @@ impl Image {
             .format(desc.format)
             .subresource_range(COLOR_RANGE);
         // SAFETY: the image is bound to memory and the range covers it.
-        image.view = unsafe { device.create_image_view(&view_info, None) }.vk("vkCreateImageView")?;
+        image.view =
+            unsafe { device.create_image_view(&view_info, None) }.vk("vkCreateImageView")?;
         Ok(image)
     }
 }

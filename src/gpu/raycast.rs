@@ -60,8 +60,8 @@ impl RaycastPipeline {
                 .descriptor_count(1)
                 .stage_flags(vk::ShaderStageFlags::FRAGMENT),
         ];
-        // SAFETY (this block and the creations below): valid create infos on a live device; every
-        // handle is stored in `this` at once so Drop releases it on any later error.
+        // SAFETY: valid create infos on a live device; every handle is stored in `this` at once so
+        // Drop releases it on any later error.
         unsafe {
             this.set_layout = device
                 .create_descriptor_set_layout(
@@ -169,7 +169,8 @@ impl RaycastPipeline {
                 .color_write_mask(vk::ColorComponentFlags::RGBA)];
             let blend = vk::PipelineColorBlendStateCreateInfo::default().attachments(&attachments);
             let dynamic_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
-            let dynamic = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dynamic_states);
+            let dynamic =
+                vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dynamic_states);
             let formats = [color_format];
             let mut rendering =
                 vk::PipelineRenderingCreateInfo::default().color_attachment_formats(&formats);
@@ -184,8 +185,7 @@ impl RaycastPipeline {
                 .dynamic_state(&dynamic)
                 .layout(layout)
                 .push_next(&mut rendering);
-            let result =
-                device.create_graphics_pipelines(vk::PipelineCache::null(), &[info], None);
+            let result = device.create_graphics_pipelines(vk::PipelineCache::null(), &[info], None);
             device.destroy_shader_module(vert_module, None);
             device.destroy_shader_module(frag_module, None);
             result

@@ -165,9 +165,18 @@ mod tests {
 
     #[test]
     fn include_paths_resolve_relative_to_the_including_file() {
-        assert_eq!(resolve_include("include/a.glsl", "raycast.frag"), "include/a.glsl");
-        assert_eq!(resolve_include("params.glsl", "include/camera.glsl"), "include/params.glsl");
-        assert_eq!(resolve_include("../x.glsl", "include/camera.glsl"), "x.glsl");
+        assert_eq!(
+            resolve_include("include/a.glsl", "raycast.frag"),
+            "include/a.glsl"
+        );
+        assert_eq!(
+            resolve_include("params.glsl", "include/camera.glsl"),
+            "include/params.glsl"
+        );
+        assert_eq!(
+            resolve_include("../x.glsl", "include/camera.glsl"),
+            "x.glsl"
+        );
     }
 
     #[test]

@@ -56,24 +56,39 @@ mod tests {
     #[test]
     fn axis_parallel_rays_hit_and_miss_correctly() {
         let (lo, hi) = (Vec3::splat(-0.5), Vec3::splat(0.5));
-        let hit = Ray { origin: Vec3::new(0.2, -0.3, -2.0), dir: Vec3::Z };
+        let hit = Ray {
+            origin: Vec3::new(0.2, -0.3, -2.0),
+            dir: Vec3::Z,
+        };
         let (a, b) = intersect_box(&hit, lo, hi);
         assert!((a - 1.5).abs() < 1e-6 && (b - 2.5).abs() < 1e-6, "{a} {b}");
-        let miss = Ray { origin: Vec3::new(0.7, 0.0, -2.0), dir: Vec3::Z };
+        let miss = Ray {
+            origin: Vec3::new(0.7, 0.0, -2.0),
+            dir: Vec3::Z,
+        };
         let (a, b) = intersect_box(&miss, lo, hi);
         assert!(a >= b, "{a} {b}");
         // Exactly on the face plane x = 0.5, parallel to it: finite results, no NaN.
-        let grazing = Ray { origin: Vec3::new(0.5, 0.0, -2.0), dir: Vec3::Z };
+        let grazing = Ray {
+            origin: Vec3::new(0.5, 0.0, -2.0),
+            dir: Vec3::Z,
+        };
         let (a, b) = intersect_box(&grazing, lo, hi);
         assert!(a.is_finite() && b.is_finite());
-        let negative = Ray { origin: Vec3::new(0.0, 0.0, 2.0), dir: -Vec3::Z };
+        let negative = Ray {
+            origin: Vec3::new(0.0, 0.0, 2.0),
+            dir: -Vec3::Z,
+        };
         let (a, b) = intersect_box(&negative, lo, hi);
         assert!((a - 1.5).abs() < 1e-6 && (b - 2.5).abs() < 1e-6);
     }
 
     #[test]
     fn ray_from_inside_enters_behind_the_origin() {
-        let ray = Ray { origin: Vec3::ZERO, dir: Vec3::new(1.0, 1.0, 0.0).normalize() };
+        let ray = Ray {
+            origin: Vec3::ZERO,
+            dir: Vec3::new(1.0, 1.0, 0.0).normalize(),
+        };
         let (a, b) = intersect_box(&ray, Vec3::splat(-0.5), Vec3::splat(0.5));
         assert!(a < 0.0 && b > 0.0);
         assert!((b - 0.5 * 2f32.sqrt()).abs() < 1e-6);

@@ -14,6 +14,7 @@ use glam::{Vec2, Vec4};
 
 /// Casts one ray. Mirrors `cast_ray` in `glsl/raycast.frag` step by step; returns premultiplied
 /// RGB and opacity.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // reason: `!(t0 < t1)` mirrors the GLSL and also rejects NaN.
 pub fn cast_ray(volume: &Volume, tf: &TransferFunction, p: &RaycastParams, ray: &Ray) -> Vec4 {
     let (enter, exit) = intersect_box(ray, p.box_min.truncate(), p.box_max.truncate());
     let t0 = enter.max(p.forward.w);

@@ -71,13 +71,21 @@ pub fn load_raw(path: &Path, desc: &RawDescriptor) -> Result<Volume, VolumeError
         ScalarType::U8 => VoxelData::U8(read_values(&mut file, count).map_err(io_err)?),
         ScalarType::U16 => {
             let mut v: Vec<u16> = read_values(&mut file, count).map_err(io_err)?;
-            let convert = if desc.big_endian { u16::from_be } else { u16::from_le };
+            let convert = if desc.big_endian {
+                u16::from_be
+            } else {
+                u16::from_le
+            };
             v.iter_mut().for_each(|x| *x = convert(*x));
             VoxelData::U16(v)
         }
         ScalarType::F32 => {
             let v: Vec<u32> = read_values(&mut file, count).map_err(io_err)?;
-            let convert = if desc.big_endian { u32::from_be } else { u32::from_le };
+            let convert = if desc.big_endian {
+                u32::from_be
+            } else {
+                u32::from_le
+            };
             VoxelData::F32(v.into_iter().map(|x| f32::from_bits(convert(x))).collect())
         }
     };
@@ -178,7 +186,11 @@ mod tests {
 
     #[test]
     fn save_is_little_endian() {
-        let v = Volume::new(UVec3::new(2, 1, 1), Vec3::ONE, VoxelData::U16(vec![0x0102, 7]));
+        let v = Volume::new(
+            UVec3::new(2, 1, 1),
+            Vec3::ONE,
+            VoxelData::U16(vec![0x0102, 7]),
+        );
         let f = TempFile::new("le");
         save_raw(&v.unwrap(), &f.0).unwrap();
         assert_eq!(std::fs::read(&f.0).unwrap(), [0x02, 0x01, 7, 0]);

@@ -107,7 +107,9 @@ impl VoxelData {
 #[derive(Debug, thiserror::Error)]
 pub enum VolumeError {
     /// A dimension is zero.
-    #[error("volume dimension {axis} is zero (dims {dims:?}); every axis needs at least one voxel")]
+    #[error(
+        "volume dimension {axis} is zero (dims {dims:?}); every axis needs at least one voxel"
+    )]
     ZeroDimension {
         /// 'x', 'y' or 'z'.
         axis: char,

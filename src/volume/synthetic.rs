@@ -112,9 +112,8 @@ fn build(
     f: impl Fn(u32, u32, u32) -> f32,
 ) -> Result<Volume, VolumeError> {
     checked_voxel_count(dims)?;
-    let values = (0..dims.z).flat_map(|z| {
-        (0..dims.y).flat_map(move |y| (0..dims.x).map(move |x| (x, y, z)))
-    });
+    let values = (0..dims.z)
+        .flat_map(|z| (0..dims.y).flat_map(move |y| (0..dims.x).map(move |x| (x, y, z))));
     let values = values.map(|(x, y, z)| f(x, y, z));
     let quantise = |v: f32, max: f32| (v * max).round().clamp(0.0, max);
     let data = match scalar {
@@ -207,7 +206,11 @@ mod tests {
         for (i, &byte) in q.iter().enumerate() {
             assert_eq!(byte, (f.data().normalized(i) * 255.0).round() as u8);
         }
-        let VoxelData::U16(q) = marschner_lobb(dims, ScalarType::U16).unwrap().data().clone() else {
+        let VoxelData::U16(q) = marschner_lobb(dims, ScalarType::U16)
+            .unwrap()
+            .data()
+            .clone()
+        else {
             panic!("expected u16 data");
         };
         for (i, &word) in q.iter().enumerate() {
@@ -328,12 +331,18 @@ mod tests {
 
     #[test]
     fn parse_and_generate() {
-        assert_eq!(SyntheticField::parse("ml"), Some(SyntheticField::MarschnerLobb));
+        assert_eq!(
+            SyntheticField::parse("ml"),
+            Some(SyntheticField::MarschnerLobb)
+        );
         assert_eq!(
             SyntheticField::parse("Marschner-Lobb"),
             Some(SyntheticField::MarschnerLobb)
         );
-        assert_eq!(SyntheticField::parse("sphere"), Some(SyntheticField::Sphere));
+        assert_eq!(
+            SyntheticField::parse("sphere"),
+            Some(SyntheticField::Sphere)
+        );
         assert_eq!(SyntheticField::parse("WALL"), Some(SyntheticField::Wall));
         assert_eq!(SyntheticField::parse("cube"), None);
         assert_eq!(SyntheticField::parse(""), None);

@@ -23,7 +23,11 @@ pub fn validated_context() -> GpuContext {
 /// that no allocation leaked (leaks are reported into the same log at shutdown).
 pub fn finish(ctx: GpuContext) {
     let log: Arc<MessageLog> = ctx.message_log();
-    assert_eq!(ctx.live_allocation_count(), 0, "allocations still live at shutdown");
+    assert_eq!(
+        ctx.live_allocation_count(),
+        0,
+        "allocations still live at shutdown"
+    );
     drop(ctx);
     let problems = log.warnings_and_errors();
     assert!(
@@ -70,13 +74,23 @@ pub fn diff(a: &[Vec4], b: &[Vec4], large: f32) -> Diff {
 }
 
 /// Writes actual / expected / difference PNGs under target/test-output/ for a failed comparison.
-pub fn write_failure_images(name: &str, width: u32, height: u32, actual: &[Vec4], expected: &[Vec4]) -> PathBuf {
+pub fn write_failure_images(
+    name: &str,
+    width: u32,
+    height: u32,
+    actual: &[Vec4],
+    expected: &[Vec4],
+) -> PathBuf {
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("test-output");
     std::fs::create_dir_all(&dir).unwrap();
     let bg = Vec3::ZERO;
     let save = |suffix: &str, px: &[Vec4]| {
         let path = dir.join(format!("{name}-{suffix}.png"));
-        mixvol::renderer::save_png(&mixvol::renderer::pixels_to_rgba8(px, width, height, bg), &path).unwrap();
+        mixvol::renderer::save_png(
+            &mixvol::renderer::pixels_to_rgba8(px, width, height, bg),
+            &path,
+        )
+        .unwrap();
     };
     save("actual", actual);
     save("expected", expected);

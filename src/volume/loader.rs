@@ -340,7 +340,7 @@ mod tests {
     #[test]
     fn non_finite_f32_rejected_with_voxel() {
         // dims 3 x 4 x 2; NaN at (1, 2, 1) = index 1 + 3 * (2 + 4 * 1) = 19.
-        let mut values = vec![0.5f32; 24];
+        let mut values = [0.5f32; 24];
         values[19] = f32::NAN;
         values[23] = f32::INFINITY;
         let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();

@@ -1,19 +1,34 @@
 #version 460
-// One ray per pixel: emission-absorption, front to back. Mirrors `cast_ray` in
-// src/reference/mod.rs step by step.
+// One ray per pixel: emission-absorption, front to back. Mirrors `cast_ray` (single resolution)
+// and `cast_ray_mixed` (MIXED_RESOLUTION) in src/reference/mod.rs step by step.
+// Variants (macros): MIXED_RESOLUTION reads the brick cache through the layout table and walks the
+// ray brick by brick; SMOOTH_TRANSITIONS adds the C0 transition blend (mixed only).
 #include "include/params.glsl"
 #include "include/camera.glsl"
 #include "include/optics.glsl"
-#include "include/sampling.glsl"
 
 layout(set = 0, binding = 0, std140) uniform Params {
     RaycastParams params;
 };
-layout(set = 0, binding = 1) uniform sampler3D volume_tex;
 layout(set = 0, binding = 2) uniform sampler1D tf_tex;
 
 layout(location = 0) out vec4 out_color;
 
+#ifdef MIXED_RESOLUTION
+layout(set = 0, binding = 1) uniform sampler3D cache_tex;
+layout(std430, set = 0, binding = 3) readonly buffer LayoutTable { vec4 layout_entries[]; };
+layout(std430, set = 0, binding = 4) readonly buffer NeighbourTable { uint neighbour_bits[]; };
+
+float cache_fetch(vec3 texel) {
+    return texture(cache_tex, texel * params.cache_extent_inv.xyz).r;
+}
+#include "include/mixed.glsl"
+#else
+#include "include/sampling.glsl"
+layout(set = 0, binding = 1) uniform sampler3D volume_tex;
+#endif
+
+#ifndef MIXED_RESOLUTION
 vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
@@ -40,6 +55,59 @@ vec4 cast_ray(Ray ray) {
     }
     return acc;
 }
+#else
+// Same samples as the single-resolution loop; the ray walks brick by brick so the layout entry
+// and neighbour bits are read once per brick, and absent bricks are skipped whole.
+vec4 cast_ray(Ray ray) {
+    vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
+    float t0 = max(hit.x, params.forward.w);
+    float t1 = min(hit.y, params.right.w);
+    vec4 acc = vec4(0.0);
+    if (!(t0 < t1)) {
+        return acc;
+    }
+    float step_len = params.box_min.w;
+    float inv_d0 = 1.0 / params.box_max.w;
+    vec3 box_size = params.box_max.xyz - params.box_min.xyz;
+    vec3 to_voxel = params.volume_dims.xyz / box_size;
+    float n = params.volume_dims.w;
+    ivec3 bricks = ivec3(ceil(params.volume_dims.xyz / n));
+    Ray voxel_ray = Ray((ray.origin - params.box_min.xyz) * to_voxel, ray.dir * to_voxel);
+    int steps = int(min(ceil((t1 - t0) / step_len), params.tf_window.w));
+    int i = 0;
+    while (i < steps) {
+        float t_start = t0 + float(i) * step_len;
+        float len = max(min(step_len, t1 - t_start), 0.0);
+        vec3 x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
+        ivec3 b = brick_of(x, n, bricks);
+        int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
+        vec4 entry = layout_entries[bi];
+        if (entry.w == 0.0) {
+            // Absent brick: jump to just before its exit; the per-sample brick test does the rest.
+            float t_exit = intersect_box(voxel_ray, vec3(b) * n, vec3(b + 1) * n).y;
+            i = max(i + 1, int(floor((t_exit - t0) / step_len)) - 1);
+            continue;
+        }
+        uint bits = neighbour_bits[bi];
+        for (; i < steps; ++i) {
+            t_start = t0 + float(i) * step_len;
+            len = max(min(step_len, t1 - t_start), 0.0);
+            x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
+            if (any(notEqual(brick_of(x, n, bricks), b))) {
+                break;
+            }
+            float value = sample_in_brick(x, b, entry, bits, n);
+            vec4 rgba = classify(tf_tex, params.tf_window, value);
+            float alpha = correct_opacity(rgba.a, len * inv_d0);
+            acc = composite(acc, rgba.rgb, alpha);
+            if (acc.a >= params.tf_window.z) {
+                return acc;
+            }
+        }
+    }
+    return acc;
+}
+#endif
 
 void main() {
     out_color = cast_ray(generate_ray(params, gl_FragCoord.xy));

@@ -103,7 +103,7 @@ impl Default for RenderSettings {
     }
 }
 
-/// The per-frame parameter block, std140-compatible: every field a vec4. Mirrors `RaycastParams`
+/// The per-frame parameter block, std140-compatible: every field a vec4 (160 bytes). Mirrors `RaycastParams`
 /// in `glsl/include/params.glsl`.
 #[repr(C)]
 #[derive(Copy, Clone, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
@@ -124,9 +124,13 @@ pub struct RaycastParams {
     pub tf_window: Vec4,
     /// x: width, y: height in pixels.
     pub viewport: Vec4,
+    /// xyz: volume dimensions in voxels; w: brick size n (mixed resolution).
+    pub volume_dims: Vec4,
+    /// xyz: 1 / cache extent in texels (mixed resolution); w: unused.
+    pub cache_extent_inv: Vec4,
 }
 
-const _: () = assert!(std::mem::size_of::<RaycastParams>() == 128);
+const _: () = assert!(std::mem::size_of::<RaycastParams>() == 160);
 
 /// The world-space box of a volume: centred, longest physical side 1.
 pub fn volume_box(dims: UVec3, spacing: Vec3) -> (Vec3, Vec3) {
@@ -136,6 +140,13 @@ pub fn volume_box(dims: UVec3, spacing: Vec3) -> (Vec3, Vec3) {
 }
 
 impl RaycastParams {
+    /// The same block set up for a brick cache of `cache_extent` texels and bricks of `brick_size`.
+    pub fn with_cache(mut self, brick_size: u32, cache_extent: UVec3) -> Self {
+        self.volume_dims.w = brick_size as f32;
+        self.cache_extent_inv = (Vec3::ONE / cache_extent.as_vec3()).extend(0.0);
+        self
+    }
+
     /// Builds the parameter block for `volume` seen by `camera` at `width` x `height`.
     pub fn new(
         volume: &Volume,
@@ -241,6 +252,8 @@ impl RaycastParams {
                 settings.max_steps as f32,
             ),
             viewport: Vec4::new(width as f32, height as f32, 0.0, 0.0),
+            volume_dims: dims.as_vec3().extend(0.0),
+            cache_extent_inv: Vec4::ZERO,
         })
     }
 }

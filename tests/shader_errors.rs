@@ -64,4 +64,13 @@ fn the_shipped_shaders_compile() {
     let frag = compile("raycast.frag", ShaderStage::Fragment, &defines).unwrap();
     assert_eq!(frag[0], 0x0723_0203, "SPIR-V magic number");
     assert!(compile("no-such.frag", ShaderStage::Fragment, &defines).is_err());
+    let mut mixed = defines.to_vec();
+    mixed.push(("MIXED_RESOLUTION", "1".to_string()));
+    compile("raycast.frag", ShaderStage::Fragment, &mixed).unwrap();
+    mixed.push(("SMOOTH_TRANSITIONS", "1".to_string()));
+    compile("raycast.frag", ShaderStage::Fragment, &mixed).unwrap();
+    for format in ["r8", "r16", "r32f"] {
+        let d = [("CACHE_IMAGE_FORMAT", format.to_string())];
+        compile("fixup.comp", ShaderStage::Compute, &d).unwrap();
+    }
 }

@@ -1,5 +1,5 @@
 // Per-frame ray-casting parameters. Mirrors `RaycastParams` in src/scene.rs field by field
-// (std140, every member a vec4, 128 bytes).
+// (std140, every member a vec4, 160 bytes).
 #ifndef PARAMS_GLSL
 #define PARAMS_GLSL
 
@@ -12,6 +12,8 @@ struct RaycastParams {
     vec4 box_max;   // xyz: world-space volume box maximum; w: reference length d0 (world units)
     vec4 tf_window; // x: value at TF position 0; y: 1 / (value range); z: early-termination alpha; w: max steps
     vec4 viewport;  // x: width, y: height (pixels); zw: unused
+    vec4 volume_dims;      // xyz: volume dimensions in voxels; w: brick size n (mixed resolution)
+    vec4 cache_extent_inv; // xyz: 1 / cache extent in texels (mixed resolution); w: unused
 };
 
 #endif

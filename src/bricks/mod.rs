@@ -479,6 +479,20 @@ mod tests {
     }
 
     #[test]
+    fn ranges_include_low_res_samples_reaching_past_the_hi_res_border() {
+        // Box4's face sample at position 4 (k = 2) reads voxels 2..=5; voxel 2 lies outside brick
+        // 1's hi-res window [3, 9), so only the low-res part of the range can see it.
+        let dims = UVec3::new(16, 1, 1);
+        let mut values = vec![0.5; 16];
+        values[2] = 1.0;
+        let volume = Volume::new(dims, Vec3::ONE, VoxelData::F32(values)).unwrap();
+        let grid = BrickGrid::new(dims, 4).unwrap();
+        let ranges = brick_value_ranges(&volume, &grid, DownsampleFilter::Box4).unwrap();
+        assert!(ranges[1].max >= 0.625, "{:?}", ranges[1]);
+        assert!(ranges[3].max == 0.5);
+    }
+
+    #[test]
     fn unorm_storage_widens_low_res_values_to_storage_levels() {
         let dims = UVec3::new(8, 8, 8);
         let count = 512;

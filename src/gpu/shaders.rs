@@ -22,7 +22,10 @@ macro_rules! glsl_sources {
 static SOURCES: &[Source] = glsl_sources!(
     "raycast.vert",
     "raycast.frag",
+    "fixup.comp",
     "include/params.glsl",
+    "include/neighbours.glsl",
+    "include/mixed.glsl",
     "include/camera.glsl",
     "include/optics.glsl",
     "include/sampling.glsl",

@@ -1,0 +1,103 @@
+// Mixed-resolution field: address translation and the smooth (C0) transition blend. Mirrors
+// src/reference/mixed.rs function by function; see its module docs for the construction.
+// The includer defines `float cache_fetch(vec3 texel)`: a trilinear fetch of the brick cache at
+// an unnormalised texel coordinate (texel centres at i + 0.5).
+#ifndef MIXED_GLSL
+#define MIXED_GLSL
+#include "neighbours.glsl"
+
+// Brick containing volume point x (hi-res voxel units), clamped to the grid.
+ivec3 brick_of(vec3 x, float brick_size, ivec3 bricks) {
+    return clamp(ivec3(floor(x / brick_size)), ivec3(0), bricks - 1);
+}
+
+// Band axes of brick-local point q: returns the band mask, writes sides and betas.
+uint band(vec3 q, float n, out ivec3 side, out vec3 beta) {
+    uint mask = 0u;
+    side = ivec3(0);
+    beta = vec3(0.0);
+    for (int a = 0; a < 3; ++a) {
+        if (q[a] < 0.5) {
+            mask |= 1u << uint(a);
+            side[a] = -1;
+            beta[a] = 1.0 - 2.0 * q[a];
+        } else if (q[a] > n - 0.5) {
+            mask |= 1u << uint(a);
+            side[a] = 1;
+            beta[a] = 1.0 - 2.0 * (n - q[a]);
+        }
+    }
+    return mask;
+}
+
+// Local coordinate at which one fetch of the fixed-up border of feature `face_mask` reads the
+// low-res function at local point p (trapezoid warp along the non-feature axes).
+vec3 low_res_border_coord(vec3 p, uint face_mask, ivec3 side, float n) {
+    vec3 c = p;
+    for (int a = 0; a < 3; ++a) {
+        if ((face_mask & (1u << uint(a))) != 0u) {
+            c[a] = side[a] < 0 ? -0.5 : n + 0.5;
+        } else {
+            float k2 = min(2.0 * floor(p[a] * 0.5), n - 2.0);
+            c[a] = k2 + 0.5 + (p[a] - k2) * 0.5;
+        }
+    }
+    return c;
+}
+
+// The smooth reconstruction inside a hi-res brick (q brick-local, texel_of_local the texel
+// coordinate of local 0, bits its neighbour bits).
+float sample_hi_res_transition(vec3 q, vec3 texel_of_local, uint bits, float n) {
+    ivec3 side;
+    vec3 beta;
+    uint band_mask = band(q, n, side, beta);
+    uint active_mask = active_axes(bits, band_mask, side);
+    if (active_mask == 0u) {
+        return cache_fetch(q + texel_of_local);
+    }
+    vec3 face = mix(vec3(n), vec3(0.0), lessThan(side, ivec3(0)));
+    vec3 plane = mix(vec3(n - 0.5), vec3(0.5), lessThan(side, ivec3(0)));
+    float sum = 0.0;
+    uint s = active_mask;
+    for (;;) {
+        float weight = 1.0;
+        vec3 p = q;
+        for (int a = 0; a < 3; ++a) {
+            uint bit = 1u << uint(a);
+            if ((active_mask & bit) != 0u) {
+                if ((s & bit) != 0u) {
+                    weight *= beta[a];
+                    p[a] = face[a];
+                } else {
+                    weight *= 1.0 - beta[a];
+                    p[a] = plane[a];
+                }
+            }
+        }
+        if (weight > 0.0) {
+            vec3 local = (s != 0u && feature_touches_low_res(bits, s, side))
+                ? low_res_border_coord(p, s, side, n)
+                : p;
+            sum += weight * cache_fetch(local + texel_of_local);
+        }
+        if (s == 0u) {
+            break;
+        }
+        s = (s - 1u) & active_mask;
+    }
+    return sum;
+}
+
+// The field at volume point x inside brick b with layout entry `entry` (t_w > 0) and neighbour
+// bits `bits`. Mirrors `sample_in_brick` in src/reference/mixed.rs.
+float sample_in_brick(vec3 x, ivec3 b, vec4 entry, uint bits, float n) {
+#ifdef SMOOTH_TRANSITIONS
+    if (entry.w == 1.0 && bits != 0u) {
+        vec3 origin = vec3(b) * n;
+        return sample_hi_res_transition(x - origin, origin + entry.xyz, bits, n);
+    }
+#endif
+    return cache_fetch(x * entry.w + entry.xyz);
+}
+
+#endif

@@ -1,0 +1,389 @@
+//! The mixed-resolution field: address translation through the layout table, the border fixup,
+//! and the smooth (C0) transition reconstruction. Mirrors `glsl/include/mixed.glsl` (sampling)
+//! and `glsl/fixup.comp` (fixup) function by function. Conventions: `docs/cache-layout.md`.
+//!
+//! # The smooth reconstruction
+//! Inside a hi-res brick `H`, a point `q` (brick-local hi-res voxel units, `[0, n]^3`) lies in the
+//! *band* of axis `a` when it is within half a voxel of one of `H`'s faces along `a`; `s_a` is that
+//! side and `beta_a = 1 - 2 * distance` (1 on the face, 0 on the plane of hi-res sample centres).
+//! The bricks that touch the band region are the neighbours `d != 0` with `d_a in {0, s_a}` on band
+//! axes and `d_a = 0` elsewhere. A band axis is *active* when one of those touching bricks with
+//! `d_a != 0` is low-res. With active axes `A`:
+//!
+//! `f(q) = sum over S ⊆ A of  prod_{a in S} beta_a * prod_{a in A\S} (1 - beta_a) * G(P_S)`
+//!
+//! where `P_S` snaps the axes of `S` onto the face and those of `A \ S` onto the hi-res plane
+//! (0.5 voxel inside), and `G(P)` is the value on the skeleton of brick boundaries: on a face, edge
+//! or corner of `H` that touches a low-res brick, the low-res (trilinear on the global low-res grid)
+//! function, read from `H`'s fixed-up border with the low-res (trapezoid) warp along the remaining
+//! axes; elsewhere plain hardware trilinear in `H`. On the face (`beta = 1`) `f` equals the low-res
+//! neighbour's function, at `beta = 0` it equals plain trilinear, and both `G` terms are linear along
+//! every blended axis over `[face, plane]` (low-res samples sit on even positions, hi-res ones at
+//! half-integers), so the blend is C0 across faces, edges and corners for every neighbour
+//! configuration, including low-res bricks that touch `H` only along an edge or at a corner.
+//!
+//! Why not the paper's single warped fetch everywhere: where a low-res brick touches `H` only
+//! diagonally, the value on `H`'s face must mix three distinct texels (`(1-2v) * (L + H) / 2 +
+//! 2v * C`), which no single bilinear fetch of UNORM texels reproduces (DESIGN.md §3 names this
+//! trap). The warp survives as the low-res read of the border (`u' = (u + 1/2) / 2` on a trapezoid
+//! cell, any `u'` on a triangle cell, whose two border texels both hold the apex).
+
+use glam::{IVec3, UVec3, Vec3};
+
+/// How transitions between resolution levels are reconstructed.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+pub enum Transition {
+    /// C0 blend in the half-voxel band of hi-res bricks next to low-res bricks (needs the fixup).
+    Smooth,
+    /// Plain trilinear fetch everywhere, original duplicated borders: the baseline.
+    Discontinuous,
+}
+
+/// A CPU copy of the 3D brick cache image (normalised values, x fastest).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CacheImage {
+    /// Extent in texels.
+    pub extent: UVec3,
+    /// Texel values, `extent.x * extent.y * extent.z` of them.
+    pub texels: Vec<f32>,
+}
+
+impl CacheImage {
+    /// A zero-filled cache image.
+    pub fn new(extent: UVec3) -> Self {
+        Self {
+            extent,
+            texels: vec![0.0; (extent.x * extent.y * extent.z) as usize],
+        }
+    }
+
+    fn index(&self, t: IVec3) -> usize {
+        let c = t.clamp(IVec3::ZERO, self.extent.as_ivec3() - IVec3::ONE);
+        (c.x as u32 + self.extent.x * (c.y as u32 + self.extent.y * c.z as u32)) as usize
+    }
+
+    /// Texel `t` (clamped to the image).
+    pub fn texel(&self, t: IVec3) -> f32 {
+        self.texels[self.index(t)]
+    }
+
+    /// Writes texel `t` (clamped to the image).
+    pub fn set_texel(&mut self, t: IVec3, value: f32) {
+        let i = self.index(t);
+        self.texels[i] = value;
+    }
+
+    /// Copies a packed box (x fastest) to texel origin `origin`.
+    pub fn write_box(&mut self, origin: UVec3, extent: UVec3, values: &[f32]) {
+        let mut i = 0;
+        for z in 0..extent.z {
+            for y in 0..extent.y {
+                for x in 0..extent.x {
+                    self.set_texel((origin + UVec3::new(x, y, z)).as_ivec3(), values[i]);
+                    i += 1;
+                }
+            }
+        }
+    }
+
+    /// Trilinear fetch at texel coordinate `p` (texel centres at `i + 0.5`), clamp to edge:
+    /// `texture()` on the cache with unnormalised coordinates.
+    pub fn fetch(&self, p: Vec3) -> f32 {
+        let x = p - Vec3::splat(0.5);
+        let base = x.floor();
+        let f = x - base;
+        let b = base.as_ivec3();
+        let v = |d: IVec3| self.texel(b + d);
+        let lerp = |a: f32, c: f32, t: f32| a + (c - a) * t;
+        let c00 = lerp(v(IVec3::new(0, 0, 0)), v(IVec3::new(1, 0, 0)), f.x);
+        let c10 = lerp(v(IVec3::new(0, 1, 0)), v(IVec3::new(1, 1, 0)), f.x);
+        let c01 = lerp(v(IVec3::new(0, 0, 1)), v(IVec3::new(1, 0, 1)), f.x);
+        let c11 = lerp(v(IVec3::new(0, 1, 1)), v(IVec3::new(1, 1, 1)), f.x);
+        lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z)
+    }
+}
+
+/// The cache image with the tables the ray-caster reads: enough to reconstruct the field.
+#[derive(Copy, Clone, Debug)]
+pub struct MixedVolume<'a> {
+    /// The cache image.
+    pub cache: &'a CacheImage,
+    /// Layout entry per brick (`docs/cache-layout.md`).
+    pub layout: &'a [[f32; 4]],
+    /// Neighbour bits per brick.
+    pub neighbours: &'a [u32],
+    /// Bricks per axis.
+    pub bricks: UVec3,
+    /// Brick size `n`.
+    pub brick_size: u32,
+}
+
+/// Bit of the neighbour at offset `d` (`d != 0`, components in -1..=1).
+pub fn neighbour_bit(d: IVec3) -> u32 {
+    let idx = (d.x + 1) + 3 * (d.y + 1) + 9 * (d.z + 1);
+    let k = if idx < 13 { idx } else { idx - 1 };
+    1u32 << k
+}
+
+/// Brick containing volume point `x`, clamped to the grid.
+pub fn brick_of(x: Vec3, brick_size: u32, bricks: UVec3) -> IVec3 {
+    (x / brick_size as f32)
+        .floor()
+        .as_ivec3()
+        .clamp(IVec3::ZERO, bricks.as_ivec3() - IVec3::ONE)
+}
+
+/// The neighbour offset that selects axes `mask` (bit a = axis a) on sides `side`.
+fn offset_of(mask: u32, side: IVec3) -> IVec3 {
+    IVec3::new(
+        if mask & 1 != 0 { side.x } else { 0 },
+        if mask & 2 != 0 { side.y } else { 0 },
+        if mask & 4 != 0 { side.z } else { 0 },
+    )
+}
+
+/// Whether any brick touching the feature of axes `mask` (face: one axis, edge: two, corner:
+/// three) on sides `side` is low-res: the offsets `d != 0` with `d_a in {0, side_a}` on `mask`.
+pub fn feature_touches_low_res(bits: u32, mask: u32, side: IVec3) -> bool {
+    let mut sub = mask;
+    while sub != 0 {
+        if bits & neighbour_bit(offset_of(sub, side)) != 0 {
+            return true;
+        }
+        sub = (sub - 1) & mask;
+    }
+    false
+}
+
+/// Band axes of local point `q` in a brick of size `n`: returns (band mask, sides, betas).
+pub fn band(q: Vec3, n: f32) -> (u32, IVec3, Vec3) {
+    let mut mask = 0;
+    let mut side = IVec3::ZERO;
+    let mut beta = Vec3::ZERO;
+    for a in 0..3 {
+        if q[a] < 0.5 {
+            mask |= 1 << a;
+            side[a] = -1;
+            beta[a] = 1.0 - 2.0 * q[a];
+        } else if q[a] > n - 0.5 {
+            mask |= 1 << a;
+            side[a] = 1;
+            beta[a] = 1.0 - 2.0 * (n - q[a]);
+        }
+    }
+    (mask, side, beta)
+}
+
+/// Band axes whose transition is active: some touching low-res brick lies across that axis.
+pub fn active_axes(bits: u32, band_mask: u32, side: IVec3) -> u32 {
+    let mut active_mask = 0;
+    let mut sub = band_mask;
+    while sub != 0 {
+        if bits & neighbour_bit(offset_of(sub, side)) != 0 {
+            active_mask |= sub;
+        }
+        sub = (sub - 1) & band_mask;
+    }
+    active_mask
+}
+
+/// Brick-local coordinate at which a single trilinear fetch of the fixed-up border of the feature
+/// `face_mask` reads the low-res function at local point `p`: border texel centres on the feature
+/// axes, the low-res (trapezoid) warp `2k + 1/2 + (p - 2k) / 2` along the others.
+pub fn low_res_border_coord(p: Vec3, face_mask: u32, side: IVec3, n: f32) -> Vec3 {
+    let mut c = p;
+    for a in 0..3 {
+        if face_mask & (1 << a) != 0 {
+            c[a] = if side[a] < 0 { -0.5 } else { n + 0.5 };
+        } else {
+            let k2 = (2.0 * (p[a] * 0.5).floor()).min(n - 2.0);
+            c[a] = k2 + 0.5 + (p[a] - k2) * 0.5;
+        }
+    }
+    c
+}
+
+/// The field value at volume point `x` (hi-res voxel units), or `None` in an absent brick:
+/// the layout lookup, then [`sample_in_brick`].
+pub fn sample_mixed(mv: &MixedVolume, x: Vec3, transition: Transition) -> Option<f32> {
+    let b = brick_of(x, mv.brick_size, mv.bricks);
+    let bi = (b.x as u32 + mv.bricks.x * (b.y as u32 + mv.bricks.y * b.z as u32)) as usize;
+    let entry = mv.layout[bi];
+    if entry[3] == 0.0 {
+        return None;
+    }
+    Some(sample_in_brick(
+        mv.cache,
+        x,
+        b,
+        entry,
+        mv.neighbours[bi],
+        mv.brick_size as f32,
+        transition,
+    ))
+}
+
+/// The field at volume point `x` inside brick `b` with layout entry `entry` (`t_w > 0`) and
+/// neighbour bits `bits`. Mirrors `sample_in_brick` in mixed.glsl.
+pub fn sample_in_brick(
+    cache: &CacheImage,
+    x: Vec3,
+    b: IVec3,
+    entry: [f32; 4],
+    bits: u32,
+    n: f32,
+    transition: Transition,
+) -> f32 {
+    let t = Vec3::new(entry[0], entry[1], entry[2]);
+    if transition == Transition::Smooth && entry[3] == 1.0 && bits != 0 {
+        let origin = b.as_vec3() * n;
+        return sample_hi_res_transition(cache, x - origin, origin + t, bits, n);
+    }
+    cache.fetch(x * entry[3] + t)
+}
+
+/// The smooth reconstruction inside a hi-res brick: `q` brick-local, `texel_of_local` the texel
+/// coordinate of local 0 (`n*b + t_xyz`), `bits` its neighbour bits.
+pub fn sample_hi_res_transition(cache: &CacheImage, q: Vec3, texel_of_local: Vec3, bits: u32, n: f32) -> f32 {
+    let (band_mask, side, beta) = band(q, n);
+    let active_mask = active_axes(bits, band_mask, side);
+    if active_mask == 0 {
+        return cache.fetch(q + texel_of_local);
+    }
+    let face = Vec3::new(
+        if side.x < 0 { 0.0 } else { n },
+        if side.y < 0 { 0.0 } else { n },
+        if side.z < 0 { 0.0 } else { n },
+    );
+    let plane = Vec3::new(
+        if side.x < 0 { 0.5 } else { n - 0.5 },
+        if side.y < 0 { 0.5 } else { n - 0.5 },
+        if side.z < 0 { 0.5 } else { n - 0.5 },
+    );
+    let mut sum = 0.0;
+    // Every subset S of the active_mask axes: S on the face, active_mask \ S on the hi-res plane.
+    let mut s = active_mask;
+    loop {
+        let mut weight = 1.0;
+        let mut p = q;
+        for a in 0..3 {
+            if active_mask & (1 << a) != 0 {
+                if s & (1 << a) != 0 {
+                    weight *= beta[a];
+                    p[a] = face[a];
+                } else {
+                    weight *= 1.0 - beta[a];
+                    p[a] = plane[a];
+                }
+            }
+        }
+        if weight > 0.0 {
+            let local = if s != 0 && feature_touches_low_res(bits, s, side) {
+                low_res_border_coord(p, s, side, n)
+            } else {
+                p
+            };
+            sum += weight * cache.fetch(local + texel_of_local);
+        }
+        if s == 0 {
+            break;
+        }
+        s = (s - 1) & active_mask;
+    }
+    sum
+}
+
+/// Candidate features of a border texel in precedence order: faces, then edges, then the corner
+/// (x before y before z). Returns axis masks; only those inside `border_mask` are used.
+pub const FIXUP_PRECEDENCE: [u32; 7] = [0b001, 0b010, 0b100, 0b011, 0b101, 0b110, 0b111];
+
+/// Rewrites the duplicated border texels of the hi-res brick `brick` (whose slot starts at texel
+/// `slot_origin`) to the nearest low-res sample of the first low-res neighbour in
+/// [`FIXUP_PRECEDENCE`]; texels with no low-res candidate and all original samples stay as they
+/// are. Mirrors `glsl/fixup.comp`.
+pub fn fixup_brick(
+    cache: &mut CacheImage,
+    layout: &[[f32; 4]],
+    neighbours: &[u32],
+    bricks: UVec3,
+    brick_size: u32,
+    brick: UVec3,
+    slot_origin: UVec3,
+) {
+    let bi = (brick.x + bricks.x * (brick.y + bricks.y * brick.z)) as usize;
+    let bits = neighbours[bi];
+    if bits == 0 {
+        return;
+    }
+    let s = brick_size + 2;
+    for tz in 0..s {
+        for ty in 0..s {
+            for tx in 0..s {
+                let t = UVec3::new(tx, ty, tz);
+                if let Some(value) =
+                    fixup_value(cache, layout, bits, bricks, brick_size, brick.as_ivec3(), t)
+                {
+                    cache.set_texel((slot_origin + t).as_ivec3(), value);
+                }
+            }
+        }
+    }
+}
+
+/// The fixed-up value of texel `t` (slot-local) of hi-res brick `brick`, or `None` when the texel
+/// is not on the border or has no low-res candidate.
+pub fn fixup_value(
+    cache: &CacheImage,
+    layout: &[[f32; 4]],
+    bits: u32,
+    bricks: UVec3,
+    brick_size: u32,
+    brick: IVec3,
+    t: UVec3,
+) -> Option<f32> {
+    let last = brick_size + 1;
+    let mut border_mask = 0;
+    let mut side = IVec3::ZERO;
+    for a in 0..3 {
+        if t[a] == 0 {
+            border_mask |= 1 << a;
+            side[a] = -1;
+        } else if t[a] == last {
+            border_mask |= 1 << a;
+            side[a] = 1;
+        }
+    }
+    if border_mask == 0 {
+        return None;
+    }
+    let n = brick_size as i32;
+    for candidate in FIXUP_PRECEDENCE {
+        if candidate & !border_mask != 0 {
+            continue;
+        }
+        let d = offset_of(candidate, side);
+        if bits & neighbour_bit(d) == 0 {
+            continue;
+        }
+        let nb = brick + d;
+        let ni = (nb.x as u32 + bricks.x * (nb.y as u32 + bricks.y * nb.z as u32)) as usize;
+        let [nx, ny, nz, _] = layout[ni];
+        // Nearest low-res sample (even position) of the neighbour to the texel's position.
+        let mut sample = IVec3::ZERO;
+        for a in 0..3 {
+            sample[a] = match d[a] {
+                -1 => n * brick[a],
+                1 => n * (brick[a] + 1),
+                _ => {
+                    // Texel t sits at n*b - 1 + t + 0.5; nearest even integer, inside the neighbour.
+                    let p = n * brick[a] - 1 + t[a] as i32; // position - 0.5
+                    let even = 2 * ((p + 1).div_euclid(2)); // p + 0.5 rounded to even
+                    even.clamp(n * nb[a], n * (nb[a] + 1))
+                }
+            };
+        }
+        let texel = (sample.as_vec3() * 0.5 + Vec3::new(nx, ny, nz)).floor().as_ivec3();
+        return Some(cache.texel(texel));
+    }
+    None
+}

@@ -14,8 +14,10 @@
 )]
 
 pub mod bricks;
+pub mod cache;
 pub mod error;
 pub mod gpu;
+pub mod lod;
 pub mod optics;
 pub mod reference;
 pub mod renderer;

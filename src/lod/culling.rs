@@ -48,7 +48,7 @@ impl TfCullTable {
     pub fn new(tf: &TransferFunction, window: (f32, f32)) -> Result<Self, LodError> {
         let (lo, hi) = window;
         let inv_range = if hi > lo { 1.0 / (hi - lo) } else { 0.0 };
-        if !(hi.is_finite()) {
+        if !hi.is_finite() {
             return Err(LodError::InvalidWindow { lo, inv_range });
         }
         Self::with_inverse_range(tf, lo, inv_range)
@@ -94,6 +94,7 @@ impl TfCullTable {
 
     /// The entries `first ..= last` a sample with a value in `range` can read, or `None` for an
     /// empty range (`min > max`). A range with a NaN end reads every entry (conservative).
+    #[inline]
     pub fn entry_span(&self, range: ValueRange) -> Option<(usize, usize)> {
         let last_entry = self.entry_count() - 1;
         if range.min.is_nan() || range.max.is_nan() {
@@ -103,8 +104,13 @@ impl TfCullTable {
             return None;
         }
         let scale = last_entry as f32;
-        let first = (self.position(range.min) * scale).floor() as usize;
-        let last = (self.position(range.max) * scale).ceil() as usize;
+        // x >= 0, so truncation is floor; ceil adds one unless x is integral (no libm calls).
+        let x_min = self.position(range.min) * scale;
+        let x_max = self.position(range.max) * scale;
+        // Both lie in [0, N - 1]: the i32 conversion is exact and a single instruction.
+        let first = x_min as i32 as usize;
+        let truncated = x_max as i32;
+        let last = (truncated + i32::from((truncated as f32) < x_max)) as usize;
         Some((first.min(last_entry), last.min(last_entry)))
     }
 
@@ -119,6 +125,7 @@ impl TfCullTable {
     }
 
     /// True when a brick with values in `range` can produce a sample with non-zero opacity.
+    #[inline]
     pub fn is_active(&self, range: ValueRange) -> bool {
         self.entry_span(range)
             .is_some_and(|(first, last)| self.visible_entries(first, last) > 0)
@@ -280,14 +287,18 @@ pub fn cull_bricks_into(
         }
     }
     active.clear();
-    active.extend(ranges.iter().map(|&range| match &params.value {
-        ValueCulling::None => !range.is_empty(),
-        ValueCulling::TransferFunction(table) => table.is_active(range),
-        // NaN ends compare false: keep such a brick (conservative).
-        ValueCulling::IsoValue(iso) => {
-            iso_active(range, *iso) || range.min.is_nan() || range.max.is_nan()
+    match &params.value {
+        ValueCulling::None => active.extend(ranges.iter().map(|r| !r.is_empty())),
+        ValueCulling::TransferFunction(table) => {
+            active.extend(ranges.iter().map(|&r| table.is_active(r)));
         }
-    }));
+        // NaN ends compare false: keep such a brick (conservative).
+        ValueCulling::IsoValue(iso) => active.extend(
+            ranges
+                .iter()
+                .map(|&r| iso_active(r, *iso) || r.min.is_nan() || r.max.is_nan()),
+        ),
+    }
     if !params.clip.planes().is_empty() {
         geometry.for_each_brick_box(|index, min, max| {
             if active[index] && params.clip.box_clipped(min, max) {
@@ -342,7 +353,8 @@ mod tests {
         let runs = rng.below(4);
         for _ in 0..runs {
             let start = rng.below(TF_SIZE);
-            let len = 1 + rng.below(if rng.next_f32() < 0.5 { 2 } else { 40 });
+            let max_len = if rng.next_f32() < 0.5 { 2 } else { 40 };
+            let len = 1 + rng.below(max_len);
             visible.extend(start..(start + len).min(TF_SIZE));
         }
         tf_with_visible(&visible)
@@ -390,7 +402,11 @@ mod tests {
                 };
                 let r = range(a, a + w);
                 let expected = brute_force_active(&tf, lo, inv, r);
-                assert_eq!(table.is_active(r), expected, "window ({lo}, {hi}) range {r:?}");
+                assert_eq!(
+                    table.is_active(r),
+                    expected,
+                    "window ({lo}, {hi}) range {r:?}"
+                );
                 if expected {
                     active_seen += 1;
                 } else {
@@ -413,7 +429,10 @@ mod tests {
                 );
             }
         }
-        assert!(active_seen > 1000 && culled_seen > 1000, "{active_seen} / {culled_seen}");
+        assert!(
+            active_seen > 1000 && culled_seen > 1000,
+            "{active_seen} / {culled_seen}"
+        );
     }
 
     #[test]
@@ -445,14 +464,23 @@ mod tests {
         let below = range(-5.0, 0.2);
         let above = range(0.8, 7.0);
         assert!(first_only.is_active(below));
-        assert!(!second_only.is_active(below), "clamped to s = 0 reads entry 0 only");
+        assert!(
+            !second_only.is_active(below),
+            "clamped to s = 0 reads entry 0 only"
+        );
         assert!(!last_only.is_active(below));
         assert!(last_only.is_active(above));
         assert!(!first_only.is_active(above));
         assert_eq!(first_only.entry_span(below), Some((0, 0)));
-        assert_eq!(first_only.entry_span(above), Some((TF_SIZE - 1, TF_SIZE - 1)));
+        assert_eq!(
+            first_only.entry_span(above),
+            Some((TF_SIZE - 1, TF_SIZE - 1))
+        );
         // Straddling the window reads everything.
-        assert_eq!(first_only.entry_span(range(-1.0, 2.0)), Some((0, TF_SIZE - 1)));
+        assert_eq!(
+            first_only.entry_span(range(-1.0, 2.0)),
+            Some((0, TF_SIZE - 1))
+        );
         // An empty window maps everything to entry 0, as the ray-caster does.
         let empty = TfCullTable::new(&tf_with_visible(&[0]), (0.5, 0.5)).unwrap();
         assert!(empty.is_active(range(0.9, 1.0)));
@@ -493,7 +521,10 @@ mod tests {
             Err(LodError::InvalidWindow { .. })
         ));
         assert!(TfCullTable::new(&tf, (0.0, f32::INFINITY)).is_err());
-        assert!(TfCullTable::new(&tf, (0.0, 1e-45)).is_err(), "1/(hi-lo) overflows");
+        assert!(
+            TfCullTable::new(&tf, (0.0, 1e-45)).is_err(),
+            "1/(hi-lo) overflows"
+        );
         assert!(TfCullTable::with_inverse_range(&tf, 0.0, -1.0).is_err());
         assert!(TfCullTable::with_inverse_range(&tf, 0.0, 2.0).is_ok());
     }
@@ -615,8 +646,17 @@ mod tests {
         let tf = tf_with_visible(&[TF_SIZE - 1]);
         let by_tf = CullParams::transfer_function(TfCullTable::new(&tf, (0.0, 1.0)).unwrap());
         assert_eq!(
-            cull_bricks(&geometry, &[range(0.0, 1.0), range(0.0, 0.5), range(0.99, 0.99), range(2.0, 3.0)], &by_tf)
-                .unwrap(),
+            cull_bricks(
+                &geometry,
+                &[
+                    range(0.0, 1.0),
+                    range(0.0, 0.5),
+                    range(0.99, 0.99),
+                    range(2.0, 3.0)
+                ],
+                &by_tf
+            )
+            .unwrap(),
             [true, false, false, true]
         );
         assert_eq!(

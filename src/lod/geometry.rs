@@ -282,3 +282,91 @@ impl LodView {
         self.frustum.iter().any(|p| p.box_clipped(min, max))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn brick_boxes_tile_the_volume_box() {
+        // 20 x 8 x 8 voxels, spacing 1 x 2 x 2: physical 20 x 16 x 16, longest side 1.
+        let grid = BrickGrid::new(UVec3::new(20, 8, 8), 8).unwrap();
+        let geometry = BrickGeometry::new(grid, Vec3::new(1.0, 2.0, 2.0)).unwrap();
+        let (min, max) = geometry.volume_box();
+        assert!((max - min - Vec3::new(1.0, 0.8, 0.8)).abs().max_element() < 1e-6);
+        assert!(
+            (geometry.voxel_size() - Vec3::new(0.05, 0.1, 0.1))
+                .abs()
+                .max_element()
+                < 1e-6
+        );
+        // The partial brick at the far x face is clipped to the volume.
+        let (lo, hi) = geometry.brick_box(UVec3::new(2, 0, 0));
+        assert!((lo.x - 0.3).abs() < 1e-6 && (hi.x - 0.5).abs() < 1e-6);
+        let mut seen = 0;
+        geometry.for_each_brick_box(|index, lo, hi| {
+            let (a, b) = geometry.brick_box(grid.brick_coords(index));
+            assert_eq!((lo, hi), (a, b));
+            seen += 1;
+        });
+        assert_eq!(seen, grid.brick_count());
+        assert!(matches!(
+            BrickGeometry::new(grid, Vec3::new(1.0, 0.0, 1.0)),
+            Err(LodError::InvalidSpacing { .. })
+        ));
+    }
+
+    #[test]
+    fn frustum_planes_contain_what_the_camera_sees() {
+        let camera = Camera::perspective(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, 40.0);
+        let view = LodView::new(&camera, 200, 100).unwrap();
+        let inside = |p: Vec3| {
+            view.frustum_planes()
+                .iter()
+                .all(|pl| pl.signed_distance(p) >= 0.0)
+        };
+        assert!(inside(Vec3::ZERO));
+        assert!(!inside(Vec3::new(0.0, 0.0, 3.5)), "behind the eye");
+        // Vertical half-angle 20 degrees: at distance 3, |y| <= 1.092; horizontal twice that.
+        assert!(inside(Vec3::new(0.0, 1.05, 0.0)));
+        assert!(!inside(Vec3::new(0.0, 1.15, 0.0)));
+        assert!(inside(Vec3::new(2.1, 0.0, 0.0)));
+        assert!(!inside(Vec3::new(2.3, 0.0, 0.0)));
+        assert!(view.box_outside_frustum(Vec3::new(3.0, -0.1, -0.1), Vec3::new(3.2, 0.1, 0.1)));
+        assert!(!view.box_outside_frustum(Vec3::splat(-0.1), Vec3::splat(0.1)));
+        let ppu = view.pixels_per_world_unit(3.0);
+        assert!((ppu - 100.0 / (2.0 * 20f32.to_radians().tan() * 3.0)).abs() < 1e-3);
+    }
+
+    #[test]
+    fn unusable_views_are_typed_errors() {
+        let camera = Camera::default_view();
+        assert_eq!(
+            LodView::new(&camera, 0, 10),
+            Err(LodError::ZeroViewport {
+                width: 0,
+                height: 10
+            })
+        );
+        let same = Camera::perspective(Vec3::ONE, Vec3::ONE, 30.0);
+        assert!(matches!(
+            LodView::new(&same, 8, 8),
+            Err(LodError::DegenerateCamera { .. })
+        ));
+        let straight_down = Camera::perspective(Vec3::Y, Vec3::ZERO, 30.0);
+        assert!(matches!(
+            LodView::new(&straight_down, 8, 8),
+            Err(LodError::DegenerateCamera { .. })
+        ));
+        let wide = Camera::perspective(Vec3::Z, Vec3::ZERO, 180.0);
+        assert!(matches!(
+            LodView::new(&wide, 8, 8),
+            Err(LodError::InvalidProjection { .. })
+        ));
+        let flat = Camera::orthographic(Vec3::Z, Vec3::ZERO, 0.0);
+        assert!(matches!(
+            LodView::new(&flat, 8, 8),
+            Err(LodError::InvalidProjection { .. })
+        ));
+    }
+}

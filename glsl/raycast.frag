@@ -20,7 +20,7 @@ layout(std430, set = 0, binding = 3) readonly buffer LayoutTable { vec4 layout_e
 layout(std430, set = 0, binding = 4) readonly buffer NeighbourTable { uint neighbour_bits[]; };
 
 float cache_fetch(vec3 texel) {
-    return texture(cache_tex, texel * params.cache_extent_inv.xyz).r;
+    return textureLod(cache_tex, texel * params.cache_extent_inv.xyz, 0.0).r;
 }
 #include "include/mixed.glsl"
 #else

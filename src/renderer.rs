@@ -3,7 +3,7 @@
 use crate::error::{Error, Result, VkResultExt};
 use crate::gpu::{
     image_barrier, memory_barrier, Access, Buffer, DeviceShared, GpuContext, Image, ImageDesc,
-    RaycastPipeline, Submitter, TimestampPool, COLOR_LAYERS,
+    RaycastPipeline, RaycastVariant, Submitter, TimestampPool, COLOR_LAYERS,
 };
 use crate::optics::{TransferFunction, TF_SIZE};
 use crate::scene::{Camera, RaycastParams, RenderSettings};
@@ -226,7 +226,7 @@ impl Renderer {
             MemoryLocation::CpuToGpu,
         )?;
         let timestamps = TimestampPool::new(shared, 2)?;
-        let pipeline = RaycastPipeline::new(shared, format.vk())?;
+        let pipeline = RaycastPipeline::new(shared, format.vk(), RaycastVariant::default())?;
         Ok(Self {
             target: None,
             volume: None,
@@ -367,7 +367,7 @@ impl Renderer {
         let volume = self.volume.as_ref().expect("checked in params()");
         if self.descriptors_dirty {
             self.pipeline
-                .write_descriptors(self.params.raw, volume.image.view, self.tf_image.view);
+                .write_descriptors(self.params.raw, volume.image.view, self.tf_image.view, None);
             self.descriptors_dirty = false;
         }
         let target = self.target.as_ref().expect("created by ensure_target");

@@ -23,6 +23,18 @@ pub(crate) enum Access {
     ColorAttachmentWrite,
     /// Read by the host after the commands complete.
     HostRead,
+    /// Buffers written by a compute shader.
+    ComputeWrite,
+    /// Brick cache (GENERAL layout) written by a copy.
+    CacheTransferWrite,
+    /// Brick cache (GENERAL layout) read by a copy.
+    CacheTransferRead,
+    /// Brick cache (GENERAL layout) read and written as a storage image by the fixup pass.
+    CacheComputeReadWrite,
+    /// Brick cache (GENERAL layout) sampled by a compute shader (the field probe).
+    CacheComputeSampled,
+    /// Brick cache (GENERAL layout) sampled by the ray-cast fragment shader.
+    CacheFragmentSampled,
 }
 
 impl Access {
@@ -43,6 +55,20 @@ impl Access {
                 L::COLOR_ATTACHMENT_OPTIMAL,
             ),
             Access::HostRead => (S::HOST, A::HOST_READ, L::GENERAL),
+            Access::ComputeWrite => (S::COMPUTE_SHADER, A::SHADER_STORAGE_WRITE, L::GENERAL),
+            Access::CacheTransferWrite => (S::COPY, A::TRANSFER_WRITE, L::GENERAL),
+            Access::CacheTransferRead => (S::COPY, A::TRANSFER_READ, L::GENERAL),
+            Access::CacheComputeReadWrite => (
+                S::COMPUTE_SHADER,
+                A::SHADER_STORAGE_READ | A::SHADER_STORAGE_WRITE,
+                L::GENERAL,
+            ),
+            Access::CacheComputeSampled => {
+                (S::COMPUTE_SHADER, A::SHADER_SAMPLED_READ, L::GENERAL)
+            }
+            Access::CacheFragmentSampled => {
+                (S::FRAGMENT_SHADER, A::SHADER_SAMPLED_READ, L::GENERAL)
+            }
         }
     }
 }

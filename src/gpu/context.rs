@@ -141,6 +141,9 @@ pub struct DeviceInfo {
     pub validation: bool,
     /// Whether synchronization validation is active.
     pub synchronization_validation: bool,
+    /// Whether R8/R16 storage images are supported (and enabled): the fixup pass needs them for
+    /// u8/u16 brick caches.
+    pub storage_image_extended_formats: bool,
 }
 
 /// State shared by every object of the backend. Dropped last: waits idle, drops the allocator
@@ -410,12 +413,18 @@ impl GpuContext {
             .dynamic_rendering(true)
             .synchronization2(true)
             .maintenance4(true);
+        // SAFETY: the physical device was enumerated from this instance.
+        let supported10 = unsafe { instance.get_physical_device_features(physical_device) };
+        let features10 = vk::PhysicalDeviceFeatures::default().shader_storage_image_extended_formats(
+            supported10.shader_storage_image_extended_formats == vk::TRUE,
+        );
         let priorities = [1.0f32];
         let queue_infos = [vk::DeviceQueueCreateInfo::default()
             .queue_family_index(queue_family)
             .queue_priorities(&priorities)];
         let device_info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queue_infos)
+            .enabled_features(&features10)
             .push_next(&mut features13);
         // SAFETY: required features were checked in pick_device; pointers outlive the call.
         let device = match unsafe { instance.create_device(physical_device, &device_info, None) } {
@@ -469,6 +478,8 @@ impl GpuContext {
             timestamps_supported: families[queue_family as usize].timestamp_valid_bits > 0,
             validation: desc.validation,
             synchronization_validation: desc.validation && sync_validation,
+            storage_image_extended_formats: features10.shader_storage_image_extended_formats
+                == vk::TRUE,
         };
         log::info!(
             "device: {} ({:?}), validation {}, sync validation {}",

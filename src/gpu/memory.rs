@@ -11,6 +11,7 @@ use std::sync::Arc;
 /// A buffer with its memory.
 pub(crate) struct Buffer {
     pub(crate) raw: vk::Buffer,
+    pub(crate) size: vk::DeviceSize,
     allocation: Option<Allocation>,
     shared: Arc<DeviceShared>,
 }
@@ -59,6 +60,7 @@ impl Buffer {
             unsafe { device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) };
         let buffer = Self {
             raw,
+            size,
             allocation: Some(allocation),
             shared: shared.clone(),
         };

@@ -3,7 +3,9 @@
 //! (`memory`), shader compilation (`shaders`), command recording (`commands`) and the ray-cast
 //! pipeline (`raycast`).
 
+mod brick_cache;
 mod commands;
+mod compute;
 mod context;
 mod memory;
 mod raycast;
@@ -13,6 +15,9 @@ pub use context::{ContextDesc, DebugMessage, DeviceInfo, GpuContext, MessageLog,
 pub use shaders::ShaderStage;
 
 pub(crate) use commands::{image_barrier, memory_barrier, Access, Submitter, TimestampPool};
+pub(crate) use brick_cache::{CacheRegion, CacheTables, FieldProbe, GpuBrickCache};
+pub(crate) use compute::{ComputePipeline, ComputeResource};
 pub(crate) use context::DeviceShared;
 pub(crate) use memory::{Buffer, Image, ImageDesc, COLOR_LAYERS};
 pub(crate) use raycast::RaycastPipeline;
+pub use raycast::RaycastVariant;

@@ -9,12 +9,30 @@ use crate::scene::RAY_DIR_EPSILON;
 use ash::vk;
 use std::sync::Arc;
 
-/// Macros every ray-cast shader is compiled with: Rust constants defined once.
-fn shader_defines() -> Vec<(&'static str, String)> {
-    vec![
-        ("TF_SIZE", TF_SIZE.to_string()),
-        ("RAY_DIR_EPSILON", format!("{RAY_DIR_EPSILON:e}")),
-    ]
+/// Which ray-cast shader variant a pipeline contains: a scene compiles only what it uses.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash, Default)]
+pub struct RaycastVariant {
+    /// Read a brick cache through the layout table (otherwise one plain 3D volume texture).
+    pub mixed_resolution: bool,
+    /// Add the C0 transition blend (mixed resolution only).
+    pub smooth_transitions: bool,
+}
+
+impl RaycastVariant {
+    /// Macros the variant is compiled with: Rust constants defined once, plus feature switches.
+    pub(crate) fn defines(self) -> Vec<(&'static str, String)> {
+        let mut defines = vec![
+            ("TF_SIZE", TF_SIZE.to_string()),
+            ("RAY_DIR_EPSILON", format!("{RAY_DIR_EPSILON:e}")),
+        ];
+        if self.mixed_resolution {
+            defines.push(("MIXED_RESOLUTION", "1".into()));
+            if self.smooth_transitions {
+                defines.push(("SMOOTH_TRANSITIONS", "1".into()));
+            }
+        }
+        defines
+    }
 }
 
 /// Pipeline, layouts, sampler and the one descriptor set the ray-caster binds.
@@ -25,12 +43,17 @@ pub(crate) struct RaycastPipeline {
     pub(crate) sampler: vk::Sampler,
     pool: vk::DescriptorPool,
     pub(crate) set: vk::DescriptorSet,
+    pub(crate) variant: RaycastVariant,
     shared: Arc<DeviceShared>,
 }
 
 impl RaycastPipeline {
-    pub(crate) fn new(shared: &Arc<DeviceShared>, color_format: vk::Format) -> Result<Self> {
-        let defines = shader_defines();
+    pub(crate) fn new(
+        shared: &Arc<DeviceShared>,
+        color_format: vk::Format,
+        variant: RaycastVariant,
+    ) -> Result<Self> {
+        let defines = variant.defines();
         let vert = compile("raycast.vert", ShaderStage::Vertex, &defines)?;
         let frag = compile("raycast.frag", ShaderStage::Fragment, &defines)?;
         let device = &shared.device;
@@ -41,9 +64,10 @@ impl RaycastPipeline {
             sampler: vk::Sampler::null(),
             pool: vk::DescriptorPool::null(),
             set: vk::DescriptorSet::null(),
+            variant,
             shared: shared.clone(),
         };
-        let bindings = [
+        let mut bindings = vec![
             vk::DescriptorSetLayoutBinding::default()
                 .binding(0)
                 .descriptor_type(vk::DescriptorType::UNIFORM_BUFFER)
@@ -60,6 +84,16 @@ impl RaycastPipeline {
                 .descriptor_count(1)
                 .stage_flags(vk::ShaderStageFlags::FRAGMENT),
         ];
+        let table_bindings = if variant.mixed_resolution { 2 } else { 0 };
+        for binding in 3..3 + table_bindings {
+            bindings.push(
+                vk::DescriptorSetLayoutBinding::default()
+                    .binding(binding)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .descriptor_count(1)
+                    .stage_flags(vk::ShaderStageFlags::FRAGMENT),
+            );
+        }
         // SAFETY: valid create infos on a live device; every handle is stored in `this` at once so
         // Drop releases it on any later error.
         unsafe {
@@ -87,7 +121,7 @@ impl RaycastPipeline {
             this.sampler = device
                 .create_sampler(&sampler_info, None)
                 .vk("vkCreateSampler")?;
-            let pool_sizes = [
+            let mut pool_sizes = vec![
                 vk::DescriptorPoolSize {
                     ty: vk::DescriptorType::UNIFORM_BUFFER,
                     descriptor_count: 1,
@@ -97,6 +131,12 @@ impl RaycastPipeline {
                     descriptor_count: 2,
                 },
             ];
+            if table_bindings > 0 {
+                pool_sizes.push(vk::DescriptorPoolSize {
+                    ty: vk::DescriptorType::STORAGE_BUFFER,
+                    descriptor_count: table_bindings,
+                });
+            }
             this.pool = device
                 .create_descriptor_pool(
                     &vk::DescriptorPoolCreateInfo::default()
@@ -197,13 +237,15 @@ impl RaycastPipeline {
         }
     }
 
-    /// Points the descriptor set at the parameter buffer, the volume and the transfer function.
-    /// The caller guarantees the set is not in use by pending GPU work.
+    /// Points the descriptor set at the parameter buffer, the volume (or brick cache), the
+    /// transfer function and, for mixed resolution, the layout and neighbour tables. The caller
+    /// guarantees the set is not in use by pending GPU work.
     pub(crate) fn write_descriptors(
         &self,
         params: vk::Buffer,
         volume_view: vk::ImageView,
         tf_view: vk::ImageView,
+        tables: Option<(vk::Buffer, vk::Buffer)>,
     ) {
         let buffer_info = [vk::DescriptorBufferInfo {
             buffer: params,
@@ -219,7 +261,18 @@ impl RaycastPipeline {
         };
         let volume_info = image_info(volume_view);
         let tf_info = image_info(tf_view);
-        let writes = [
+        let table_info = |buffer| {
+            [vk::DescriptorBufferInfo {
+                buffer,
+                offset: 0,
+                range: vk::WHOLE_SIZE,
+            }]
+        };
+        let (layout_info, neighbour_info) = match tables {
+            Some((layout, neighbours)) => (table_info(layout), table_info(neighbours)),
+            None => (table_info(vk::Buffer::null()), table_info(vk::Buffer::null())),
+        };
+        let mut writes = vec![
             vk::WriteDescriptorSet::default()
                 .dst_set(self.set)
                 .dst_binding(0)
@@ -236,6 +289,17 @@ impl RaycastPipeline {
                 .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
                 .image_info(&tf_info),
         ];
+        if self.variant.mixed_resolution && tables.is_some() {
+            for (binding, info) in [(3, &layout_info), (4, &neighbour_info)] {
+                writes.push(
+                    vk::WriteDescriptorSet::default()
+                        .dst_set(self.set)
+                        .dst_binding(binding)
+                        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                        .buffer_info(info),
+                );
+            }
+        }
         // SAFETY: all handles are live; the caller guarantees no pending GPU use of the set.
         unsafe { self.shared.device.update_descriptor_sets(&writes, &[]) };
     }

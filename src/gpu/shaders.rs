@@ -23,6 +23,7 @@ static SOURCES: &[Source] = glsl_sources!(
     "raycast.vert",
     "raycast.frag",
     "fixup.comp",
+    "probe.comp",
     "include/params.glsl",
     "include/neighbours.glsl",
     "include/mixed.glsl",

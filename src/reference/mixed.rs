@@ -387,3 +387,106 @@ pub fn fixup_value(
     }
     None
 }
+
+/// The CPU mirror of a GPU brick cache: the cache image filled from the volume exactly as the
+/// uploads fill the GPU image (values quantised to the storage type), fixed up when smooth, plus
+/// the tables. Built from the residency model alone, independently of the GPU.
+#[derive(Clone, Debug)]
+pub struct ReferenceCache {
+    /// The cache image.
+    pub image: CacheImage,
+    /// Layout entry per brick.
+    pub layout: Vec<[f32; 4]>,
+    /// Neighbour bits per brick.
+    pub neighbours: Vec<u32>,
+    /// Bricks per axis.
+    pub bricks: UVec3,
+    /// Brick size.
+    pub brick_size: u32,
+}
+
+impl ReferenceCache {
+    /// Packs every resident brick of `cache` from `volume` with `filter`, stores it as the GPU
+    /// does (`storage` quantisation) and, for [`Transition::Smooth`], runs the fixup.
+    pub fn build(
+        volume: &crate::volume::Volume,
+        filter: crate::bricks::DownsampleFilter,
+        cache: &crate::cache::BrickCache,
+        storage: crate::volume::ScalarType,
+        transition: Transition,
+    ) -> crate::Result<Self> {
+        use crate::bricks::{pack_hi_res_brick, pack_low_res_brick, quantize_to};
+        use crate::cache::{Level, Residency};
+        let grid = cache.grid();
+        let geometry = cache.geometry();
+        let mut image = CacheImage::new(geometry.extent());
+        let brick_err = |e: crate::bricks::BrickError| crate::Error::InvalidInput(e.to_string());
+        for (index, residency) in cache.residencies().iter().enumerate() {
+            let brick = grid.brick_coords(index);
+            let (values, origin) = match *residency {
+                Residency::Absent => continue,
+                Residency::Hi { slot } => (
+                    pack_hi_res_brick(volume, grid, brick).map_err(brick_err)?,
+                    geometry.slot_origin(slot),
+                ),
+                Residency::Lo { slot, sub_slot } => (
+                    pack_low_res_brick(volume, grid, filter, brick).map_err(brick_err)?,
+                    geometry.sub_slot_origin(slot, sub_slot),
+                ),
+            };
+            let stored = dequantize(&quantize_to(&values, storage), storage);
+            let edge = match residency.level() {
+                Level::Hi => geometry.slot_edge(),
+                _ => geometry.sub_slot_edge(),
+            };
+            image.write_box(origin, UVec3::splat(edge), &stored);
+        }
+        let layout = cache.layout_table();
+        let neighbours = cache.neighbour_bits();
+        if transition == Transition::Smooth {
+            for slot in cache.fixup_slots() {
+                let brick = cache.reverse_table()[slot as usize][0];
+                fixup_brick(
+                    &mut image,
+                    &layout,
+                    &neighbours,
+                    grid.bricks_per_axis(),
+                    grid.brick_size(),
+                    grid.brick_coords(brick as usize),
+                    geometry.slot_origin(slot),
+                );
+            }
+        }
+        Ok(Self {
+            image,
+            layout,
+            neighbours,
+            bricks: grid.bricks_per_axis(),
+            brick_size: grid.brick_size(),
+        })
+    }
+
+    /// The view the samplers take.
+    pub fn view(&self) -> MixedVolume<'_> {
+        MixedVolume {
+            cache: &self.image,
+            layout: &self.layout,
+            neighbours: &self.neighbours,
+            bricks: self.bricks,
+            brick_size: self.brick_size,
+        }
+    }
+}
+
+/// Normalised values of texel bytes in the storage format (what the GPU's UNORM/SFLOAT read gives).
+pub fn dequantize(bytes: &[u8], storage: crate::volume::ScalarType) -> Vec<f32> {
+    use crate::volume::ScalarType;
+    match storage {
+        ScalarType::U8 => bytes.iter().map(|&b| f32::from(b) / 255.0).collect(),
+        ScalarType::U16 => bytes
+            .chunks_exact(2)
+            .map(|c| f32::from(u16::from_ne_bytes([c[0], c[1]])) / 65535.0)
+            .collect(),
+        ScalarType::F32 => bytemuck::pod_collect_to_vec(bytes),
+    }
+}

@@ -9,7 +9,7 @@ pub use camera::{generate_ray, intersect_box, safe_inverse, Ray};
 pub use mixed::{
     active_axes, band, brick_of, feature_touches_low_res, low_res_border_coord, neighbour_bit,
     fixup_brick, fixup_value, sample_hi_res_transition, sample_in_brick, sample_mixed, CacheImage, MixedVolume,
-    Transition, FIXUP_PRECEDENCE,
+    Transition, FIXUP_PRECEDENCE, ReferenceCache, dequantize,
 };
 pub use sampling::sample_volume;
 

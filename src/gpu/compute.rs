@@ -1,0 +1,229 @@
+//! A small compute pipeline: one descriptor set of storage/sampled resources, push constants,
+//! one shader. The fixup pass and the field probe are built on it.
+
+use super::context::DeviceShared;
+use super::shaders::{compile, ShaderStage};
+use crate::error::{Result, VkResultExt};
+use ash::vk;
+use std::sync::Arc;
+
+/// One binding of a compute pipeline's descriptor set, and what it points at.
+#[derive(Copy, Clone, Debug)]
+pub(crate) enum ComputeResource {
+    /// A storage image in GENERAL layout.
+    StorageImage(vk::ImageView),
+    /// A combined image sampler in GENERAL layout.
+    SampledImage(vk::ImageView, vk::Sampler),
+    /// A whole storage buffer.
+    StorageBuffer(vk::Buffer),
+}
+
+impl ComputeResource {
+    fn descriptor_type(self) -> vk::DescriptorType {
+        match self {
+            ComputeResource::StorageImage(_) => vk::DescriptorType::STORAGE_IMAGE,
+            ComputeResource::SampledImage(..) => vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+            ComputeResource::StorageBuffer(_) => vk::DescriptorType::STORAGE_BUFFER,
+        }
+    }
+}
+
+/// A compute pipeline with one descriptor set (bindings 0..n in the order given at creation).
+pub(crate) struct ComputePipeline {
+    pub(crate) pipeline: vk::Pipeline,
+    pub(crate) layout: vk::PipelineLayout,
+    set_layout: vk::DescriptorSetLayout,
+    pool: vk::DescriptorPool,
+    pub(crate) set: vk::DescriptorSet,
+    types: Vec<vk::DescriptorType>,
+    shared: Arc<DeviceShared>,
+}
+
+impl ComputePipeline {
+    /// Compiles `shader` (a file under `glsl/`) with `defines`; `types` lists binding 0.. in order.
+    pub(crate) fn new(
+        shared: &Arc<DeviceShared>,
+        shader: &str,
+        defines: &[(&str, String)],
+        types: &[vk::DescriptorType],
+        push_constant_bytes: u32,
+    ) -> Result<Self> {
+        let code = compile(shader, ShaderStage::Compute, defines)?;
+        let device = &shared.device;
+        let mut this = Self {
+            pipeline: vk::Pipeline::null(),
+            layout: vk::PipelineLayout::null(),
+            set_layout: vk::DescriptorSetLayout::null(),
+            pool: vk::DescriptorPool::null(),
+            set: vk::DescriptorSet::null(),
+            types: types.to_vec(),
+            shared: shared.clone(),
+        };
+        let bindings: Vec<_> = types
+            .iter()
+            .enumerate()
+            .map(|(i, ty)| {
+                vk::DescriptorSetLayoutBinding::default()
+                    .binding(i as u32)
+                    .descriptor_type(*ty)
+                    .descriptor_count(1)
+                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            })
+            .collect();
+        let pool_sizes: Vec<_> = types
+            .iter()
+            .map(|ty| vk::DescriptorPoolSize {
+                ty: *ty,
+                descriptor_count: 1,
+            })
+            .collect();
+        let ranges = [vk::PushConstantRange {
+            stage_flags: vk::ShaderStageFlags::COMPUTE,
+            offset: 0,
+            size: push_constant_bytes,
+        }];
+        // SAFETY: valid create infos on a live device; every handle is stored in `this` at once so
+        // Drop releases it on any later error; the module is destroyed before returning.
+        unsafe {
+            this.set_layout = device
+                .create_descriptor_set_layout(
+                    &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
+                    None,
+                )
+                .vk("vkCreateDescriptorSetLayout")?;
+            let set_layouts = [this.set_layout];
+            this.layout = device
+                .create_pipeline_layout(
+                    &vk::PipelineLayoutCreateInfo::default()
+                        .set_layouts(&set_layouts)
+                        .push_constant_ranges(&ranges),
+                    None,
+                )
+                .vk("vkCreatePipelineLayout")?;
+            this.pool = device
+                .create_descriptor_pool(
+                    &vk::DescriptorPoolCreateInfo::default()
+                        .max_sets(1)
+                        .pool_sizes(&pool_sizes),
+                    None,
+                )
+                .vk("vkCreateDescriptorPool")?;
+            this.set = device
+                .allocate_descriptor_sets(
+                    &vk::DescriptorSetAllocateInfo::default()
+                        .descriptor_pool(this.pool)
+                        .set_layouts(&set_layouts),
+                )
+                .vk("vkAllocateDescriptorSets")?[0];
+            let module = device
+                .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None)
+                .vk("vkCreateShaderModule")?;
+            let stage = vk::PipelineShaderStageCreateInfo::default()
+                .stage(vk::ShaderStageFlags::COMPUTE)
+                .module(module)
+                .name(c"main");
+            let info = vk::ComputePipelineCreateInfo::default()
+                .stage(stage)
+                .layout(this.layout);
+            let result =
+                device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None);
+            device.destroy_shader_module(module, None);
+            this.pipeline = result.map_err(|(_, result)| crate::Error::Vulkan {
+                call: "vkCreateComputePipelines",
+                result,
+            })?[0];
+        }
+        Ok(this)
+    }
+
+    /// Points the descriptor set at `resources` (binding i = resources[i]); their kinds must match
+    /// the types given at creation. The set must not be in use by pending GPU work.
+    pub(crate) fn write_descriptors(&self, resources: &[ComputeResource]) {
+        assert_eq!(resources.len(), self.types.len(), "one resource per binding");
+        let mut image_infos = Vec::with_capacity(resources.len());
+        let mut buffer_infos = Vec::with_capacity(resources.len());
+        for r in resources {
+            image_infos.push(match *r {
+                ComputeResource::StorageImage(view) => [vk::DescriptorImageInfo {
+                    sampler: vk::Sampler::null(),
+                    image_view: view,
+                    image_layout: vk::ImageLayout::GENERAL,
+                }],
+                ComputeResource::SampledImage(view, sampler) => [vk::DescriptorImageInfo {
+                    sampler,
+                    image_view: view,
+                    image_layout: vk::ImageLayout::GENERAL,
+                }],
+                ComputeResource::StorageBuffer(_) => [vk::DescriptorImageInfo::default()],
+            });
+            buffer_infos.push(match *r {
+                ComputeResource::StorageBuffer(buffer) => [vk::DescriptorBufferInfo {
+                    buffer,
+                    offset: 0,
+                    range: vk::WHOLE_SIZE,
+                }],
+                _ => [vk::DescriptorBufferInfo::default()],
+            });
+        }
+        let writes: Vec<_> = resources
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                assert_eq!(r.descriptor_type(), self.types[i], "binding {i} kind");
+                let write = vk::WriteDescriptorSet::default()
+                    .dst_set(self.set)
+                    .dst_binding(i as u32)
+                    .descriptor_type(r.descriptor_type());
+                match r {
+                    ComputeResource::StorageBuffer(_) => write.buffer_info(&buffer_infos[i]),
+                    _ => write.image_info(&image_infos[i]),
+                }
+            })
+            .collect();
+        // SAFETY: all handles are live; the caller guarantees no pending GPU use of the set.
+        unsafe { self.shared.device.update_descriptor_sets(&writes, &[]) };
+    }
+
+    /// Records bind + push constants + dispatch.
+    pub(crate) fn record_dispatch(
+        &self,
+        cmd: vk::CommandBuffer,
+        push_constants: &[u8],
+        groups: [u32; 3],
+    ) {
+        let device = &self.shared.device;
+        // SAFETY: `cmd` is recording; the set was written; the push range matches creation.
+        unsafe {
+            device.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::COMPUTE, self.pipeline);
+            device.cmd_bind_descriptor_sets(
+                cmd,
+                vk::PipelineBindPoint::COMPUTE,
+                self.layout,
+                0,
+                &[self.set],
+                &[],
+            );
+            device.cmd_push_constants(
+                cmd,
+                self.layout,
+                vk::ShaderStageFlags::COMPUTE,
+                0,
+                push_constants,
+            );
+            device.cmd_dispatch(cmd, groups[0], groups[1], groups[2]);
+        }
+    }
+}
+
+impl Drop for ComputePipeline {
+    fn drop(&mut self) {
+        let device = &self.shared.device;
+        // SAFETY: owners wait idle before dropping; reverse creation order; null handles ignored.
+        unsafe {
+            device.destroy_pipeline(self.pipeline, None);
+            device.destroy_descriptor_pool(self.pool, None);
+            device.destroy_pipeline_layout(self.layout, None);
+            device.destroy_descriptor_set_layout(self.set_layout, None);
+        }
+    }
+}

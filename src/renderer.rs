@@ -1,16 +1,23 @@
 //! The façade: a volume, a transfer function and a camera in, an image and its timing out.
 
+use crate::bricks::{
+    pack_hi_res_brick, pack_low_res_brick, quantize_to, BrickGrid, DownsampleFilter,
+};
+use crate::cache::{BrickCache, CacheGeometry, Level};
 use crate::error::{Error, Result, VkResultExt};
 use crate::gpu::{
-    image_barrier, memory_barrier, Access, Buffer, DeviceShared, GpuContext, Image, ImageDesc,
-    RaycastPipeline, RaycastVariant, Submitter, TimestampPool, COLOR_LAYERS,
+    image_barrier, memory_barrier, Access, Buffer, CacheRegion, CacheTables, DeviceShared,
+    FieldProbe, GpuBrickCache, GpuContext, Image, ImageDesc, RaycastPipeline, RaycastVariant,
+    Submitter, TimestampPool, COLOR_LAYERS,
 };
 use crate::optics::{TransferFunction, TF_SIZE};
+use crate::reference::Transition;
 use crate::scene::{Camera, RaycastParams, RenderSettings};
 use crate::volume::{ScalarType, Volume};
 use ash::vk;
 use glam::{UVec3, Vec3, Vec4};
 use gpu_allocator::MemoryLocation;
+use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
@@ -60,6 +67,8 @@ pub struct Frame {
     pub pixels: Vec<Vec4>,
     /// How long it took.
     pub timing: FrameTiming,
+    /// The pipeline variant that drew it.
+    pub variant: RaycastVariant,
 }
 
 /// Composites premultiplied pixels over an opaque `background` into 8-bit RGBA.
@@ -104,6 +113,65 @@ struct GpuVolume {
     spacing: Vec3,
     value_range: (f32, f32),
     scalar: ScalarType,
+}
+
+/// How a volume is rendered through the brick cache.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct MixedConfig {
+    /// Brick edge `n` in voxels (power of two).
+    pub brick_size: u32,
+    /// Filter that builds the low-res level.
+    pub filter: DownsampleFilter,
+    /// Upper bound on the cache image's size in bytes.
+    pub cache_budget_bytes: u64,
+    /// Smooth (C0) or discontinuous transitions.
+    pub transition: Transition,
+}
+
+impl Default for MixedConfig {
+    fn default() -> Self {
+        Self {
+            brick_size: 32,
+            filter: DownsampleFilter::Mean2,
+            cache_budget_bytes: 256 << 20,
+            transition: Transition::Smooth,
+        }
+    }
+}
+
+/// What one residency change moved.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ResidencyReport {
+    /// Bricks written into the cache (one copy region each).
+    pub uploaded_bricks: usize,
+    /// Bytes copied into the cache.
+    pub uploaded_bytes: usize,
+    /// Hi-res bricks resident after the change.
+    pub hi_bricks: usize,
+    /// Low-res bricks resident after the change.
+    pub lo_bricks: usize,
+    /// Hi-res bricks whose border the fixup pass rewrote.
+    pub fixup_bricks: usize,
+    /// CPU time spent packing bricks, in milliseconds.
+    pub pack_ms: f64,
+    /// Wall time of the upload + fixup submission, in milliseconds.
+    pub gpu_update_ms: f64,
+}
+
+struct MixedState {
+    volume: Arc<Volume>,
+    config: MixedConfig,
+    cache: BrickCache,
+    gpu: GpuBrickCache,
+    probe: Option<FieldProbe>,
+    any_transition: bool,
+    value_range: (f32, f32),
+}
+
+enum Source {
+    None,
+    Single(GpuVolume),
+    Mixed(Box<MixedState>),
 }
 
 struct Target {
@@ -174,14 +242,16 @@ fn upload_image(
 pub struct Renderer {
     // GPU objects first: they are dropped (after the idle wait in Drop) before `ctx`.
     target: Option<Target>,
-    volume: Option<GpuVolume>,
+    source: Source,
     tf_image: Image,
     params: Buffer,
     timestamps: TimestampPool,
-    pipeline: RaycastPipeline,
+    /// Pipeline variants built so far, with the source generation their descriptors point at.
+    pipelines: HashMap<RaycastVariant, (RaycastPipeline, u64)>,
     submitter: Submitter,
     format: TargetFormat,
-    descriptors_dirty: bool,
+    /// Bumped whenever the resources the descriptor sets point at change.
+    generation: u64,
     ctx: GpuContext,
 }
 
@@ -226,17 +296,16 @@ impl Renderer {
             MemoryLocation::CpuToGpu,
         )?;
         let timestamps = TimestampPool::new(shared, 2)?;
-        let pipeline = RaycastPipeline::new(shared, format.vk(), RaycastVariant::default())?;
         Ok(Self {
             target: None,
-            volume: None,
+            source: Source::None,
             tf_image,
             params,
             timestamps,
-            pipeline,
+            pipelines: HashMap::new(),
             submitter,
             format,
-            descriptors_dirty: true,
+            generation: 1,
             ctx: ctx.clone(),
         })
     }
@@ -267,15 +336,173 @@ impl Renderer {
             &image,
             volume.data().as_bytes(),
         )?;
-        self.volume = Some(GpuVolume {
+        self.source = Source::Single(GpuVolume {
             image,
             dims: volume.dims(),
             spacing: volume.spacing(),
             value_range: volume.value_range(),
             scalar: volume.scalar_type(),
         });
-        self.descriptors_dirty = true;
+        self.generation += 1;
         Ok(())
+    }
+
+    /// Renders `volume` through a brick cache from now on: bricks it into `config.brick_size`^3
+    /// bricks, sizes the cache image from the budget and the device limit, and makes every brick
+    /// absent. Call [`Renderer::set_levels`] to make bricks resident.
+    pub fn set_mixed_volume(&mut self, volume: Arc<Volume>, config: MixedConfig) -> Result<()> {
+        let shared = &self.ctx.shared;
+        let grid = BrickGrid::new(volume.dims(), config.brick_size)
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        let scalar = volume.scalar_type();
+        let geometry = CacheGeometry::choose(
+            config.brick_size,
+            scalar.size_bytes() as u32,
+            config.cache_budget_bytes,
+            shared.info.limits.max_image_dimension3_d,
+            u32::try_from(grid.brick_count()).unwrap_or(u32::MAX),
+        )
+        .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        let cache =
+            BrickCache::new(grid, geometry).map_err(|e| Error::InvalidInput(e.to_string()))?;
+        self.source = Source::None;
+        let gpu = GpuBrickCache::new(shared, scalar, cache.geometry().extent())?;
+        let value_range = volume.value_range();
+        self.source = Source::Mixed(Box::new(MixedState {
+            volume,
+            config,
+            cache,
+            gpu,
+            probe: None,
+            any_transition: false,
+            value_range,
+        }));
+        self.generation += 1;
+        Ok(())
+    }
+
+    /// The brick grid and cache model of the mixed-resolution volume, if one is set.
+    pub fn brick_cache(&self) -> Option<&BrickCache> {
+        match &self.source {
+            Source::Mixed(m) => Some(&m.cache),
+            _ => None,
+        }
+    }
+
+    /// Moves the cache to `levels` (one per brick): packs and uploads the bricks that changed
+    /// (one copy command, one region each), rewrites the tables and runs the fixup pass.
+    pub fn set_levels(&mut self, levels: &[Level]) -> Result<ResidencyReport> {
+        let Source::Mixed(state) = &mut self.source else {
+            return Err(Error::InvalidInput(
+                "set_levels needs set_mixed_volume first".into(),
+            ));
+        };
+        let update = state
+            .cache
+            .update(levels)
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        let pack_start = Instant::now();
+        let grid = state.cache.grid();
+        let scalar = state.volume.scalar_type();
+        let brick_err = |e: crate::bricks::BrickError| Error::InvalidInput(e.to_string());
+        let mut packed = Vec::with_capacity(update.uploads.len());
+        for upload in &update.uploads {
+            let brick = grid.brick_coords(upload.brick as usize);
+            let values = match upload.level {
+                Level::Hi => pack_hi_res_brick(&state.volume, grid, brick).map_err(brick_err)?,
+                _ => pack_low_res_brick(&state.volume, grid, state.config.filter, brick)
+                    .map_err(brick_err)?,
+            };
+            packed.push((upload, quantize_to(&values, scalar)));
+        }
+        let regions: Vec<CacheRegion> = packed
+            .iter()
+            .map(|(u, bytes)| CacheRegion {
+                origin: UVec3::from_array(u.dst_origin),
+                extent: UVec3::from_array(u.extent),
+                bytes,
+            })
+            .collect();
+        let pack_ms = pack_start.elapsed().as_secs_f64() * 1e3;
+        let layout = state.cache.layout_table();
+        let neighbours = state.cache.neighbour_bits();
+        let reverse = state.cache.reverse_table();
+        let fixup_slots = state.cache.fixup_slots();
+        let geometry = state.cache.geometry();
+        let tables = CacheTables {
+            layout: &layout,
+            neighbours: &neighbours,
+            reverse: &reverse,
+            fixup_slots: &fixup_slots,
+            bricks: grid.bricks_per_axis(),
+            brick_size: grid.brick_size(),
+            slots_per_axis: geometry.slots_per_axis(),
+        };
+        let gpu_start = Instant::now();
+        let smooth = state.config.transition == Transition::Smooth;
+        state
+            .gpu
+            .update(&mut self.submitter, &regions, &tables, smooth)?;
+        state.any_transition = !fixup_slots.is_empty();
+        let current = state.cache.levels();
+        self.generation += 1;
+        Ok(ResidencyReport {
+            uploaded_bricks: regions.len(),
+            uploaded_bytes: regions.iter().map(|r| r.bytes.len()).sum(),
+            hi_bricks: current.iter().filter(|l| **l == Level::Hi).count(),
+            lo_bricks: current.iter().filter(|l| **l == Level::Lo).count(),
+            fixup_bricks: if smooth { fixup_slots.len() } else { 0 },
+            pack_ms,
+            gpu_update_ms: gpu_start.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+
+    /// Samples the GPU-reconstructed mixed-resolution field at volume points (hi-res voxel units)
+    /// with the ray-caster's own functions; `None` where a point lies in an absent brick.
+    pub fn probe_field(&mut self, points: &[Vec3]) -> Result<Vec<Option<f32>>> {
+        let Source::Mixed(state) = &mut self.source else {
+            return Err(Error::InvalidInput(
+                "probe_field needs set_mixed_volume first".into(),
+            ));
+        };
+        if state.probe.is_none() {
+            let smooth = state.config.transition == Transition::Smooth;
+            state.probe = Some(FieldProbe::new(&self.ctx.shared, smooth)?);
+        }
+        let probe = state.probe.as_ref().expect("created above");
+        let grid = state.cache.grid();
+        probe.sample(
+            &mut self.submitter,
+            &state.gpu,
+            grid.dims(),
+            grid.brick_size(),
+            points,
+        )
+    }
+
+    /// Reads the GPU brick cache back as normalised values (for tests).
+    pub fn read_cache(&mut self) -> Result<Vec<f32>> {
+        let Source::Mixed(state) = &self.source else {
+            return Err(Error::InvalidInput(
+                "read_cache needs set_mixed_volume first".into(),
+            ));
+        };
+        let bytes = state.gpu.read_back(&mut self.submitter)?;
+        Ok(crate::reference::dequantize(
+            &bytes,
+            state.volume.scalar_type(),
+        ))
+    }
+
+    /// The pipeline variant the current source draws with: only the effects it uses.
+    pub fn current_variant(&self) -> RaycastVariant {
+        match &self.source {
+            Source::Mixed(m) => RaycastVariant {
+                mixed_resolution: true,
+                smooth_transitions: m.config.transition == Transition::Smooth && m.any_transition,
+            },
+            _ => RaycastVariant::default(),
+        }
     }
 
     /// Uploads a new transfer function.
@@ -297,20 +524,32 @@ impl Renderer {
         width: u32,
         height: u32,
     ) -> Result<RaycastParams> {
-        let volume = self
-            .volume
-            .as_ref()
-            .ok_or_else(|| Error::InvalidInput("render called before set_volume".into()))?;
-        RaycastParams::for_dims(
-            volume.dims,
-            volume.spacing,
-            volume.value_range,
-            volume.scalar == ScalarType::F32,
-            camera,
-            settings,
-            width,
-            height,
-        )
+        match &self.source {
+            Source::None => Err(Error::InvalidInput(
+                "render called before set_volume / set_mixed_volume".into(),
+            )),
+            Source::Single(volume) => RaycastParams::for_dims(
+                volume.dims,
+                volume.spacing,
+                volume.value_range,
+                volume.scalar == ScalarType::F32,
+                camera,
+                settings,
+                width,
+                height,
+            ),
+            Source::Mixed(m) => Ok(RaycastParams::for_dims(
+                m.volume.dims(),
+                m.volume.spacing(),
+                m.value_range,
+                m.volume.scalar_type() == ScalarType::F32,
+                camera,
+                settings,
+                width,
+                height,
+            )?
+            .with_cache(m.config.brick_size, m.gpu.extent)),
+        }
     }
 
     fn ensure_target(&mut self, width: u32, height: u32) -> Result<()> {
@@ -364,14 +603,38 @@ impl Renderer {
         self.ensure_target(width, height)?;
         self.params.mapped_mut()?[..std::mem::size_of::<RaycastParams>()]
             .copy_from_slice(bytemuck::bytes_of(&params));
-        let volume = self.volume.as_ref().expect("checked in params()");
-        if self.descriptors_dirty {
-            self.pipeline
-                .write_descriptors(self.params.raw, volume.image.view, self.tf_image.view, None);
-            self.descriptors_dirty = false;
+        let variant = self.current_variant();
+        if !self.pipelines.contains_key(&variant) {
+            let pipeline = RaycastPipeline::new(&self.ctx.shared, self.format.vk(), variant)?;
+            self.pipelines.insert(variant, (pipeline, 0));
+        }
+        let (pipeline, written) = self.pipelines.get_mut(&variant).expect("inserted above");
+        if *written != self.generation {
+            let (view, layout, tables) = match &self.source {
+                Source::Single(v) => (
+                    v.image.view,
+                    vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
+                    None,
+                ),
+                Source::Mixed(m) => {
+                    let (Some(l), Some(n)) = (&m.gpu.layout, &m.gpu.neighbours) else {
+                        return Err(Error::InvalidInput(
+                            "render before the first set_levels".into(),
+                        ));
+                    };
+                    (
+                        m.gpu.image.view,
+                        vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
+                        Some((l.raw, n.raw)),
+                    )
+                }
+                Source::None => unreachable!("params() checked the source"),
+            };
+            pipeline.write_descriptors(self.params.raw, view, layout, self.tf_image.view, tables);
+            *written = self.generation;
         }
         let target = self.target.as_ref().expect("created by ensure_target");
-        let pipeline = &self.pipeline;
+        let pipeline = &*pipeline;
         let queries = &self.timestamps;
         self.submitter.run(|device, cmd| {
             let color = [vk::RenderingAttachmentInfo::default()
@@ -481,6 +744,7 @@ impl Renderer {
                 gpu_raycast_ms,
                 cpu_frame_ms: start.elapsed().as_secs_f64() * 1e3,
             },
+            variant,
         })
     }
 

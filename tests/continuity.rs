@@ -60,11 +60,7 @@ fn critical_coordinate(rng: &mut Rng, extent: f32) -> f32 {
 }
 
 /// Largest spread / eps over `points`, and the largest spread, at step `eps`.
-fn spread(
-    field: &dyn Fn(Vec3) -> Option<f32>,
-    points: &[Vec3],
-    eps: f32,
-) -> (f32, f32) {
+fn spread(field: &dyn Fn(Vec3) -> Option<f32>, points: &[Vec3], eps: f32) -> (f32, f32) {
     let mut worst_ratio = 0.0f32;
     let mut worst = 0.0f32;
     for &p in points {
@@ -107,11 +103,24 @@ fn points(rng: &mut Rng, dims: UVec3, count: usize) -> Vec<Vec3> {
 }
 
 /// Checks smooth mode is Lipschitz at every probe point and discontinuous mode is not.
-fn check_configuration(name: &str, volume: &Volume, levels: &[Level], rng: &mut Rng, expect_jump: bool) {
+fn check_configuration(
+    name: &str,
+    volume: &Volume,
+    levels: &[Level],
+    rng: &mut Rng,
+    expect_jump: bool,
+) {
     let cache = cache_for(volume, levels);
     let pts = points(rng, volume.dims(), 3000);
     for transition in [Transition::Smooth, Transition::Discontinuous] {
-        let reference = ReferenceCache::build(volume, DownsampleFilter::Mean2, &cache, ScalarType::F32, transition).unwrap();
+        let reference = ReferenceCache::build(
+            volume,
+            DownsampleFilter::Mean2,
+            &cache,
+            ScalarType::F32,
+            transition,
+        )
+        .unwrap();
         let view = reference.view();
         let field = |x: Vec3| sample_mixed(&view, x, transition);
         let (ratio_coarse, _) = spread(&field, &pts, 1e-2);
@@ -127,8 +136,10 @@ fn check_configuration(name: &str, volume: &Volume, levels: &[Level], rng: &mut 
             }
             Transition::Discontinuous => {
                 if expect_jump {
-                    assert!(worst_fine > 1e-2,
-                        "{name}: discontinuous mode should show a jump, max spread {worst_fine}");
+                    assert!(
+                        worst_fine > 1e-2,
+                        "{name}: discontinuous mode should show a jump, max spread {worst_fine}"
+                    );
                 }
             }
         }
@@ -161,10 +172,19 @@ fn every_neighbour_class_is_continuous_in_smooth_mode() {
         ("corner-only", Box::new(|b: UVec3| b == UVec3::new(0, 0, 0))),
         ("face+edge+corner", Box::new(|b: UVec3| b.x == 0)),
         ("all-but-centre", Box::new(move |b: UVec3| b != centre)),
-        ("checkerboard", Box::new(|b: UVec3| (b.x + b.y + b.z) % 2 == 0)),
+        (
+            "checkerboard",
+            Box::new(|b: UVec3| (b.x + b.y + b.z) % 2 == 0),
+        ),
     ];
     for (name, is_low) in classes {
-        let levels = grid_levels(UVec3::splat(3), |b| if is_low(b) { Level::Lo } else { Level::Hi });
+        let levels = grid_levels(UVec3::splat(3), |b| {
+            if is_low(b) {
+                Level::Lo
+            } else {
+                Level::Hi
+            }
+        });
         check_configuration(name, &volume, &levels, &mut rng, true);
     }
 }
@@ -185,7 +205,13 @@ fn random_residency_plans_are_continuous_on_awkward_dims() {
                 _ => Level::Hi,
             })
             .collect();
-        check_configuration(&format!("random plan {plan}"), &volume, &levels, &mut rng, false);
+        check_configuration(
+            &format!("random plan {plan}"),
+            &volume,
+            &levels,
+            &mut rng,
+            false,
+        );
     }
 }
 
@@ -197,7 +223,14 @@ fn all_hi_res_equals_the_single_resolution_field() {
     let bricks = BrickGrid::new(dims, N).unwrap().bricks_per_axis();
     let levels = grid_levels(bricks, |_| Level::Hi);
     let cache = cache_for(&volume, &levels);
-    let reference = ReferenceCache::build(&volume, DownsampleFilter::Mean2, &cache, ScalarType::F32, Transition::Smooth).unwrap();
+    let reference = ReferenceCache::build(
+        &volume,
+        DownsampleFilter::Mean2,
+        &cache,
+        ScalarType::F32,
+        Transition::Smooth,
+    )
+    .unwrap();
     for p in points(&mut rng, dims, 5000) {
         let mixed = sample_mixed(&reference.view(), p, Transition::Smooth).unwrap();
         let single = sample_volume(&volume, p / dims.as_vec3());
@@ -214,7 +247,14 @@ fn low_res_face_is_reproduced_exactly_on_the_hi_res_side() {
     let volume = random_volume(&mut rng, dims);
     let levels = vec![Level::Hi, Level::Lo];
     let cache = cache_for(&volume, &levels);
-    let reference = ReferenceCache::build(&volume, DownsampleFilter::Mean2, &cache, ScalarType::F32, Transition::Smooth).unwrap();
+    let reference = ReferenceCache::build(
+        &volume,
+        DownsampleFilter::Mean2,
+        &cache,
+        ScalarType::F32,
+        Transition::Smooth,
+    )
+    .unwrap();
     let view = reference.view();
     for _ in 0..500 {
         let y = rng.unit() * N as f32;
@@ -222,6 +262,9 @@ fn low_res_face_is_reproduced_exactly_on_the_hi_res_side() {
         let on_face = Vec3::new(N as f32, y, z);
         let hi_side = sample_mixed(&view, on_face - Vec3::X * 1e-6, Transition::Smooth).unwrap();
         let lo_side = sample_mixed(&view, on_face, Transition::Smooth).unwrap();
-        assert!((hi_side - lo_side).abs() < 1e-4, "({y}, {z}): {hi_side} vs {lo_side}");
+        assert!(
+            (hi_side - lo_side).abs() < 1e-4,
+            "({y}, {z}): {hi_side} vs {lo_side}"
+        );
     }
 }

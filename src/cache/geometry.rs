@@ -43,9 +43,8 @@ impl CacheGeometry {
             });
         }
         let slots_per_axis = extent / slot_edge;
-        let slots = u64::from(slots_per_axis.x)
-            * u64::from(slots_per_axis.y)
-            * u64::from(slots_per_axis.z);
+        let slots =
+            u64::from(slots_per_axis.x) * u64::from(slots_per_axis.y) * u64::from(slots_per_axis.z);
         if slots >= u64::from(super::EMPTY) {
             return Err(CacheError::TooManySlots { slots });
         }
@@ -348,7 +347,9 @@ mod tests {
             match CacheGeometry::choose(n, bpt, budget, max_dim, wanted) {
                 Ok(g) => {
                     let e = g.extent().to_array();
-                    assert!(e.iter().all(|&c| c.is_power_of_two() && c <= max_dim && c >= s));
+                    assert!(e
+                        .iter()
+                        .all(|&c| c.is_power_of_two() && c <= max_dim && c >= s));
                     assert!(g.byte_size(bpt) <= budget);
                     assert_eq!(u64::from(g.slot_count()), slots(e, s));
                     if u64::from(g.slot_count()) >= u64::from(wanted) {
@@ -364,8 +365,8 @@ mod tests {
                         for a in 0..3 {
                             let mut d = e;
                             d[a] *= 2;
-                            let bytes = d.iter().map(|&c| u64::from(c)).product::<u64>()
-                                * u64::from(bpt);
+                            let bytes =
+                                d.iter().map(|&c| u64::from(c)).product::<u64>() * u64::from(bpt);
                             assert!(d[a] > max_dim || bytes > budget, "{e:?} could grow");
                         }
                     }
@@ -373,8 +374,7 @@ mod tests {
                 Err(err) => {
                     let min_axis = u64::from(s.next_power_of_two());
                     assert!(
-                        u64::from(max_dim) < min_axis
-                            || min_axis.pow(3) * u64::from(bpt) > budget,
+                        u64::from(max_dim) < min_axis || min_axis.pow(3) * u64::from(bpt) > budget,
                         "unexpected {err}"
                     );
                 }

@@ -503,10 +503,9 @@ impl State {
 
     /// Takes the lowest free whole slot.
     fn take_free_slot(&mut self, needed: usize) -> Result<u32, CacheError> {
-        self.free.pop_first().ok_or(CacheError::CompactionFailed {
-            needed,
-            free: 0,
-        })
+        self.free
+            .pop_first()
+            .ok_or(CacheError::CompactionFailed { needed, free: 0 })
     }
 }
 
@@ -570,14 +569,22 @@ mod tests {
         );
         for (key, a) in &state.allocations {
             assert!(a.slot < cache.capacity());
-            assert!(!state.free.contains(&a.slot), "slot {} free and used", a.slot);
+            assert!(
+                !state.free.contains(&a.slot),
+                "slot {} free and used",
+                a.slot
+            );
             assert_eq!(state.slot_keys[a.slot as usize], Some(key));
             match a.contents {
                 Contents::Whole(b) => {
                     assert_eq!(state.residency[b as usize], Residency::Hi { slot: a.slot })
                 }
                 Contents::Split(bricks) => {
-                    assert!(occupied(&bricks) > 0, "empty split slot {} not merged", a.slot);
+                    assert!(
+                        occupied(&bricks) > 0,
+                        "empty split slot {} not merged",
+                        a.slot
+                    );
                     for (j, &b) in bricks.iter().enumerate() {
                         if b != EMPTY {
                             assert_eq!(
@@ -600,7 +607,10 @@ mod tests {
             .filter_map(|(i, &r)| g.texel_box(r).map(|(o, e)| (i, o, e)))
             .collect();
         for &(i, o, e) in &boxes {
-            assert!((o + e).cmple(g.extent()).all(), "brick {i} outside the cache");
+            assert!(
+                (o + e).cmple(g.extent()).all(),
+                "brick {i} outside the cache"
+            );
         }
         for (x, &(i, oi, ei)) in boxes.iter().enumerate() {
             for &(j, oj, ej) in &boxes[x + 1..] {
@@ -615,7 +625,10 @@ mod tests {
         for (slot, entry) in reverse.iter().enumerate() {
             for (j, &b) in entry.iter().enumerate() {
                 if b != EMPTY {
-                    assert!(seen.insert(b, (slot as u32, j as u32)).is_none(), "{b} twice");
+                    assert!(
+                        seen.insert(b, (slot as u32, j as u32)).is_none(),
+                        "{b} twice"
+                    );
                 }
             }
         }
@@ -788,7 +801,12 @@ mod tests {
         // 3 Hi + 1 Lo = 4 slots > 3.
         let too_many = levels_with(
             60,
-            &[(0, Level::Hi), (1, Level::Lo), (2, Level::Hi), (3, Level::Hi)],
+            &[
+                (0, Level::Hi),
+                (1, Level::Lo),
+                (2, Level::Hi),
+                (3, Level::Hi),
+            ],
         );
         let err = cache.update(&too_many).unwrap_err();
         assert_eq!(
@@ -800,7 +818,10 @@ mod tests {
             }
         );
         let msg = err.to_string();
-        assert!(msg.contains("needs 4 slots") && msg.contains("has 3"), "{msg}");
+        assert!(
+            msg.contains("needs 4 slots") && msg.contains("has 3"),
+            "{msg}"
+        );
         assert_eq!(cache.residencies(), &before[..]);
         // 17 Lo = 3 slots fits exactly; 25 Lo does not.
         let lo17: Vec<_> = (0..17).map(|i| (i, Level::Lo)).collect();
@@ -859,9 +880,18 @@ mod tests {
         assert_eq!(cache.fixup_slots(), vec![0, 1]);
         let reverse = cache.reverse_table();
         assert_eq!(reverse.len(), 1000);
-        assert_eq!(reverse[0], [0, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY]);
-        assert_eq!(reverse[1], [7, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY]);
-        assert_eq!(reverse[2], [1, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY]);
+        assert_eq!(
+            reverse[0],
+            [0, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY]
+        );
+        assert_eq!(
+            reverse[1],
+            [7, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY]
+        );
+        assert_eq!(
+            reverse[2],
+            [1, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY, EMPTY]
+        );
         assert_eq!(reverse[3], [EMPTY; 8]);
         // Layout of brick 1 = (1,0,0) Lo in slot 2 sub-slot 0: origin (12,0,0); t = o + 0.5 - 2b.
         assert_eq!(cache.layout_table()[1], [10.5, 0.5, 0.5, 0.5]);
@@ -952,9 +982,8 @@ mod tests {
                     if a.level().is_resident() && b == Residency::Absent {
                         expected_evicted.push(i as u32);
                     }
-                    let restore = a == b
-                        && b.level() == Level::Hi
-                        && old_bits[i] & !new_bits[i] != 0;
+                    let restore =
+                        a == b && b.level() == Level::Hi && old_bits[i] & !new_bits[i] != 0;
                     if b.level().is_resident() && (a != b || restore) {
                         let (o, e) = cache.geometry().texel_box(b).unwrap();
                         expected_uploads.push(BrickUpload {

@@ -115,7 +115,7 @@ mod tests {
     #[test]
     fn layout_entries_for_hand_computed_examples() {
         let g = CacheGeometry::new(4, UVec3::splat(32)).unwrap(); // S = 6, 5 slots per axis
-        // Hi brick b = (1, 0, 2) in slot (0, 1, 0): origin (0, 6, 0), t = o + 1 - 4b.
+                                                                  // Hi brick b = (1, 0, 2) in slot (0, 1, 0): origin (0, 6, 0), t = o + 1 - 4b.
         let slot = g.slot_index(UVec3::new(0, 1, 0));
         assert_eq!(
             layout_entry(&g, UVec3::new(1, 0, 2), Residency::Hi { slot }),
@@ -125,11 +125,7 @@ mod tests {
         // (12, 3, 9); t = o + 0.5 - 2b = (12.5 - 6, 3.5 - 2, 9.5 - 0).
         let slot = g.slot_index(UVec3::new(2, 0, 1));
         assert_eq!(
-            layout_entry(
-                &g,
-                UVec3::new(3, 1, 0),
-                Residency::Lo { slot, sub_slot: 6 }
-            ),
+            layout_entry(&g, UVec3::new(3, 1, 0), Residency::Lo { slot, sub_slot: 6 }),
             [6.5, 1.5, 9.5, 0.5]
         );
         assert_eq!(layout_entry(&g, UVec3::ONE, Residency::Absent), [0.0; 4]);

@@ -4,8 +4,7 @@
 
 use super::*;
 use crate::bricks::{
-    low_res_level, pack_hi_res_brick, pack_low_res_brick, BrickGrid, DownsampleFilter,
-    LowResLevel,
+    low_res_level, pack_hi_res_brick, pack_low_res_brick, BrickGrid, DownsampleFilter, LowResLevel,
 };
 use crate::volume::{Volume, VoxelData};
 use glam::{DVec3, IVec3, UVec3, Vec3};
@@ -125,7 +124,10 @@ fn smooth_volume(dims: UVec3, rng: &mut Rng) -> Volume {
         for y in 0..dims.y {
             for x in 0..dims.x {
                 let p = UVec3::new(x, y, z).as_dvec3();
-                let smooth: f64 = waves.iter().map(|(k, ph, a)| a * (k.dot(p) + ph).sin()).sum();
+                let smooth: f64 = waves
+                    .iter()
+                    .map(|(k, ph, a)| a * (k.dot(p) + ph).sin())
+                    .sum();
                 values.push((0.5 + smooth + 0.05 * (rng.unit() - 0.5)) as f32);
             }
         }
@@ -208,7 +210,11 @@ fn translated_cache_samples_equal_the_levels_own_field() {
                     _ => pack_low_res_brick(&volume, &grid, DownsampleFilter::Mean2, brick),
                 }
                 .unwrap();
-                assert_eq!(image.read(origin, extent), packed, "brick {i} stale in the image");
+                assert_eq!(
+                    image.read(origin, extent),
+                    packed,
+                    "brick {i} stale in the image"
+                );
 
                 // Random points: half inside the inner region (>= 0.5 from the faces), half
                 // anywhere in the brick (clipped to the volume), faces included.
@@ -283,9 +289,12 @@ fn a_wrong_layout_entry_is_detected() {
         let e = layout[i];
         let centre = (grid.brick_coords(i) * 8).as_vec3() + 4.3;
         let tex = centre * e[3] + Vec3::new(e[0] + shift, e[1], e[2]);
-        let error = (image.trilinear(tex)
-            - reference_value(&volume, &low, level, centre.as_dvec3()))
-        .abs();
-        assert_eq!(error <= 1e-5, shift == 0.0, "brick {i} shift {shift}: {error}");
+        let error =
+            (image.trilinear(tex) - reference_value(&volume, &low, level, centre.as_dvec3())).abs();
+        assert_eq!(
+            error <= 1e-5,
+            shift == 0.0,
+            "brick {i} shift {shift}: {error}"
+        );
     }
 }

@@ -1,5 +1,5 @@
-//! The brick cache on the GPU: one 3D image (GENERAL layout: copy destination, storage image for
-//! the fixup, sampled by the ray-caster), the layout / neighbour / reverse tables and the fixup
+//! The brick cache on the GPU: one 3D image (copy destination, storage image in GENERAL layout for
+//! the fixup, sampled read-only by the ray-caster), the layout / neighbour / reverse tables and the fixup
 //! job list as storage buffers, and the fixup compute pass. Conventions: `docs/cache-layout.md`.
 
 use super::commands::{image_barrier, Access, Submitter};
@@ -89,7 +89,11 @@ pub(crate) struct GpuBrickCache {
 
 impl GpuBrickCache {
     /// Creates the cache image (`extent` texels) for `scalar` data and the fixup pipeline.
-    pub(crate) fn new(shared: &Arc<DeviceShared>, scalar: ScalarType, extent: UVec3) -> Result<Self> {
+    pub(crate) fn new(
+        shared: &Arc<DeviceShared>,
+        scalar: ScalarType,
+        extent: UVec3,
+    ) -> Result<Self> {
         let (format, glsl_format) = cache_format(scalar);
         if scalar != ScalarType::F32 && !shared.info.storage_image_extended_formats {
             return Err(Error::Unsupported(format!(
@@ -156,10 +160,30 @@ impl GpuBrickCache {
         smooth: bool,
     ) -> Result<()> {
         let shared = &self.shared;
-        table_buffer(shared, &mut self.layout, "layout table", bytemuck::cast_slice(tables.layout))?;
-        table_buffer(shared, &mut self.neighbours, "neighbour table", bytemuck::cast_slice(tables.neighbours))?;
-        table_buffer(shared, &mut self.reverse, "reverse table", bytemuck::cast_slice(tables.reverse))?;
-        table_buffer(shared, &mut self.jobs, "fixup jobs", bytemuck::cast_slice(tables.fixup_slots))?;
+        table_buffer(
+            shared,
+            &mut self.layout,
+            "layout table",
+            bytemuck::cast_slice(tables.layout),
+        )?;
+        table_buffer(
+            shared,
+            &mut self.neighbours,
+            "neighbour table",
+            bytemuck::cast_slice(tables.neighbours),
+        )?;
+        table_buffer(
+            shared,
+            &mut self.reverse,
+            "reverse table",
+            bytemuck::cast_slice(tables.reverse),
+        )?;
+        table_buffer(
+            shared,
+            &mut self.jobs,
+            "fixup jobs",
+            bytemuck::cast_slice(tables.fixup_slots),
+        )?;
         let total: usize = regions.iter().map(|r| r.bytes.len()).sum();
         let mut staging = None;
         let mut copies = Vec::with_capacity(regions.len());
@@ -174,7 +198,8 @@ impl GpuBrickCache {
             let mapped = buffer.mapped_mut()?;
             let mut offset = 0usize;
             for r in regions {
-                let expected = (r.extent.x * r.extent.y * r.extent.z) as usize * self.bytes_per_texel;
+                let expected =
+                    (r.extent.x * r.extent.y * r.extent.z) as usize * self.bytes_per_texel;
                 if r.bytes.len() != expected {
                     return Err(Error::InvalidInput(format!(
                         "brick region {:?} holds {} bytes, expected {expected}",
@@ -235,29 +260,55 @@ impl GpuBrickCache {
         };
         let groups_xy = (tables.brick_size + 2).div_ceil(8);
         let image = self.image.raw;
-        let previous = if self.initialized { Access::CacheFragmentSampled } else { Access::Nothing };
+        let previous = if self.initialized {
+            Access::FragmentSampled
+        } else {
+            Access::Nothing
+        };
         let fixup = &self.fixup;
         submitter.run(|device, cmd| {
-            image_barrier(device, cmd, image, previous, Access::CacheTransferWrite);
+            image_barrier(device, cmd, image, previous, Access::TransferWrite);
             if let Some(staging) = &staging {
                 // SAFETY: the staging buffer holds every region at its offset; the cache is in
-                // GENERAL layout after the barrier, which allows copies.
+                // TRANSFER_DST_OPTIMAL after the barrier.
                 unsafe {
                     device.cmd_copy_buffer_to_image(
                         cmd,
                         staging.raw,
                         image,
-                        vk::ImageLayout::GENERAL,
+                        vk::ImageLayout::TRANSFER_DST_OPTIMAL,
                         &copies,
                     )
                 };
             }
             if run_fixup {
-                image_barrier(device, cmd, image, Access::CacheTransferWrite, Access::CacheComputeReadWrite);
-                fixup.record_dispatch(cmd, bytemuck::bytes_of(&push), [groups_xy, groups_xy, jobs * 6]);
-                image_barrier(device, cmd, image, Access::CacheComputeReadWrite, Access::CacheFragmentSampled);
+                image_barrier(
+                    device,
+                    cmd,
+                    image,
+                    Access::TransferWrite,
+                    Access::CacheComputeReadWrite,
+                );
+                fixup.record_dispatch(
+                    cmd,
+                    bytemuck::bytes_of(&push),
+                    [groups_xy, groups_xy, jobs * 6],
+                );
+                image_barrier(
+                    device,
+                    cmd,
+                    image,
+                    Access::CacheComputeReadWrite,
+                    Access::FragmentSampled,
+                );
             } else {
-                image_barrier(device, cmd, image, Access::CacheTransferWrite, Access::CacheFragmentSampled);
+                image_barrier(
+                    device,
+                    cmd,
+                    image,
+                    Access::TransferWrite,
+                    Access::FragmentSampled,
+                );
             }
             Ok(())
         })?;
@@ -267,7 +318,9 @@ impl GpuBrickCache {
 
     /// Reads the whole cache image back (for tests): texel bytes, x fastest.
     pub(crate) fn read_back(&self, submitter: &mut Submitter) -> Result<Vec<u8>> {
-        let size = self.extent.x as u64 * self.extent.y as u64 * self.extent.z as u64
+        let size = self.extent.x as u64
+            * self.extent.y as u64
+            * self.extent.z as u64
             * self.bytes_per_texel as u64;
         let readback = Buffer::new(
             &self.shared,
@@ -281,12 +334,30 @@ impl GpuBrickCache {
             .image_subresource(COLOR_LAYERS)
             .image_extent(self.image.desc.extent);
         submitter.run(|device, cmd| {
-            image_barrier(device, cmd, image, Access::CacheFragmentSampled, Access::CacheTransferRead);
-            // SAFETY: the buffer holds the whole image; GENERAL layout allows copies.
+            image_barrier(
+                device,
+                cmd,
+                image,
+                Access::FragmentSampled,
+                Access::TransferRead,
+            );
+            // SAFETY: the buffer holds the whole image, in TRANSFER_SRC_OPTIMAL after the barrier.
             unsafe {
-                device.cmd_copy_image_to_buffer(cmd, image, vk::ImageLayout::GENERAL, readback.raw, &[copy])
+                device.cmd_copy_image_to_buffer(
+                    cmd,
+                    image,
+                    vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                    readback.raw,
+                    &[copy],
+                )
             };
-            image_barrier(device, cmd, image, Access::CacheTransferRead, Access::CacheFragmentSampled);
+            image_barrier(
+                device,
+                cmd,
+                image,
+                Access::TransferRead,
+                Access::FragmentSampled,
+            );
             super::commands::memory_barrier(device, cmd, Access::TransferWrite, Access::HostRead);
             Ok(())
         })?;
@@ -338,8 +409,12 @@ impl FieldProbe {
             .address_mode_w(vk::SamplerAddressMode::CLAMP_TO_EDGE)
             .max_lod(0.0);
         // SAFETY: valid create info on a live device.
-        let sampler = unsafe { shared.device.create_sampler(&info, None) }
-            .map_err(|result| Error::Vulkan { call: "vkCreateSampler", result })?;
+        let sampler = unsafe { shared.device.create_sampler(&info, None) }.map_err(|result| {
+            Error::Vulkan {
+                call: "vkCreateSampler",
+                result,
+            }
+        })?;
         Ok(Self {
             pipeline,
             sampler,
@@ -362,7 +437,12 @@ impl FieldProbe {
         let shared = &self.shared;
         let packed: Vec<[f32; 4]> = points.iter().map(|p| p.extend(0.0).to_array()).collect();
         let mut input = None;
-        table_buffer(shared, &mut input, "probe points", bytemuck::cast_slice(&packed))?;
+        table_buffer(
+            shared,
+            &mut input,
+            "probe points",
+            bytemuck::cast_slice(&packed),
+        )?;
         let output = Buffer::new(
             shared,
             "probe values",
@@ -370,9 +450,12 @@ impl FieldProbe {
             vk::BufferUsageFlags::STORAGE_BUFFER,
             MemoryLocation::GpuToCpu,
         )?;
-        let (Some(layout), Some(neighbours), Some(input)) = (&cache.layout, &cache.neighbours, &input)
+        let (Some(layout), Some(neighbours), Some(input)) =
+            (&cache.layout, &cache.neighbours, &input)
         else {
-            return Err(Error::InvalidInput("probe before the first cache update".into()));
+            return Err(Error::InvalidInput(
+                "probe before the first cache update".into(),
+            ));
         };
         self.pipeline.write_descriptors(&[
             ComputeResource::SampledImage(cache.image.view, self.sampler),
@@ -390,14 +473,34 @@ impl FieldProbe {
         let image = cache.image.raw;
         let pipeline = &self.pipeline;
         submitter.run(|device, cmd| {
-            image_barrier(device, cmd, image, Access::CacheFragmentSampled, Access::CacheComputeSampled);
-            pipeline.record_dispatch(cmd, bytemuck::bytes_of(&push), [(points.len() as u32).div_ceil(64), 1, 1]);
-            image_barrier(device, cmd, image, Access::CacheComputeSampled, Access::CacheFragmentSampled);
+            image_barrier(
+                device,
+                cmd,
+                image,
+                Access::FragmentSampled,
+                Access::ComputeSampled,
+            );
+            pipeline.record_dispatch(
+                cmd,
+                bytemuck::bytes_of(&push),
+                [(points.len() as u32).div_ceil(64), 1, 1],
+            );
+            image_barrier(
+                device,
+                cmd,
+                image,
+                Access::ComputeSampled,
+                Access::FragmentSampled,
+            );
             super::commands::memory_barrier(device, cmd, Access::ComputeWrite, Access::HostRead);
             Ok(())
         })?;
-        let values: Vec<[f32; 2]> = bytemuck::pod_collect_to_vec(&output.mapped()?[..points.len() * 8]);
-        Ok(values.into_iter().map(|[v, present]| (present > 0.5).then_some(v)).collect())
+        let values: Vec<[f32; 2]> =
+            bytemuck::pod_collect_to_vec(&output.mapped()?[..points.len() * 8]);
+        Ok(values
+            .into_iter()
+            .map(|[v, present]| (present > 0.5).then_some(v))
+            .collect())
     }
 }
 

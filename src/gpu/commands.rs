@@ -25,16 +25,10 @@ pub(crate) enum Access {
     HostRead,
     /// Buffers written by a compute shader.
     ComputeWrite,
-    /// Brick cache (GENERAL layout) written by a copy.
-    CacheTransferWrite,
-    /// Brick cache (GENERAL layout) read by a copy.
-    CacheTransferRead,
     /// Brick cache (GENERAL layout) read and written as a storage image by the fixup pass.
     CacheComputeReadWrite,
-    /// Brick cache (GENERAL layout) sampled by a compute shader (the field probe).
-    CacheComputeSampled,
-    /// Brick cache (GENERAL layout) sampled by the ray-cast fragment shader.
-    CacheFragmentSampled,
+    /// Sampled in a compute shader (the field probe).
+    ComputeSampled,
 }
 
 impl Access {
@@ -56,19 +50,16 @@ impl Access {
             ),
             Access::HostRead => (S::HOST, A::HOST_READ, L::GENERAL),
             Access::ComputeWrite => (S::COMPUTE_SHADER, A::SHADER_STORAGE_WRITE, L::GENERAL),
-            Access::CacheTransferWrite => (S::COPY, A::TRANSFER_WRITE, L::GENERAL),
-            Access::CacheTransferRead => (S::COPY, A::TRANSFER_READ, L::GENERAL),
             Access::CacheComputeReadWrite => (
                 S::COMPUTE_SHADER,
                 A::SHADER_STORAGE_READ | A::SHADER_STORAGE_WRITE,
                 L::GENERAL,
             ),
-            Access::CacheComputeSampled => {
-                (S::COMPUTE_SHADER, A::SHADER_SAMPLED_READ, L::GENERAL)
-            }
-            Access::CacheFragmentSampled => {
-                (S::FRAGMENT_SHADER, A::SHADER_SAMPLED_READ, L::GENERAL)
-            }
+            Access::ComputeSampled => (
+                S::COMPUTE_SHADER,
+                A::SHADER_SAMPLED_READ,
+                L::SHADER_READ_ONLY_OPTIMAL,
+            ),
         }
     }
 }

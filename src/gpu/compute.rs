@@ -12,7 +12,7 @@ use std::sync::Arc;
 pub(crate) enum ComputeResource {
     /// A storage image in GENERAL layout.
     StorageImage(vk::ImageView),
-    /// A combined image sampler in GENERAL layout.
+    /// A combined image sampler in SHADER_READ_ONLY_OPTIMAL layout.
     SampledImage(vk::ImageView, vk::Sampler),
     /// A whole storage buffer.
     StorageBuffer(vk::Buffer),
@@ -125,8 +125,7 @@ impl ComputePipeline {
             let info = vk::ComputePipelineCreateInfo::default()
                 .stage(stage)
                 .layout(this.layout);
-            let result =
-                device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None);
+            let result = device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None);
             device.destroy_shader_module(module, None);
             this.pipeline = result.map_err(|(_, result)| crate::Error::Vulkan {
                 call: "vkCreateComputePipelines",
@@ -139,7 +138,11 @@ impl ComputePipeline {
     /// Points the descriptor set at `resources` (binding i = resources[i]); their kinds must match
     /// the types given at creation. The set must not be in use by pending GPU work.
     pub(crate) fn write_descriptors(&self, resources: &[ComputeResource]) {
-        assert_eq!(resources.len(), self.types.len(), "one resource per binding");
+        assert_eq!(
+            resources.len(),
+            self.types.len(),
+            "one resource per binding"
+        );
         let mut image_infos = Vec::with_capacity(resources.len());
         let mut buffer_infos = Vec::with_capacity(resources.len());
         for r in resources {
@@ -152,7 +155,7 @@ impl ComputePipeline {
                 ComputeResource::SampledImage(view, sampler) => [vk::DescriptorImageInfo {
                     sampler,
                     image_view: view,
-                    image_layout: vk::ImageLayout::GENERAL,
+                    image_layout: vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
                 }],
                 ComputeResource::StorageBuffer(_) => [vk::DescriptorImageInfo::default()],
             });

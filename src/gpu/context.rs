@@ -415,9 +415,10 @@ impl GpuContext {
             .maintenance4(true);
         // SAFETY: the physical device was enumerated from this instance.
         let supported10 = unsafe { instance.get_physical_device_features(physical_device) };
-        let features10 = vk::PhysicalDeviceFeatures::default().shader_storage_image_extended_formats(
-            supported10.shader_storage_image_extended_formats == vk::TRUE,
-        );
+        let features10 = vk::PhysicalDeviceFeatures::default()
+            .shader_storage_image_extended_formats(
+                supported10.shader_storage_image_extended_formats == vk::TRUE,
+            );
         let priorities = [1.0f32];
         let queue_infos = [vk::DeviceQueueCreateInfo::default()
             .queue_family_index(queue_family)

@@ -244,6 +244,7 @@ impl RaycastPipeline {
         &self,
         params: vk::Buffer,
         volume_view: vk::ImageView,
+        volume_layout: vk::ImageLayout,
         tf_view: vk::ImageView,
         tables: Option<(vk::Buffer, vk::Buffer)>,
     ) {
@@ -252,15 +253,15 @@ impl RaycastPipeline {
             offset: 0,
             range: vk::WHOLE_SIZE,
         }];
-        let image_info = |view| {
+        let image_info = |view, image_layout| {
             [vk::DescriptorImageInfo {
                 sampler: self.sampler,
                 image_view: view,
-                image_layout: vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
+                image_layout,
             }]
         };
-        let volume_info = image_info(volume_view);
-        let tf_info = image_info(tf_view);
+        let volume_info = image_info(volume_view, volume_layout);
+        let tf_info = image_info(tf_view, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL);
         let table_info = |buffer| {
             [vk::DescriptorBufferInfo {
                 buffer,
@@ -270,7 +271,10 @@ impl RaycastPipeline {
         };
         let (layout_info, neighbour_info) = match tables {
             Some((layout, neighbours)) => (table_info(layout), table_info(neighbours)),
-            None => (table_info(vk::Buffer::null()), table_info(vk::Buffer::null())),
+            None => (
+                table_info(vk::Buffer::null()),
+                table_info(vk::Buffer::null()),
+            ),
         };
         let mut writes = vec![
             vk::WriteDescriptorSet::default()

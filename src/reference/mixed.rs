@@ -244,7 +244,13 @@ pub fn sample_in_brick(
 
 /// The smooth reconstruction inside a hi-res brick: `q` brick-local, `texel_of_local` the texel
 /// coordinate of local 0 (`n*b + t_xyz`), `bits` its neighbour bits.
-pub fn sample_hi_res_transition(cache: &CacheImage, q: Vec3, texel_of_local: Vec3, bits: u32, n: f32) -> f32 {
+pub fn sample_hi_res_transition(
+    cache: &CacheImage,
+    q: Vec3,
+    texel_of_local: Vec3,
+    bits: u32,
+    n: f32,
+) -> f32 {
     let (band_mask, side, beta) = band(q, n);
     let active_mask = active_axes(bits, band_mask, side);
     if active_mask == 0 {
@@ -382,7 +388,9 @@ pub fn fixup_value(
                 }
             };
         }
-        let texel = (sample.as_vec3() * 0.5 + Vec3::new(nx, ny, nz)).floor().as_ivec3();
+        let texel = (sample.as_vec3() * 0.5 + Vec3::new(nx, ny, nz))
+            .floor()
+            .as_ivec3();
         return Some(cache.texel(texel));
     }
     None

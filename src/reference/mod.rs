@@ -7,9 +7,9 @@ mod sampling;
 
 pub use camera::{generate_ray, intersect_box, safe_inverse, Ray};
 pub use mixed::{
-    active_axes, band, brick_of, feature_touches_low_res, low_res_border_coord, neighbour_bit,
-    fixup_brick, fixup_value, sample_hi_res_transition, sample_in_brick, sample_mixed, CacheImage, MixedVolume,
-    Transition, FIXUP_PRECEDENCE, ReferenceCache, dequantize,
+    active_axes, band, brick_of, dequantize, feature_touches_low_res, fixup_brick, fixup_value,
+    low_res_border_coord, neighbour_bit, sample_hi_res_transition, sample_in_brick, sample_mixed,
+    CacheImage, MixedVolume, ReferenceCache, Transition, FIXUP_PRECEDENCE,
 };
 pub use sampling::sample_volume;
 
@@ -110,7 +110,10 @@ fn render_with(p: &RaycastParams, cast: impl Fn(&Ray) -> Vec4) -> Vec<Vec4> {
     let mut out = Vec::with_capacity((w * h) as usize);
     for y in 0..h {
         for x in 0..w {
-            out.push(cast(&generate_ray(p, Vec2::new(x as f32 + 0.5, y as f32 + 0.5))));
+            out.push(cast(&generate_ray(
+                p,
+                Vec2::new(x as f32 + 0.5, y as f32 + 0.5),
+            )));
         }
     }
     out

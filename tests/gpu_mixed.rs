@@ -1,0 +1,344 @@
+//! The GPU mixed-resolution path against the CPU reference: cache contents after upload and
+//! fixup, the reconstructed field (probe), its continuity, images, and a long sequence of
+//! residency changes under validation.
+
+mod common;
+
+use glam::{UVec3, Vec3};
+use mixvol::bricks::{BrickGrid, DownsampleFilter};
+use mixvol::cache::Level;
+use mixvol::optics::{TfPreset, TransferFunction};
+use mixvol::reference::{self, sample_mixed, ReferenceCache, Transition};
+use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
+use mixvol::scene::{Camera, RenderSettings};
+use mixvol::volume::{ScalarType, SyntheticField, Volume, VoxelData};
+use std::sync::Arc;
+
+const N: u32 = 8;
+
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+    fn unit(&mut self) -> f32 {
+        (self.next() >> 40) as f32 / (1u64 << 24) as f32
+    }
+    fn below(&mut self, n: u32) -> u32 {
+        (self.next() % n as u64) as u32
+    }
+}
+
+fn smooth_random_volume(rng: &mut Rng, dims: UVec3, scalar: ScalarType) -> Volume {
+    let count = (dims.x * dims.y * dims.z) as usize;
+    let values: Vec<f32> = (0..count).map(|_| rng.unit()).collect();
+    let data = match scalar {
+        ScalarType::F32 => VoxelData::F32(values),
+        ScalarType::U8 => VoxelData::U8(values.iter().map(|v| (v * 255.0).round() as u8).collect()),
+        ScalarType::U16 => VoxelData::U16(
+            values
+                .iter()
+                .map(|v| (v * 65535.0).round() as u16)
+                .collect(),
+        ),
+    };
+    Volume::new(dims, Vec3::ONE, data).unwrap()
+}
+
+fn random_levels(rng: &mut Rng, count: usize, absent: bool) -> Vec<Level> {
+    (0..count)
+        .map(|_| match rng.below(if absent { 7 } else { 6 }) {
+            0..=2 => Level::Lo,
+            3..=5 => Level::Hi,
+            _ => Level::Absent,
+        })
+        .collect()
+}
+
+fn config(transition: Transition) -> MixedConfig {
+    MixedConfig {
+        brick_size: N,
+        filter: DownsampleFilter::Mean2,
+        cache_budget_bytes: 64 << 20,
+        transition,
+    }
+}
+
+fn critical_points(rng: &mut Rng, dims: UVec3, count: usize) -> Vec<Vec3> {
+    let coord = |rng: &mut Rng, extent: u32| -> f32 {
+        let b = rng.below(extent / N + 1) as f32 * N as f32;
+        let v = match rng.below(5) {
+            0 => b,
+            1 => b + 0.5 * (rng.unit() - 0.5),
+            2 => b - 0.5,
+            3 => b + 0.5,
+            _ => rng.unit() * extent as f32,
+        };
+        v.clamp(0.02, extent as f32 - 0.02)
+    };
+    (0..count)
+        .map(|_| Vec3::new(coord(rng, dims.x), coord(rng, dims.y), coord(rng, dims.z)))
+        .collect()
+}
+
+#[test]
+fn cache_contents_after_upload_and_fixup_match_the_reference() {
+    let ctx = common::validated_context();
+    {
+        let mut rng = Rng(0x1234_5678_9abc_def1);
+        for scalar in [ScalarType::U8, ScalarType::F32] {
+            let dims = UVec3::new(3 * N + 2, 2 * N + 3, 2 * N);
+            let volume = Arc::new(smooth_random_volume(&mut rng, dims, scalar));
+            let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm).unwrap();
+            renderer
+                .set_mixed_volume(volume.clone(), config(Transition::Smooth))
+                .unwrap();
+            let count = BrickGrid::new(dims, N).unwrap().brick_count();
+            for round in 0..4 {
+                let levels = random_levels(&mut rng, count, true);
+                renderer.set_levels(&levels).unwrap();
+                let gpu = renderer.read_cache().unwrap();
+                let cache = renderer.brick_cache().unwrap();
+                let expected = ReferenceCache::build(
+                    &volume,
+                    DownsampleFilter::Mean2,
+                    cache,
+                    scalar,
+                    Transition::Smooth,
+                )
+                .unwrap();
+                // Compare the texels of resident bricks (free slots hold stale data by design).
+                let geometry = cache.geometry();
+                let mut compared = 0;
+                for (brick, residency) in cache.residencies().iter().enumerate() {
+                    let Some((origin, size)) = geometry.texel_box(*residency) else {
+                        continue;
+                    };
+                    for z in origin.z..origin.z + size.z {
+                        for y in origin.y..origin.y + size.y {
+                            for x in origin.x..origin.x + size.x {
+                                let e = geometry.extent();
+                                let i = (x + e.x * (y + e.y * z)) as usize;
+                                assert_eq!(
+                                    gpu[i], expected.image.texels[i],
+                                    "{scalar:?} round {round} brick {brick} texel ({x},{y},{z})"
+                                );
+                                compared += 1;
+                            }
+                        }
+                    }
+                }
+                assert!(compared > 0);
+            }
+        }
+    }
+    common::finish(ctx);
+}
+
+/// The GPU field (probe) equals the CPU reference field, and is continuous where the reference is.
+#[test]
+fn gpu_field_matches_reference_and_is_continuous() {
+    let ctx = common::validated_context();
+    {
+        let mut rng = Rng(0x0bad_cafe_0000_0001);
+        let dims = UVec3::new(3 * N, 3 * N, 2 * N + 4);
+        let volume = Arc::new(smooth_random_volume(&mut rng, dims, ScalarType::F32));
+        let count = BrickGrid::new(dims, N).unwrap().brick_count();
+        for transition in [Transition::Smooth, Transition::Discontinuous] {
+            let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm).unwrap();
+            renderer
+                .set_mixed_volume(volume.clone(), config(transition))
+                .unwrap();
+            let mut max_jump = 0.0f32;
+            for _ in 0..3 {
+                let levels = random_levels(&mut rng, count, false);
+                renderer.set_levels(&levels).unwrap();
+                let reference = ReferenceCache::build(
+                    &volume,
+                    DownsampleFilter::Mean2,
+                    renderer.brick_cache().unwrap(),
+                    ScalarType::F32,
+                    transition,
+                )
+                .unwrap();
+                let points = critical_points(&mut rng, dims, 4000);
+                let gpu = renderer.probe_field(&points).unwrap();
+                for (p, g) in points.iter().zip(&gpu) {
+                    let cpu = sample_mixed(&reference.view(), *p, transition);
+                    match (g, cpu) {
+                        (Some(g), Some(c)) => {
+                            assert!((g - c).abs() < 2e-3, "{transition:?} {p}: gpu {g} cpu {c}")
+                        }
+                        (g, c) => assert_eq!(g.is_some(), c.is_some(), "{p}: residency differs"),
+                    }
+                }
+                // Continuity on the GPU: opposite offsets across every probe point.
+                let eps = 1e-3;
+                let mut probes = Vec::new();
+                let dirs = [
+                    Vec3::X,
+                    Vec3::Y,
+                    Vec3::Z,
+                    Vec3::ONE,
+                    Vec3::new(1.0, -1.0, 1.0),
+                ];
+                for p in &points {
+                    for d in dirs {
+                        probes.push(*p + eps * d);
+                        probes.push(*p - eps * d);
+                    }
+                }
+                let values = renderer.probe_field(&probes).unwrap();
+                for pair in values.chunks_exact(2) {
+                    if let (Some(a), Some(b)) = (pair[0], pair[1]) {
+                        max_jump = max_jump.max((a - b).abs());
+                    }
+                }
+            }
+            match transition {
+                // Lipschitz bound 14 per voxel (see tests/continuity.rs) over 2 * sqrt(3) * eps,
+                // plus the GPU's sub-texel weight quantisation (1/256 voxel on real hardware).
+                Transition::Smooth => assert!(
+                    max_jump < 0.05 + 14.0 * 2.0 * 1.8e-3,
+                    "smooth GPU field jumps by {max_jump}"
+                ),
+                Transition::Discontinuous => assert!(
+                    max_jump > 0.1,
+                    "discontinuous GPU field should jump, max {max_jump}"
+                ),
+            }
+        }
+    }
+    common::finish(ctx);
+}
+
+fn render_pair(
+    ctx: &mixvol::gpu::GpuContext,
+    volume: Arc<Volume>,
+    levels: &[Level],
+    transition: Transition,
+    camera: &Camera,
+) -> (
+    Vec<glam::Vec4>,
+    Vec<glam::Vec4>,
+    mixvol::gpu::RaycastVariant,
+) {
+    let tf = TransferFunction::preset(TfPreset::Bands);
+    let mut renderer = Renderer::new(ctx, TargetFormat::Rgba32Float).unwrap();
+    renderer.set_transfer_function(&tf).unwrap();
+    renderer
+        .set_mixed_volume(volume.clone(), config(transition))
+        .unwrap();
+    renderer.set_levels(levels).unwrap();
+    let settings = RenderSettings {
+        samples_per_voxel: 1.5,
+        ..RenderSettings::default()
+    };
+    let frame = renderer.render(camera, &settings, 80, 80).unwrap();
+    let params = renderer.params(camera, &settings, 80, 80).unwrap();
+    let reference = ReferenceCache::build(
+        &volume,
+        DownsampleFilter::Mean2,
+        renderer.brick_cache().unwrap(),
+        volume.scalar_type(),
+        transition,
+    )
+    .unwrap();
+    let expected = reference::render_mixed(&reference.view(), transition, &tf, &params);
+    (frame.pixels, expected, frame.variant)
+}
+
+#[test]
+fn mixed_images_match_the_reference_and_all_hi_matches_single_resolution() {
+    let ctx = common::validated_context();
+    {
+        let volume = Arc::new(
+            SyntheticField::MarschnerLobb
+                .generate(UVec3::new(4 * N, 3 * N, 4 * N), ScalarType::F32)
+                .unwrap(),
+        );
+        let count = BrickGrid::new(volume.dims(), N).unwrap().brick_count();
+        let camera = Camera::perspective(Vec3::new(1.0, 0.8, 1.5), Vec3::ZERO, 40.0);
+        let mut rng = Rng(0x77);
+        for transition in [Transition::Smooth, Transition::Discontinuous] {
+            let levels = random_levels(&mut rng, count, true);
+            let (gpu, cpu, variant) =
+                render_pair(&ctx, volume.clone(), &levels, transition, &camera);
+            assert_eq!(variant.smooth_transitions, transition == Transition::Smooth);
+            let d = common::diff(&gpu, &cpu, 1.0 / 255.0);
+            assert!(
+                d.mean < 1e-3 && d.max < 6.0 / 255.0 && d.large_fraction < 0.005,
+                "{transition:?}: {d:?}"
+            );
+        }
+        // Every brick hi-res: the variant has no transition code and the image equals the
+        // single-resolution renderer's.
+        let all_hi = vec![Level::Hi; count];
+        let (mixed, _, variant) =
+            render_pair(&ctx, volume.clone(), &all_hi, Transition::Smooth, &camera);
+        assert!(variant.mixed_resolution && !variant.smooth_transitions);
+        let tf = TransferFunction::preset(TfPreset::Bands);
+        let mut single = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
+        single.set_transfer_function(&tf).unwrap();
+        single.set_volume(&volume).unwrap();
+        let settings = RenderSettings {
+            samples_per_voxel: 1.5,
+            ..RenderSettings::default()
+        };
+        let frame = single.render(&camera, &settings, 80, 80).unwrap();
+        assert!(!frame.variant.mixed_resolution);
+        let d = common::diff(&mixed, &frame.pixels, 1.0 / 255.0);
+        assert!(
+            d.mean < 1e-4 && d.max < 2.0 / 255.0,
+            "all-hi mixed vs single: {d:?}"
+        );
+    }
+    common::finish(ctx);
+}
+
+#[test]
+fn a_hundred_residency_changes_stay_validation_clean() {
+    let ctx = common::validated_context();
+    {
+        let mut rng = Rng(0xdead_beef_0042);
+        let volume = Arc::new(
+            SyntheticField::MarschnerLobb
+                .generate(UVec3::splat(4 * N), ScalarType::U8)
+                .unwrap(),
+        );
+        let count = BrickGrid::new(volume.dims(), N).unwrap().brick_count();
+        let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm).unwrap();
+        renderer
+            .set_mixed_volume(volume, config(Transition::Smooth))
+            .unwrap();
+        let camera = Camera::default_view();
+        let mut previous = random_levels(&mut rng, count, true);
+        for step in 0..100 {
+            // Small changes most of the time, a full reshuffle now and then.
+            let levels = if step % 10 == 0 {
+                random_levels(&mut rng, count, true)
+            } else {
+                let mut l = previous.clone();
+                for _ in 0..3 {
+                    let i = rng.below(count as u32) as usize;
+                    l[i] = [Level::Hi, Level::Lo, Level::Absent][rng.below(3) as usize];
+                }
+                l
+            };
+            let report = renderer.set_levels(&levels).unwrap();
+            assert_eq!(
+                report.hi_bricks,
+                levels.iter().filter(|l| **l == Level::Hi).count()
+            );
+            let frame = renderer
+                .render(&camera, &RenderSettings::default(), 24, 24)
+                .unwrap();
+            assert!(frame.pixels.iter().all(|p| p.is_finite()));
+            previous = levels;
+        }
+    }
+    common::finish(ctx);
+}

@@ -36,5 +36,11 @@ void main() {
         values[i] = vec2(0.0, 0.0);
         return;
     }
-    values[i] = vec2(sample_in_brick(x, b, entry, neighbour_bits[bi], n), 1.0);
+    uint bits = neighbour_bits[bi];
+    vec3 lo = vec3(-1.0);
+    vec3 hi = vec3(n + 1.0);
+#ifdef SMOOTH_TRANSITIONS
+    band_bounds(bits, n, lo, hi);
+#endif
+    values[i] = vec2(sample_in_brick(x, b, entry, bits, lo, hi, n), 1.0);
 }

@@ -56,8 +56,8 @@ vec4 cast_ray(Ray ray) {
     return acc;
 }
 #else
-// Same samples as the single-resolution loop; the ray walks brick by brick so the layout entry
-// and neighbour bits are read once per brick, and absent bricks are skipped whole.
+// Same samples as the single-resolution loop. The layout entry, neighbour bits and band bounds
+// are read once per brick (when a sample lands in a new brick); absent bricks are skipped whole.
 vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
@@ -74,35 +74,41 @@ vec4 cast_ray(Ray ray) {
     ivec3 bricks = ivec3(ceil(params.volume_dims.xyz / n));
     Ray voxel_ray = Ray((ray.origin - params.box_min.xyz) * to_voxel, ray.dir * to_voxel);
     int steps = int(min(ceil((t1 - t0) / step_len), params.tf_window.w));
-    int i = 0;
-    while (i < steps) {
+    ivec3 current = ivec3(-1);
+    vec4 entry = vec4(0.0);
+    uint bits = 0u;
+    vec3 band_lo = vec3(-1.0);
+    vec3 band_hi = vec3(n + 1.0);
+    for (int i = 0; i < steps; ++i) {
         float t_start = t0 + float(i) * step_len;
         float len = max(min(step_len, t1 - t_start), 0.0);
         vec3 x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
         ivec3 b = brick_of(x, n, bricks);
-        int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
-        vec4 entry = layout_entries[bi];
+        if (any(notEqual(b, current))) {
+            current = b;
+            int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
+            entry = layout_entries[bi];
+            if (entry.w == 0.0) {
+                // Absent brick: jump to just before its exit; samples still inside are skipped
+                // one by one below.
+                float t_exit = intersect_box(voxel_ray, vec3(b) * n, vec3(b + 1) * n).y;
+                i = max(i, int(floor((t_exit - t0) / step_len)) - 2);
+                continue;
+            }
+            bits = neighbour_bits[bi];
+#ifdef SMOOTH_TRANSITIONS
+            band_bounds(bits, n, band_lo, band_hi);
+#endif
+        }
         if (entry.w == 0.0) {
-            // Absent brick: jump to just before its exit; the per-sample brick test does the rest.
-            float t_exit = intersect_box(voxel_ray, vec3(b) * n, vec3(b + 1) * n).y;
-            i = max(i + 1, int(floor((t_exit - t0) / step_len)) - 1);
             continue;
         }
-        uint bits = neighbour_bits[bi];
-        for (; i < steps; ++i) {
-            t_start = t0 + float(i) * step_len;
-            len = max(min(step_len, t1 - t_start), 0.0);
-            x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
-            if (any(notEqual(brick_of(x, n, bricks), b))) {
-                break;
-            }
-            float value = sample_in_brick(x, b, entry, bits, n);
-            vec4 rgba = classify(tf_tex, params.tf_window, value);
-            float alpha = correct_opacity(rgba.a, len * inv_d0);
-            acc = composite(acc, rgba.rgb, alpha);
-            if (acc.a >= params.tf_window.z) {
-                return acc;
-            }
+        float value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
+        vec4 rgba = classify(tf_tex, params.tf_window, value);
+        float alpha = correct_opacity(rgba.a, len * inv_d0);
+        acc = composite(acc, rgba.rgb, alpha);
+        if (acc.a >= params.tf_window.z) {
+            break;
         }
     }
     return acc;

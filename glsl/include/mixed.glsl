@@ -88,13 +88,37 @@ float sample_hi_res_transition(vec3 q, vec3 texel_of_local, uint bits, float n) 
     return sum;
 }
 
-// The field at volume point x inside brick b with layout entry `entry` (t_w > 0) and neighbour
-// bits `bits`. Mirrors `sample_in_brick` in src/reference/mixed.rs.
-float sample_in_brick(vec3 x, ivec3 b, vec4 entry, uint bits, float n) {
+// Per-brick band bounds (brick-local): a sample below `lo` or above `hi` on some axis lies in a
+// half-voxel band on a side that touches a low-res neighbour (face, edge or corner) and needs the
+// transition blend; every other sample of the brick is a plain fetch. Computed once per brick.
+void band_bounds(uint bits, float n, out vec3 lo, out vec3 hi) {
+    lo = vec3(-1.0);
+    hi = vec3(n + 1.0);
+    for (int k = 0; k < 27; ++k) {
+        ivec3 d = ivec3(k % 3, (k / 3) % 3, k / 9) - 1;
+        if (k == 13 || (bits & neighbour_bit(d)) == 0u) {
+            continue;
+        }
+        for (int a = 0; a < 3; ++a) {
+            if (d[a] < 0) {
+                lo[a] = 0.5;
+            } else if (d[a] > 0) {
+                hi[a] = n - 0.5;
+            }
+        }
+    }
+}
+
+// The field at volume point x inside brick b with layout entry `entry` (t_w > 0), neighbour bits
+// `bits` and band bounds `lo`, `hi`. Mirrors `sample_in_brick` in src/reference/mixed.rs.
+float sample_in_brick(vec3 x, ivec3 b, vec4 entry, uint bits, vec3 lo, vec3 hi, float n) {
 #ifdef SMOOTH_TRANSITIONS
     if (entry.w == 1.0 && bits != 0u) {
         vec3 origin = vec3(b) * n;
-        return sample_hi_res_transition(x - origin, origin + entry.xyz, bits, n);
+        vec3 q = x - origin;
+        if (any(lessThan(q, lo)) || any(greaterThan(q, hi))) {
+            return sample_hi_res_transition(q, origin + entry.xyz, bits, n);
+        }
     }
 #endif
     return cache_fetch(x * entry.w + entry.xyz);

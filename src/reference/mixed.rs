@@ -212,32 +212,64 @@ pub fn sample_mixed(mv: &MixedVolume, x: Vec3, transition: Transition) -> Option
     if entry[3] == 0.0 {
         return None;
     }
+    let bits = mv.neighbours[bi];
+    let n = mv.brick_size as f32;
+    let (lo, hi) = band_bounds(bits, n);
     Some(sample_in_brick(
         mv.cache,
         x,
         b,
         entry,
-        mv.neighbours[bi],
-        mv.brick_size as f32,
+        bits,
+        (lo, hi),
+        n,
         transition,
     ))
 }
 
-/// The field at volume point `x` inside brick `b` with layout entry `entry` (`t_w > 0`) and
-/// neighbour bits `bits`. Mirrors `sample_in_brick` in mixed.glsl.
+/// Per-brick band bounds (brick-local): a sample below `lo` or above `hi` on some axis lies in a
+/// half-voxel band on a side that touches a low-res neighbour and needs the transition blend;
+/// every other sample is a plain fetch. Mirrors `band_bounds` in mixed.glsl.
+pub fn band_bounds(bits: u32, n: f32) -> (Vec3, Vec3) {
+    let mut lo = Vec3::splat(-1.0);
+    let mut hi = Vec3::splat(n + 1.0);
+    for k in 0..27 {
+        let d = IVec3::new(k % 3, (k / 3) % 3, k / 9) - IVec3::ONE;
+        if k == 13 || bits & neighbour_bit(d) == 0 {
+            continue;
+        }
+        for a in 0..3 {
+            if d[a] < 0 {
+                lo[a] = 0.5;
+            } else if d[a] > 0 {
+                hi[a] = n - 0.5;
+            }
+        }
+    }
+    (lo, hi)
+}
+
+/// The field at volume point `x` inside brick `b` with layout entry `entry` (`t_w > 0`),
+/// neighbour bits `bits` and band bounds `(lo, hi)` from [`band_bounds`]. Mirrors
+/// `sample_in_brick` in mixed.glsl.
+#[allow(clippy::too_many_arguments)] // reason: mirrors the GLSL signature, per-brick values.
 pub fn sample_in_brick(
     cache: &CacheImage,
     x: Vec3,
     b: IVec3,
     entry: [f32; 4],
     bits: u32,
+    (lo, hi): (Vec3, Vec3),
     n: f32,
     transition: Transition,
 ) -> f32 {
     let t = Vec3::new(entry[0], entry[1], entry[2]);
     if transition == Transition::Smooth && entry[3] == 1.0 && bits != 0 {
         let origin = b.as_vec3() * n;
-        return sample_hi_res_transition(cache, x - origin, origin + t, bits, n);
+        let q = x - origin;
+        if q.cmplt(lo).any() || q.cmpgt(hi).any() {
+            return sample_hi_res_transition(cache, q, origin + t, bits, n);
+        }
     }
     cache.fetch(x * entry[3] + t)
 }

@@ -7,9 +7,9 @@ mod sampling;
 
 pub use camera::{generate_ray, intersect_box, safe_inverse, Ray};
 pub use mixed::{
-    active_axes, band, brick_of, dequantize, feature_touches_low_res, fixup_brick, fixup_value,
-    low_res_border_coord, neighbour_bit, sample_hi_res_transition, sample_in_brick, sample_mixed,
-    CacheImage, MixedVolume, ReferenceCache, Transition, FIXUP_PRECEDENCE,
+    active_axes, band, band_bounds, brick_of, dequantize, feature_touches_low_res, fixup_brick,
+    fixup_value, low_res_border_coord, neighbour_bit, sample_hi_res_transition, sample_in_brick,
+    sample_mixed, CacheImage, MixedVolume, ReferenceCache, Transition, FIXUP_PRECEDENCE,
 };
 pub use sampling::sample_volume;
 

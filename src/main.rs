@@ -2,14 +2,19 @@
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use glam::{UVec3, Vec3};
+use mixvol::bricks::BrickGrid;
+use mixvol::cache::Level;
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::optics::{TfPreset, TransferFunction};
+use mixvol::reference::{ReferenceCache, Transition};
+use mixvol::renderer::MixedConfig;
 use mixvol::renderer::{Renderer, TargetFormat};
 use mixvol::scene::{Camera, Projection, RenderSettings};
 use mixvol::volume::{load_raw, RawDescriptor, ScalarType, SyntheticField, Volume};
 use mixvol::{reference, Error, Result};
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 
 /// Mixed-resolution volume ray-caster (Vulkan).
 #[derive(Parser, Debug)]
@@ -23,6 +28,59 @@ struct Cli {
 enum Command {
     /// Render a volume to a PNG and print the frame timing.
     Render(RenderArgs),
+    /// Render a close-up of a hi-res / low-res brick junction, discontinuous (left) and smooth
+    /// (right), side by side into one PNG.
+    Junction(JunctionArgs),
+}
+
+#[derive(ValueEnum, Copy, Clone, Debug, PartialEq)]
+enum LevelsArg {
+    /// Every brick at full resolution.
+    AllHi,
+    /// Every brick low-res.
+    AllLo,
+    /// Hi-res and low-res bricks alternate in a 3D checkerboard.
+    Checker,
+    /// Bricks with x below the middle are low-res.
+    Half,
+}
+
+#[derive(ValueEnum, Copy, Clone, Debug, PartialEq)]
+enum TransitionArg {
+    /// C0 transitions (border fixup + band blend).
+    Smooth,
+    /// Plain trilinear in every brick: the baseline.
+    Discontinuous,
+}
+
+#[derive(Args, Debug)]
+struct MixedArgs {
+    /// Render through the mixed-resolution brick cache with this level pattern (omit for the
+    /// plain single-texture ray-caster).
+    #[arg(long, value_enum)]
+    levels: Option<LevelsArg>,
+    /// Brick edge in voxels (power of two).
+    #[arg(long, default_value_t = 32)]
+    brick_size: u32,
+    /// Transition reconstruction between resolution levels.
+    #[arg(long, value_enum, default_value_t = TransitionArg::Smooth)]
+    transition: TransitionArg,
+    /// Cache image budget in MiB.
+    #[arg(long, default_value_t = 256)]
+    cache_mb: u64,
+}
+
+#[derive(Args, Debug)]
+struct JunctionArgs {
+    /// Output PNG path (folders are created).
+    #[arg(long, short, default_value = "out/junction.png")]
+    output: PathBuf,
+    /// Width of each half in pixels.
+    #[arg(long, default_value_t = 256)]
+    size: u32,
+    /// Enable the Khronos validation layers.
+    #[arg(long)]
+    validation: bool,
 }
 
 #[derive(ValueEnum, Copy, Clone, Debug)]
@@ -100,6 +158,8 @@ struct RenderArgs {
     /// Also render with the CPU reference and print the largest per-pixel difference.
     #[arg(long)]
     compare: bool,
+    #[command(flatten)]
+    mixed: MixedArgs,
 }
 
 fn parse_floats<const N: usize>(s: &str) -> std::result::Result<[f32; N], String> {
@@ -192,8 +252,46 @@ fn render(args: &RenderArgs) -> Result<()> {
     );
     let tf = TransferFunction::preset(args.tf);
     let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
-    renderer.set_volume(&volume)?;
     renderer.set_transfer_function(&tf)?;
+    let volume = Arc::new(volume);
+    let mut reference_cache = None;
+    match args.mixed.levels {
+        None => renderer.set_volume(&volume)?,
+        Some(pattern) => {
+            let config = MixedConfig {
+                brick_size: args.mixed.brick_size,
+                cache_budget_bytes: args.mixed.cache_mb << 20,
+                transition: transition_of(args.mixed.transition),
+                ..MixedConfig::default()
+            };
+            renderer.set_mixed_volume(volume.clone(), config)?;
+            let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)
+                .map_err(|e| Error::InvalidInput(e.to_string()))?;
+            let levels = level_pattern(&grid, pattern);
+            let report = renderer.set_levels(&levels)?;
+            println!(
+                "brick cache: {} hi + {} lo bricks of {}^3, {} uploaded ({:.1} MB), {} fixed up; pack {:.1} ms, upload+fixup {:.1} ms",
+                report.hi_bricks,
+                report.lo_bricks,
+                args.mixed.brick_size,
+                report.uploaded_bricks,
+                report.uploaded_bytes as f64 / 1e6,
+                report.fixup_bricks,
+                report.pack_ms,
+                report.gpu_update_ms
+            );
+            if args.compare {
+                let cache = renderer.brick_cache().expect("mixed volume set");
+                reference_cache = Some(ReferenceCache::build(
+                    &volume,
+                    config.filter,
+                    cache,
+                    volume.scalar_type(),
+                    config.transition,
+                )?);
+            }
+        }
+    }
     let projection = match args.projection {
         ProjectionArg::Perspective => Projection::Perspective {
             fov_y_degrees: args.fov,
@@ -220,12 +318,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         gpu.extend(frame.timing.gpu_raycast_ms);
         cpu.push(frame.timing.cpu_frame_ms);
     }
-    if let Some(parent) = args.output.parent() {
-        std::fs::create_dir_all(parent).map_err(|e| Error::ImageWrite {
-            path: args.output.clone(),
-            message: e.to_string(),
-        })?;
-    }
+    create_parent(&args.output)?;
     frame.save_png(&args.output, args.background)?;
     println!(
         "wrote {} ({}x{})",
@@ -248,9 +341,18 @@ fn render(args: &RenderArgs) -> Result<()> {
             info.name
         );
     }
+    println!("pipeline variant: {:?}", frame.variant);
     if args.compare {
         let params = renderer.params(&camera, &settings, args.width, args.height)?;
-        let reference = reference::render(&volume, &tf, &params);
+        let reference = match &reference_cache {
+            Some(cache) => reference::render_mixed(
+                &cache.view(),
+                transition_of(args.mixed.transition),
+                &tf,
+                &params,
+            ),
+            None => reference::render(&volume, &tf, &params),
+        };
         let max_diff = reference
             .iter()
             .zip(&frame.pixels)
@@ -281,10 +383,129 @@ fn render(args: &RenderArgs) -> Result<()> {
     Ok(())
 }
 
+fn transition_of(t: TransitionArg) -> Transition {
+    match t {
+        TransitionArg::Smooth => Transition::Smooth,
+        TransitionArg::Discontinuous => Transition::Discontinuous,
+    }
+}
+
+fn level_pattern(grid: &BrickGrid, pattern: LevelsArg) -> Vec<Level> {
+    let half = grid.bricks_per_axis().x / 2;
+    (0..grid.brick_count())
+        .map(|i| {
+            let b = grid.brick_coords(i);
+            let hi = match pattern {
+                LevelsArg::AllHi => true,
+                LevelsArg::AllLo => false,
+                LevelsArg::Checker => (b.x + b.y + b.z) % 2 == 0,
+                LevelsArg::Half => b.x >= half,
+            };
+            if hi {
+                Level::Hi
+            } else {
+                Level::Lo
+            }
+        })
+        .collect()
+}
+
+fn create_parent(path: &std::path::Path) -> Result<()> {
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| Error::ImageWrite {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+    }
+    Ok(())
+}
+
+/// A close-up of a plane junction (bricks with x < 32 low-res) in a 64^3 Marschner-Lobb volume,
+/// discontinuous on the left, smooth on the right.
+fn junction(args: &JunctionArgs) -> Result<()> {
+    if args.size == 0 {
+        return Err(Error::InvalidInput("--size must be positive".into()));
+    }
+    // f32: 8-bit textures are filtered in 8-bit fixed point on lavapipe, which terraces a zoom.
+    let volume =
+        Arc::new(SyntheticField::MarschnerLobb.generate(UVec3::splat(64), ScalarType::F32)?);
+    let ctx = GpuContext::new(&ContextDesc {
+        validation: args.validation,
+        device_name: None,
+    })?;
+    // Contour stripes: a jump in the field breaks the stripes at the junction.
+    let stripes: Vec<(f32, glam::Vec4)> = (0..=40)
+        .map(|i| {
+            let s = i as f32 / 40.0;
+            let c = if i % 2 == 0 {
+                glam::Vec4::new(0.95, 0.85, 0.3, 1.0)
+            } else {
+                glam::Vec4::new(0.1, 0.25, 0.6, 1.0)
+            };
+            (s, c)
+        })
+        .collect();
+    let tf = TransferFunction::from_control_points(&stripes)?;
+    let grid = BrickGrid::new(volume.dims(), 16).map_err(|e| Error::InvalidInput(e.to_string()))?;
+    let levels = level_pattern(&grid, LevelsArg::Half);
+    // Looking down -z at the junction plane x = 0 (world), 8 voxels wide, through a slab two
+    // voxels thick (near/far clip) so the image shows the field itself, like a slice.
+    let camera = Camera {
+        near: 2.0 - 1.0 / 64.0,
+        far: 2.0 + 1.0 / 64.0,
+        ..Camera::orthographic(
+            Vec3::new(0.0, 0.1, 2.0),
+            Vec3::new(0.0, 0.1, 0.0),
+            8.0 / 64.0,
+        )
+    };
+    let settings = RenderSettings {
+        samples_per_voxel: 4.0,
+        ..RenderSettings::default()
+    };
+    let mut halves = Vec::new();
+    for transition in [Transition::Discontinuous, Transition::Smooth] {
+        let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
+        renderer.set_transfer_function(&tf)?;
+        renderer.set_mixed_volume(
+            volume.clone(),
+            MixedConfig {
+                brick_size: 16,
+                transition,
+                ..MixedConfig::default()
+            },
+        )?;
+        renderer.set_levels(&levels)?;
+        let frame = renderer.render(&camera, &settings, args.size, args.size)?;
+        halves.push(frame.to_rgba8(Vec3::splat(0.08)));
+    }
+    let gap = 4;
+    let mut out = image::RgbaImage::from_pixel(
+        2 * args.size + gap,
+        args.size,
+        image::Rgba([255, 255, 255, 255]),
+    );
+    image::imageops::overlay(&mut out, &halves[0], 0, 0);
+    image::imageops::overlay(&mut out, &halves[1], i64::from(args.size + gap), 0);
+    create_parent(&args.output)?;
+    mixvol::renderer::save_png(&out, &args.output)?;
+    println!(
+        "wrote {}: low-res bricks left of the centre line, hi-res right; discontinuous (left image) vs smooth (right image)",
+        args.output.display()
+    );
+    let log = ctx.message_log();
+    drop(ctx);
+    if args.validation && !log.warnings_and_errors().is_empty() {
+        return Err(Error::InvalidInput("validation reported problems".into()));
+    }
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Render(args) => render(args),
+        Command::Junction(args) => junction(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

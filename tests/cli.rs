@@ -124,3 +124,58 @@ fn render_writes_a_png_with_the_volume_in_it_and_prints_timing() {
         "centre {centre:?} corner {corner:?}"
     );
 }
+
+#[test]
+fn junction_image_shows_the_jump_only_in_discontinuous_mode() {
+    let dir = std::env::temp_dir().join(format!("mixvol-cli-junction-{}", std::process::id()));
+    let png = dir.join("junction.png");
+    let size = 96u32;
+    let out = mixvol()
+        .args([
+            "junction",
+            "--validation",
+            "--size",
+            &size.to_string(),
+            "--output",
+        ])
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let img = image::open(&png).unwrap().to_rgba8();
+    std::fs::remove_dir_all(&dir).ok();
+    assert_eq!(img.dimensions(), (2 * size + 4, size));
+    // The junction is the centre column of each half. Largest colour step between neighbouring
+    // pixels across it, against the largest step anywhere else in the same half.
+    let step = |x0: u32, x: u32, y: u32| -> i32 {
+        let a = img.get_pixel(x0 + x, y).0;
+        let b = img.get_pixel(x0 + x + 1, y).0;
+        (0..3).map(|c| (a[c] as i32 - b[c] as i32).abs()).sum()
+    };
+    let at_junction = |x0: u32| (0..size).map(|y| step(x0, size / 2 - 1, y)).max().unwrap();
+    let elsewhere = |x0: u32| {
+        (0..size)
+            .flat_map(|y| {
+                (0..size - 1)
+                    .filter(|x| x.abs_diff(size / 2 - 1) > 8)
+                    .map(move |x| (x, y))
+            })
+            .map(|(x, y)| step(x0, x, y))
+            .max()
+            .unwrap()
+    };
+    let (disc_jump, disc_other) = (at_junction(0), elsewhere(0));
+    let (smooth_jump, _) = (at_junction(size + 4), elsewhere(size + 4));
+    assert!(
+        disc_jump > disc_other,
+        "discontinuous: junction step {disc_jump} vs elsewhere {disc_other}"
+    );
+    assert!(
+        smooth_jump * 2 < disc_jump,
+        "smooth junction step {smooth_jump} vs discontinuous {disc_jump}"
+    );
+}

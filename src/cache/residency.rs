@@ -372,7 +372,7 @@ impl State {
                 }),
             ) => {
                 bricks[sub_slot as usize] = EMPTY;
-                false
+                bricks.iter().all(|&b| b == EMPTY)
             }
             _ => false,
         };
@@ -484,6 +484,7 @@ impl State {
                 .filter(|&&(_, slot, _)| slot != source_slot)
                 .map(|&(_, _, key)| key)
                 .collect();
+            let free_before = self.free.len();
             let mut target = targets.iter().copied();
             let mut current = target.next();
             for brick in bricks.into_iter().filter(|&b| b != EMPTY) {
@@ -496,6 +497,10 @@ impl State {
                 };
                 self.release(brick);
                 self.place_lo(brick, key, sub);
+            }
+            // The evacuated slot must have merged back; never loop without progress.
+            if self.free.len() <= free_before {
+                return Err(failed);
             }
         }
         Ok(())
@@ -723,7 +728,7 @@ mod tests {
         assert_eq!(cache.split_slot_count(), 1);
         assert_eq!(cache.free_slot_count(), 9);
         check_consistency(&cache);
-        let update = cache.update(&vec![Level::Absent; 60]).unwrap();
+        let update = cache.update(&[Level::Absent; 60]).unwrap();
         assert_eq!(update.evicted, vec![8, 20]);
         assert_eq!(cache.split_slot_count(), 0);
         assert_eq!(cache.free_slot_count(), 10);
@@ -911,6 +916,22 @@ mod tests {
         );
     }
 
+    /// Random demotions (Hi -> Lo, then Lo -> Absent) until `#Hi + ceil(#Lo / 8) <= capacity`.
+    fn demote_until_fits(plan: &mut [Level], capacity: usize, rng: &mut Rng) {
+        loop {
+            let hi: Vec<usize> = (0..plan.len()).filter(|&i| plan[i] == Level::Hi).collect();
+            let lo: Vec<usize> = (0..plan.len()).filter(|&i| plan[i] == Level::Lo).collect();
+            if BrickCache::slots_needed(hi.len(), lo.len()) <= capacity {
+                return;
+            }
+            if hi.is_empty() {
+                plan[lo[rng.below(lo.len() as u64) as usize]] = Level::Absent;
+            } else {
+                plan[hi[rng.below(hi.len() as u64) as usize]] = Level::Lo;
+            }
+        }
+    }
+
     /// 200 random plans over a 5x4x3 grid in runs with random capacities: errors exactly when the
     /// count rule fails (state unchanged), otherwise a consistent non-overlapping assignment with
     /// the wanted levels, hi-res bricks that kept their level never move, and the uploads are
@@ -945,6 +966,11 @@ mod tests {
                         let i = rng.below(60) as usize;
                         wanted[i] = [Level::Hi, Level::Lo, Level::Absent][rng.below(3) as usize];
                     }
+                }
+                if rng.below(4) != 0 {
+                    // Mostly demote like a LOD selector would (Hi -> Lo, then Lo -> Absent) until
+                    // the plan fits; the rest stays over budget to exercise the error.
+                    demote_until_fits(&mut wanted, capacity as usize, &mut rng);
                 }
                 let hi = wanted.iter().filter(|&&l| l == Level::Hi).count();
                 let lo = wanted.iter().filter(|&&l| l == Level::Lo).count();
@@ -1008,6 +1034,6 @@ mod tests {
             }
         }
         assert!(errors > 5, "only {errors} over-budget plans");
-        assert!(compactions > 0, "no compaction exercised");
+        assert!(compactions > 5, "only {compactions} compactions exercised");
     }
 }

@@ -166,7 +166,8 @@ fn every_neighbour_class_is_continuous_in_smooth_mode() {
     let centre = UVec3::ONE;
     // The centre brick is hi-res; one class of neighbours is low-res at a time: a face, an edge,
     // a corner (touching the centre only diagonally), and their complements.
-    let classes: [(&str, Box<dyn Fn(UVec3) -> bool>); 6] = [
+    type IsLow = Box<dyn Fn(UVec3) -> bool>;
+    let classes: [(&str, IsLow); 6] = [
         ("face", Box::new(|b: UVec3| b == UVec3::new(0, 1, 1))),
         ("edge-only", Box::new(|b: UVec3| b == UVec3::new(0, 0, 1))),
         ("corner-only", Box::new(|b: UVec3| b == UVec3::new(0, 0, 0))),

@@ -56,8 +56,24 @@ vec4 cast_ray(Ray ray) {
     return acc;
 }
 #else
-// Same samples as the single-resolution loop. The layout entry, neighbour bits and band bounds
-// are read once per brick (when a sample lands in a new brick); absent bricks are skipped whole.
+// Index of the first sample whose midpoint t0 + (i + 0.5) * step lies at or after t.
+int first_sample_after(float t, float t0, float step_len) {
+    return int(ceil((t - t0) / step_len - 0.5));
+}
+
+// Classifies and composites one sample; true once the ray is opaque enough to stop.
+bool accumulate(inout vec4 acc, float value, float len, float inv_d0) {
+    vec4 rgba = classify(tf_tex, params.tf_window, value);
+    float alpha = correct_opacity(rgba.a, len * inv_d0);
+    acc = composite(acc, rgba.rgb, alpha);
+    return acc.a >= params.tf_window.z;
+}
+
+// The same samples as the single-resolution loop (and as `cast_ray_mixed` in the CPU reference,
+// which tests each sample's brick), scheduled brick by brick: the layout entry and neighbour bits
+// are read once per brick, absent bricks are skipped whole, and in a hi-res brick with low-res
+// neighbours the ray's samples are split into band / interior / band runs, so the interior loop
+// carries no transition code (a branch in the loop costs even when not taken on SIMD CPUs).
 vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
@@ -74,42 +90,70 @@ vec4 cast_ray(Ray ray) {
     ivec3 bricks = ivec3(ceil(params.volume_dims.xyz / n));
     Ray voxel_ray = Ray((ray.origin - params.box_min.xyz) * to_voxel, ray.dir * to_voxel);
     int steps = int(min(ceil((t1 - t0) / step_len), params.tf_window.w));
-    ivec3 current = ivec3(-1);
-    vec4 entry = vec4(0.0);
-    uint bits = 0u;
-    vec3 band_lo = vec3(-1.0);
-    vec3 band_hi = vec3(n + 1.0);
-    for (int i = 0; i < steps; ++i) {
+    int i = 0;
+    while (i < steps) {
         float t_start = t0 + float(i) * step_len;
         float len = max(min(step_len, t1 - t_start), 0.0);
         vec3 x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
         ivec3 b = brick_of(x, n, bricks);
-        if (any(notEqual(b, current))) {
-            current = b;
-            int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
-            entry = layout_entries[bi];
-            if (entry.w == 0.0) {
-                // Absent brick: jump to just before its exit; samples still inside are skipped
-                // one by one below.
-                float t_exit = intersect_box(voxel_ray, vec3(b) * n, vec3(b + 1) * n).y;
-                i = max(i, int(floor((t_exit - t0) / step_len)) - 2);
-                continue;
-            }
-            bits = neighbour_bits[bi];
-#ifdef SMOOTH_TRANSITIONS
-            band_bounds(bits, n, band_lo, band_hi);
-#endif
-        }
+        vec3 origin = vec3(b) * n;
+        float t_exit = intersect_box(voxel_ray, origin, origin + n).y;
+        int i_end = clamp(first_sample_after(t_exit, t0, step_len), i + 1, steps);
+        int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
+        vec4 entry = layout_entries[bi];
         if (entry.w == 0.0) {
+            i = i_end;
             continue;
         }
-        float value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
-        vec4 rgba = classify(tf_tex, params.tf_window, value);
-        float alpha = correct_opacity(rgba.a, len * inv_d0);
-        acc = composite(acc, rgba.rgb, alpha);
-        if (acc.a >= params.tf_window.z) {
-            break;
+        int i_in = i;
+        int i_out = i_end;
+#ifdef SMOOTH_TRANSITIONS
+        uint bits = neighbour_bits[bi];
+        vec3 band_lo = vec3(-1.0);
+        vec3 band_hi = vec3(n + 1.0);
+        if (entry.w == 1.0 && bits != 0u) {
+            band_bounds(bits, n, band_lo, band_hi);
+            vec2 inner = intersect_box(voxel_ray, origin + band_lo, origin + band_hi);
+            if (inner.x < inner.y) {
+                i_in = clamp(first_sample_after(inner.x, t0, step_len), i, i_end);
+                i_out = clamp(first_sample_after(inner.y, t0, step_len), i_in, i_end);
+            } else {
+                i_in = i_end;
+                i_out = i_end;
+            }
         }
+        // Band run before the interior.
+        for (; i < i_in; ++i) {
+            t_start = t0 + float(i) * step_len;
+            len = max(min(step_len, t1 - t_start), 0.0);
+            x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
+            float value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
+            if (accumulate(acc, value, len, inv_d0)) {
+                return acc;
+            }
+        }
+#endif
+        // Interior run: plain fetches.
+        for (; i < i_out; ++i) {
+            t_start = t0 + float(i) * step_len;
+            len = max(min(step_len, t1 - t_start), 0.0);
+            x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
+            if (accumulate(acc, cache_fetch(x * entry.w + entry.xyz), len, inv_d0)) {
+                return acc;
+            }
+        }
+#ifdef SMOOTH_TRANSITIONS
+        // Band run after the interior.
+        for (; i < i_end; ++i) {
+            t_start = t0 + float(i) * step_len;
+            len = max(min(step_len, t1 - t_start), 0.0);
+            x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
+            float value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
+            if (accumulate(acc, value, len, inv_d0)) {
+                return acc;
+            }
+        }
+#endif
     }
     return acc;
 }

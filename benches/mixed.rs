@@ -8,6 +8,9 @@
 //! Run: `cargo bench --bench mixed` (MIXVOL_BENCH_SIZE, MIXVOL_BENCH_FRAMES to change). On lavapipe
 //! the absolute times are CPU times; compare the ratios.
 
+mod common;
+
+use common::{env_u32, median};
 use glam::{UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
 use mixvol::cache::Level;
@@ -18,18 +21,6 @@ use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
 use mixvol::scene::{Camera, RenderSettings};
 use mixvol::volume::{ScalarType, SyntheticField};
 use std::sync::Arc;
-
-fn env_u32(name: &str, default: u32) -> u32 {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[v.len() / 2]
-}
 
 fn time_frames(
     renderer: &mut Renderer,

@@ -5,24 +5,15 @@
 //! Run: `cargo bench --bench raycast` (set MIXVOL_BENCH_SIZE / MIXVOL_BENCH_FRAMES to change the
 //! image size and frame count). On lavapipe the absolute times are CPU times; compare ratios.
 
+mod common;
+
+use common::{env_u32, median};
 use glam::{UVec3, Vec3};
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::renderer::{Renderer, TargetFormat};
 use mixvol::scene::{Camera, RenderSettings};
 use mixvol::volume::{ScalarType, SyntheticField};
-
-fn env_u32(name: &str, default: u32) -> u32 {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[v.len() / 2]
-}
 
 fn main() -> mixvol::Result<()> {
     let size = env_u32("MIXVOL_BENCH_SIZE", 256);

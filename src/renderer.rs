@@ -687,7 +687,7 @@ impl Renderer {
                     vk::PipelineBindPoint::GRAPHICS,
                     pipeline.layout,
                     0,
-                    &[pipeline.set],
+                    &[pipeline.descriptors.set],
                     &[],
                 );
                 device.cmd_draw(cmd, 3, 1, 0, 0);

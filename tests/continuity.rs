@@ -7,27 +7,14 @@
 //! centres, even low-res positions) so that faces, edges and corners of every configuration are hit.
 //! The same test in discontinuous mode must find jumps, so it can fail.
 
+mod common;
+
+use common::Rng;
 use glam::{UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
 use mixvol::cache::{BrickCache, CacheGeometry, Level};
 use mixvol::reference::{sample_mixed, sample_volume, ReferenceCache, Transition};
 use mixvol::volume::{ScalarType, Volume, VoxelData};
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    fn below(&mut self, n: u32) -> u32 {
-        (self.next() % n as u64) as u32
-    }
-}
 
 const N: u32 = 8;
 

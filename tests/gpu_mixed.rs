@@ -4,6 +4,8 @@
 
 mod common;
 
+use common::Rng;
+
 use glam::{UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
 use mixvol::cache::Level;
@@ -15,22 +17,6 @@ use mixvol::volume::{ScalarType, SyntheticField, Volume, VoxelData};
 use std::sync::Arc;
 
 const N: u32 = 8;
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    fn below(&mut self, n: u32) -> u32 {
-        (self.next() % n as u64) as u32
-    }
-}
 
 fn smooth_random_volume(rng: &mut Rng, dims: UVec3, scalar: ScalarType) -> Volume {
     let count = (dims.x * dims.y * dims.z) as usize;

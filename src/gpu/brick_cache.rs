@@ -5,6 +5,7 @@
 use super::commands::{image_barrier, Access, Submitter};
 use super::compute::{ComputePipeline, ComputeResource};
 use super::context::DeviceShared;
+use super::descriptors::Sampler;
 use super::memory::{Buffer, Image, ImageDesc, COLOR_LAYERS};
 use crate::error::{Error, Result};
 use crate::volume::ScalarType;
@@ -377,7 +378,7 @@ struct ProbePush {
 /// own functions (`probe.comp` includes `mixed.glsl`).
 pub(crate) struct FieldProbe {
     pipeline: ComputePipeline,
-    sampler: vk::Sampler,
+    sampler: Sampler,
     shared: Arc<DeviceShared>,
 }
 
@@ -400,21 +401,7 @@ impl FieldProbe {
             ],
             std::mem::size_of::<ProbePush>() as u32,
         )?;
-        let info = vk::SamplerCreateInfo::default()
-            .mag_filter(vk::Filter::LINEAR)
-            .min_filter(vk::Filter::LINEAR)
-            .mipmap_mode(vk::SamplerMipmapMode::NEAREST)
-            .address_mode_u(vk::SamplerAddressMode::CLAMP_TO_EDGE)
-            .address_mode_v(vk::SamplerAddressMode::CLAMP_TO_EDGE)
-            .address_mode_w(vk::SamplerAddressMode::CLAMP_TO_EDGE)
-            .max_lod(0.0);
-        // SAFETY: valid create info on a live device.
-        let sampler = unsafe { shared.device.create_sampler(&info, None) }.map_err(|result| {
-            Error::Vulkan {
-                call: "vkCreateSampler",
-                result,
-            }
-        })?;
+        let sampler = Sampler::linear_clamp(shared)?;
         Ok(Self {
             pipeline,
             sampler,
@@ -458,7 +445,7 @@ impl FieldProbe {
             ));
         };
         self.pipeline.write_descriptors(&[
-            ComputeResource::SampledImage(cache.image.view, self.sampler),
+            ComputeResource::SampledImage(cache.image.view, self.sampler.raw),
             ComputeResource::StorageBuffer(layout.raw),
             ComputeResource::StorageBuffer(neighbours.raw),
             ComputeResource::StorageBuffer(input.raw),
@@ -501,12 +488,5 @@ impl FieldProbe {
             .into_iter()
             .map(|[v, present]| (present > 0.5).then_some(v))
             .collect())
-    }
-}
-
-impl Drop for FieldProbe {
-    fn drop(&mut self) {
-        // SAFETY: every submission using the sampler completed (Submitter waits).
-        unsafe { self.shared.device.destroy_sampler(self.sampler, None) };
     }
 }

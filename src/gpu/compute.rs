@@ -2,6 +2,7 @@
 //! one shader. The fixup pass and the field probe are built on it.
 
 use super::context::DeviceShared;
+use super::descriptors::DescriptorBundle;
 use super::shaders::{compile, ShaderStage};
 use crate::error::{Result, VkResultExt};
 use ash::vk;
@@ -32,9 +33,7 @@ impl ComputeResource {
 pub(crate) struct ComputePipeline {
     pub(crate) pipeline: vk::Pipeline,
     pub(crate) layout: vk::PipelineLayout,
-    set_layout: vk::DescriptorSetLayout,
-    pool: vk::DescriptorPool,
-    pub(crate) set: vk::DescriptorSet,
+    descriptors: DescriptorBundle,
     types: Vec<vk::DescriptorType>,
     shared: Arc<DeviceShared>,
 }
@@ -50,71 +49,32 @@ impl ComputePipeline {
     ) -> Result<Self> {
         let code = compile(shader, ShaderStage::Compute, defines)?;
         let device = &shared.device;
-        let mut this = Self {
-            pipeline: vk::Pipeline::null(),
-            layout: vk::PipelineLayout::null(),
-            set_layout: vk::DescriptorSetLayout::null(),
-            pool: vk::DescriptorPool::null(),
-            set: vk::DescriptorSet::null(),
-            types: types.to_vec(),
-            shared: shared.clone(),
-        };
-        let bindings: Vec<_> = types
-            .iter()
-            .enumerate()
-            .map(|(i, ty)| {
-                vk::DescriptorSetLayoutBinding::default()
-                    .binding(i as u32)
-                    .descriptor_type(*ty)
-                    .descriptor_count(1)
-                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            })
-            .collect();
-        let pool_sizes: Vec<_> = types
-            .iter()
-            .map(|ty| vk::DescriptorPoolSize {
-                ty: *ty,
-                descriptor_count: 1,
-            })
-            .collect();
+        let descriptors = DescriptorBundle::new(shared, types, vk::ShaderStageFlags::COMPUTE)?;
         let ranges = [vk::PushConstantRange {
             stage_flags: vk::ShaderStageFlags::COMPUTE,
             offset: 0,
             size: push_constant_bytes,
         }];
-        // SAFETY: valid create infos on a live device; every handle is stored in `this` at once so
-        // Drop releases it on any later error; the module is destroyed before returning.
+        let set_layouts = [descriptors.set_layout];
+        // SAFETY: valid create info on a live device.
+        let layout = unsafe {
+            device.create_pipeline_layout(
+                &vk::PipelineLayoutCreateInfo::default()
+                    .set_layouts(&set_layouts)
+                    .push_constant_ranges(&ranges),
+                None,
+            )
+        }
+        .vk("vkCreatePipelineLayout")?;
+        let mut this = Self {
+            pipeline: vk::Pipeline::null(),
+            layout,
+            descriptors,
+            types: types.to_vec(),
+            shared: shared.clone(),
+        };
+        // SAFETY: valid create infos on a live device; the module is destroyed before returning.
         unsafe {
-            this.set_layout = device
-                .create_descriptor_set_layout(
-                    &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
-                    None,
-                )
-                .vk("vkCreateDescriptorSetLayout")?;
-            let set_layouts = [this.set_layout];
-            this.layout = device
-                .create_pipeline_layout(
-                    &vk::PipelineLayoutCreateInfo::default()
-                        .set_layouts(&set_layouts)
-                        .push_constant_ranges(&ranges),
-                    None,
-                )
-                .vk("vkCreatePipelineLayout")?;
-            this.pool = device
-                .create_descriptor_pool(
-                    &vk::DescriptorPoolCreateInfo::default()
-                        .max_sets(1)
-                        .pool_sizes(&pool_sizes),
-                    None,
-                )
-                .vk("vkCreateDescriptorPool")?;
-            this.set = device
-                .allocate_descriptor_sets(
-                    &vk::DescriptorSetAllocateInfo::default()
-                        .descriptor_pool(this.pool)
-                        .set_layouts(&set_layouts),
-                )
-                .vk("vkAllocateDescriptorSets")?[0];
             let module = device
                 .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None)
                 .vk("vkCreateShaderModule")?;
@@ -174,7 +134,7 @@ impl ComputePipeline {
             .map(|(i, r)| {
                 assert_eq!(r.descriptor_type(), self.types[i], "binding {i} kind");
                 let write = vk::WriteDescriptorSet::default()
-                    .dst_set(self.set)
+                    .dst_set(self.descriptors.set)
                     .dst_binding(i as u32)
                     .descriptor_type(r.descriptor_type());
                 match r {
@@ -203,7 +163,7 @@ impl ComputePipeline {
                 vk::PipelineBindPoint::COMPUTE,
                 self.layout,
                 0,
-                &[self.set],
+                &[self.descriptors.set],
                 &[],
             );
             device.cmd_push_constants(
@@ -221,12 +181,11 @@ impl ComputePipeline {
 impl Drop for ComputePipeline {
     fn drop(&mut self) {
         let device = &self.shared.device;
-        // SAFETY: owners wait idle before dropping; reverse creation order; null handles ignored.
+        // SAFETY: owners wait idle before dropping; the pipeline goes before its layout (the
+        // descriptor bundle field drops after this); null handles are ignored.
         unsafe {
             device.destroy_pipeline(self.pipeline, None);
-            device.destroy_descriptor_pool(self.pool, None);
             device.destroy_pipeline_layout(self.layout, None);
-            device.destroy_descriptor_set_layout(self.set_layout, None);
         }
     }
 }

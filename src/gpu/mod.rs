@@ -7,6 +7,7 @@ mod brick_cache;
 mod commands;
 mod compute;
 mod context;
+mod descriptors;
 mod memory;
 mod raycast;
 pub mod shaders;

@@ -2,6 +2,7 @@
 //! pixel (dynamic rendering, no render pass objects).
 
 use super::context::DeviceShared;
+use super::descriptors::{DescriptorBundle, Sampler};
 use super::shaders::{compile, ShaderStage};
 use crate::error::{Result, VkResultExt};
 use crate::optics::TF_SIZE;
@@ -39,10 +40,8 @@ impl RaycastVariant {
 pub(crate) struct RaycastPipeline {
     pub(crate) pipeline: vk::Pipeline,
     pub(crate) layout: vk::PipelineLayout,
-    set_layout: vk::DescriptorSetLayout,
-    pub(crate) sampler: vk::Sampler,
-    pool: vk::DescriptorPool,
-    pub(crate) set: vk::DescriptorSet,
+    pub(crate) descriptors: DescriptorBundle,
+    sampler: Sampler,
     pub(crate) variant: RaycastVariant,
     shared: Arc<DeviceShared>,
 }
@@ -57,103 +56,36 @@ impl RaycastPipeline {
         let vert = compile("raycast.vert", ShaderStage::Vertex, &defines)?;
         let frag = compile("raycast.frag", ShaderStage::Fragment, &defines)?;
         let device = &shared.device;
+        let mut types = vec![
+            vk::DescriptorType::UNIFORM_BUFFER,
+            vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+            vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+        ];
+        if variant.mixed_resolution {
+            types.extend([vk::DescriptorType::STORAGE_BUFFER; 2]);
+        }
+        let descriptors = DescriptorBundle::new(shared, &types, vk::ShaderStageFlags::FRAGMENT)?;
+        let sampler = Sampler::linear_clamp(shared)?;
+        let set_layouts = [descriptors.set_layout];
+        // SAFETY: valid create info on a live device.
+        let layout = unsafe {
+            device.create_pipeline_layout(
+                &vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts),
+                None,
+            )
+        }
+        .vk("vkCreatePipelineLayout")?;
         let mut this = Self {
             pipeline: vk::Pipeline::null(),
-            layout: vk::PipelineLayout::null(),
-            set_layout: vk::DescriptorSetLayout::null(),
-            sampler: vk::Sampler::null(),
-            pool: vk::DescriptorPool::null(),
-            set: vk::DescriptorSet::null(),
+            layout,
+            descriptors,
+            sampler,
             variant,
             shared: shared.clone(),
         };
-        let mut bindings = vec![
-            vk::DescriptorSetLayoutBinding::default()
-                .binding(0)
-                .descriptor_type(vk::DescriptorType::UNIFORM_BUFFER)
-                .descriptor_count(1)
-                .stage_flags(vk::ShaderStageFlags::FRAGMENT),
-            vk::DescriptorSetLayoutBinding::default()
-                .binding(1)
-                .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
-                .descriptor_count(1)
-                .stage_flags(vk::ShaderStageFlags::FRAGMENT),
-            vk::DescriptorSetLayoutBinding::default()
-                .binding(2)
-                .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
-                .descriptor_count(1)
-                .stage_flags(vk::ShaderStageFlags::FRAGMENT),
-        ];
-        let table_bindings = if variant.mixed_resolution { 2 } else { 0 };
-        for binding in 3..3 + table_bindings {
-            bindings.push(
-                vk::DescriptorSetLayoutBinding::default()
-                    .binding(binding)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                    .descriptor_count(1)
-                    .stage_flags(vk::ShaderStageFlags::FRAGMENT),
-            );
-        }
-        // SAFETY: valid create infos on a live device; every handle is stored in `this` at once so
-        // Drop releases it on any later error.
-        unsafe {
-            this.set_layout = device
-                .create_descriptor_set_layout(
-                    &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
-                    None,
-                )
-                .vk("vkCreateDescriptorSetLayout")?;
-            let set_layouts = [this.set_layout];
-            this.layout = device
-                .create_pipeline_layout(
-                    &vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts),
-                    None,
-                )
-                .vk("vkCreatePipelineLayout")?;
-            let sampler_info = vk::SamplerCreateInfo::default()
-                .mag_filter(vk::Filter::LINEAR)
-                .min_filter(vk::Filter::LINEAR)
-                .mipmap_mode(vk::SamplerMipmapMode::NEAREST)
-                .address_mode_u(vk::SamplerAddressMode::CLAMP_TO_EDGE)
-                .address_mode_v(vk::SamplerAddressMode::CLAMP_TO_EDGE)
-                .address_mode_w(vk::SamplerAddressMode::CLAMP_TO_EDGE)
-                .max_lod(0.0);
-            this.sampler = device
-                .create_sampler(&sampler_info, None)
-                .vk("vkCreateSampler")?;
-            let mut pool_sizes = vec![
-                vk::DescriptorPoolSize {
-                    ty: vk::DescriptorType::UNIFORM_BUFFER,
-                    descriptor_count: 1,
-                },
-                vk::DescriptorPoolSize {
-                    ty: vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
-                    descriptor_count: 2,
-                },
-            ];
-            if table_bindings > 0 {
-                pool_sizes.push(vk::DescriptorPoolSize {
-                    ty: vk::DescriptorType::STORAGE_BUFFER,
-                    descriptor_count: table_bindings,
-                });
-            }
-            this.pool = device
-                .create_descriptor_pool(
-                    &vk::DescriptorPoolCreateInfo::default()
-                        .max_sets(1)
-                        .pool_sizes(&pool_sizes),
-                    None,
-                )
-                .vk("vkCreateDescriptorPool")?;
-            this.set = device
-                .allocate_descriptor_sets(
-                    &vk::DescriptorSetAllocateInfo::default()
-                        .descriptor_pool(this.pool)
-                        .set_layouts(&set_layouts),
-                )
-                .vk("vkAllocateDescriptorSets")?[0];
-            this.pipeline = Self::create_pipeline(device, this.layout, color_format, &vert, &frag)?;
-        }
+        // SAFETY: `this.layout` is a live pipeline layout of `device`.
+        this.pipeline =
+            unsafe { Self::create_pipeline(device, this.layout, color_format, &vert, &frag) }?;
         Ok(this)
     }
 
@@ -255,7 +187,7 @@ impl RaycastPipeline {
         }];
         let image_info = |view, image_layout| {
             [vk::DescriptorImageInfo {
-                sampler: self.sampler,
+                sampler: self.sampler.raw,
                 image_view: view,
                 image_layout,
             }]
@@ -278,17 +210,17 @@ impl RaycastPipeline {
         };
         let mut writes = vec![
             vk::WriteDescriptorSet::default()
-                .dst_set(self.set)
+                .dst_set(self.descriptors.set)
                 .dst_binding(0)
                 .descriptor_type(vk::DescriptorType::UNIFORM_BUFFER)
                 .buffer_info(&buffer_info),
             vk::WriteDescriptorSet::default()
-                .dst_set(self.set)
+                .dst_set(self.descriptors.set)
                 .dst_binding(1)
                 .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
                 .image_info(&volume_info),
             vk::WriteDescriptorSet::default()
-                .dst_set(self.set)
+                .dst_set(self.descriptors.set)
                 .dst_binding(2)
                 .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
                 .image_info(&tf_info),
@@ -297,7 +229,7 @@ impl RaycastPipeline {
             for (binding, info) in [(3, &layout_info), (4, &neighbour_info)] {
                 writes.push(
                     vk::WriteDescriptorSet::default()
-                        .dst_set(self.set)
+                        .dst_set(self.descriptors.set)
                         .dst_binding(binding)
                         .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
                         .buffer_info(info),
@@ -312,14 +244,11 @@ impl RaycastPipeline {
 impl Drop for RaycastPipeline {
     fn drop(&mut self) {
         let device = &self.shared.device;
-        // SAFETY: owners wait idle before dropping; destruction in reverse creation order; null
-        // handles (half-built pipeline) are ignored.
+        // SAFETY: owners wait idle before dropping; the pipeline goes before its layout (the
+        // descriptor bundle and sampler fields drop after this); null handles are ignored.
         unsafe {
             device.destroy_pipeline(self.pipeline, None);
-            device.destroy_descriptor_pool(self.pool, None);
-            device.destroy_sampler(self.sampler, None);
             device.destroy_pipeline_layout(self.layout, None);
-            device.destroy_descriptor_set_layout(self.set_layout, None);
         }
     }
 }

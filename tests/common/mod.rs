@@ -102,3 +102,26 @@ pub fn write_failure_images(
     save("difference-x10", &d);
     dir
 }
+
+/// A small deterministic xorshift generator for test inputs (no dependency, same on every run).
+pub struct Rng(pub u64);
+
+impl Rng {
+    /// Next raw value.
+    pub fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+
+    /// Uniform in [0, 1).
+    pub fn unit(&mut self) -> f32 {
+        (self.next() >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    /// Uniform in 0..n.
+    pub fn below(&mut self, n: u32) -> u32 {
+        (self.next() % n as u64) as u32
+    }
+}

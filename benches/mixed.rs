@@ -128,8 +128,8 @@ fn main() -> mixvol::Result<()> {
             report.uploaded_bytes as f64 / 1e6,
             report.fixup_bricks,
             report.pack_ms,
-            report.gpu_update_ms,
-            report.gpu_update_ms / frame_ms
+            report.update_ms,
+            report.update_ms / frame_ms
         );
     }
     if let Some(report) = small_change {

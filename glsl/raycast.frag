@@ -14,6 +14,20 @@ layout(set = 0, binding = 2) uniform sampler1D tf_tex;
 
 layout(location = 0) out vec4 out_color;
 
+#ifdef HOST_DEPTH
+layout(set = 0, binding = 5) uniform sampler2D depth_tex;
+#endif
+
+// The far end of the ray: the volume box exit, the far plane and (HOST_DEPTH) the host's depth.
+float ray_end(Ray ray, float box_exit) {
+    float t1 = min(box_exit, params.right.w);
+#ifdef HOST_DEPTH
+    float depth = texelFetch(depth_tex, ivec2(gl_FragCoord.xy), 0).r;
+    t1 = min(t1, depth_limit(params, ray, gl_FragCoord.xy, depth));
+#endif
+    return t1;
+}
+
 #ifdef MIXED_RESOLUTION
 layout(set = 0, binding = 1) uniform sampler3D cache_tex;
 layout(std430, set = 0, binding = 3) readonly buffer LayoutTable { vec4 layout_entries[]; };
@@ -32,7 +46,7 @@ layout(set = 0, binding = 1) uniform sampler3D volume_tex;
 vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
-    float t1 = min(hit.y, params.right.w);
+    float t1 = ray_end(ray, hit.y);
     vec4 acc = vec4(0.0);
     if (!(t0 < t1)) {
         return acc;
@@ -77,7 +91,7 @@ bool accumulate(inout vec4 acc, float value, float len, float inv_d0) {
 vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
-    float t1 = min(hit.y, params.right.w);
+    float t1 = ray_end(ray, hit.y);
     vec4 acc = vec4(0.0);
     if (!(t0 < t1)) {
         return acc;

@@ -6,7 +6,8 @@
 //! - [`scene`]: camera, render settings and the per-frame parameter block.
 //! - [`reference`]: the CPU reference ray-caster (the oracle for every GPU test).
 //! - [`gpu`]: the ash backend (context, memory, shaders, ray-cast pipeline).
-//! - [`renderer`]: the façade that turns a volume + scene into an image.
+//! - [`embed`]: the volume pass recorded into a host engine's command buffers.
+//! - [`renderer`]: the offscreen façade that turns a volume + scene into an image.
 #![warn(
     missing_docs,
     unsafe_op_in_unsafe_fn,
@@ -15,6 +16,7 @@
 
 pub mod bricks;
 pub mod cache;
+pub mod embed;
 pub mod error;
 pub mod gpu;
 pub mod lod;

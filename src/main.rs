@@ -278,7 +278,7 @@ fn render(args: &RenderArgs) -> Result<()> {
                 report.uploaded_bytes as f64 / 1e6,
                 report.fixup_bricks,
                 report.pack_ms,
-                report.gpu_update_ms
+                report.update_ms
             );
             if args.compare {
                 let cache = renderer.brick_cache().expect("mixed volume set");

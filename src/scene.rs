@@ -6,7 +6,7 @@
 
 use crate::error::{Error, Result};
 use crate::volume::Volume;
-use glam::{UVec3, Vec3, Vec4};
+use glam::{Mat4, UVec3, Vec3, Vec4};
 
 /// Smallest magnitude a ray direction component is given in the slab test (`RAY_DIR_EPSILON` in
 /// GLSL): keeps axis-parallel rays finite.
@@ -103,7 +103,7 @@ impl Default for RenderSettings {
     }
 }
 
-/// The per-frame parameter block, std140-compatible: every field a vec4 (160 bytes). Mirrors `RaycastParams`
+/// The per-frame parameter block, std140-compatible: vec4 fields and one mat4 (224 bytes). Mirrors `RaycastParams`
 /// in `glsl/include/params.glsl`.
 #[repr(C)]
 #[derive(Copy, Clone, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
@@ -128,9 +128,11 @@ pub struct RaycastParams {
     pub volume_dims: Vec4,
     /// xyz: 1 / cache extent in texels (mixed resolution); w: unused.
     pub cache_extent_inv: Vec4,
+    /// Inverse of the host's `clip_from_world` (used only when rays stop at a host depth buffer).
+    pub world_from_clip: Mat4,
 }
 
-const _: () = assert!(std::mem::size_of::<RaycastParams>() == 160);
+const _: () = assert!(std::mem::size_of::<RaycastParams>() == 224);
 
 /// The world-space box of a volume: centred, longest physical side 1.
 pub fn volume_box(dims: UVec3, spacing: Vec3) -> (Vec3, Vec3) {
@@ -254,6 +256,7 @@ impl RaycastParams {
             viewport: Vec4::new(width as f32, height as f32, 0.0, 0.0),
             volume_dims: dims.as_vec3().extend(0.0),
             cache_extent_inv: Vec4::ZERO,
+            world_from_clip: Mat4::IDENTITY,
         })
     }
 }

@@ -43,4 +43,13 @@ vec2 intersect_box(Ray ray, vec3 box_min, vec3 box_max) {
     return vec2(t_enter, t_exit);
 }
 
+// Ray parameter of the host's depth-buffer surface at this pixel: `depth` is the stored depth
+// (Vulkan clip z in [0, 1]), `pixel` the pixel centre; `world_from_clip` undoes the host's
+// projection. Rays stop there, so the volume composites correctly with opaque geometry.
+float depth_limit(RaycastParams p, Ray ray, vec2 pixel, float depth) {
+    vec2 ndc = pixel / p.viewport.xy * 2.0 - 1.0;
+    vec4 w = p.world_from_clip * vec4(ndc, depth, 1.0);
+    return dot(w.xyz / w.w - ray.origin, ray.dir);
+}
+
 #endif

@@ -10,6 +10,7 @@ use super::memory::{Buffer, Image, ImageDesc, COLOR_LAYERS};
 use crate::error::{Error, Result};
 use crate::volume::ScalarType;
 use ash::vk;
+use bytemuck::Zeroable;
 use glam::UVec3;
 use gpu_allocator::MemoryLocation;
 use std::sync::Arc;
@@ -52,26 +53,56 @@ struct FixupPush {
     slots_per_axis: [i32; 4],
 }
 
-/// A host-visible storage buffer that grows when needed.
-fn table_buffer(
-    shared: &Arc<DeviceShared>,
-    slot: &mut Option<Buffer>,
-    name: &str,
-    bytes: &[u8],
-) -> Result<()> {
-    let size = (bytes.len() as u64).max(16);
-    if slot.as_ref().is_none_or(|b| b.size < size) {
-        *slot = Some(Buffer::new(
-            shared,
-            name,
-            size.next_power_of_two(),
-            vk::BufferUsageFlags::STORAGE_BUFFER,
-            MemoryLocation::CpuToGpu,
-        )?);
+/// A host-visible storage buffer of at least `bytes` bytes (16 minimum).
+fn host_buffer(shared: &Arc<DeviceShared>, name: &str, bytes: usize) -> Result<Buffer> {
+    Buffer::new(
+        shared,
+        name,
+        (bytes as u64).max(16),
+        vk::BufferUsageFlags::STORAGE_BUFFER,
+        MemoryLocation::CpuToGpu,
+    )
+}
+
+/// Copies `bytes` to the start of a host-visible buffer.
+fn write_buffer(buffer: &mut Buffer, bytes: &[u8]) -> Result<()> {
+    let mapped = buffer.mapped_mut()?;
+    if bytes.len() > mapped.len() {
+        return Err(Error::InvalidInput(format!(
+            "{} bytes do not fit a {}-byte table",
+            bytes.len(),
+            mapped.len()
+        )));
     }
-    let buffer = slot.as_mut().expect("created above");
-    buffer.mapped_mut()?[..bytes.len()].copy_from_slice(bytes);
+    mapped[..bytes.len()].copy_from_slice(bytes);
     Ok(())
+}
+
+/// One frame slot's copy of the tables: the GPU may still read an older slot while the CPU
+/// writes this one.
+struct SlotTables {
+    layout: Buffer,
+    neighbours: Buffer,
+    reverse: Buffer,
+    jobs: Buffer,
+    version: u64,
+}
+
+/// The CPU copy of the current tables.
+#[derive(Default)]
+struct OwnedTables {
+    layout: Vec<[f32; 4]>,
+    neighbours: Vec<u32>,
+    reverse: Vec<[u32; 8]>,
+    fixup_slots: Vec<u32>,
+}
+
+/// Brick bytes and copy regions waiting to be recorded.
+struct PendingUpdate {
+    bytes: Vec<u8>,
+    copies: Vec<vk::BufferImageCopy>,
+    jobs: u32,
+    push: FixupPush,
 }
 
 /// The GPU brick cache.
@@ -79,21 +110,27 @@ pub(crate) struct GpuBrickCache {
     pub(crate) image: Image,
     pub(crate) extent: UVec3,
     pub(crate) bytes_per_texel: usize,
-    pub(crate) layout: Option<Buffer>,
-    pub(crate) neighbours: Option<Buffer>,
-    reverse: Option<Buffer>,
-    jobs: Option<Buffer>,
+    slots: Vec<SlotTables>,
+    tables: OwnedTables,
+    version: u64,
+    pending: Option<PendingUpdate>,
     fixup: ComputePipeline,
+    smooth: bool,
     initialized: bool,
     shared: Arc<DeviceShared>,
 }
 
 impl GpuBrickCache {
-    /// Creates the cache image (`extent` texels) for `scalar` data and the fixup pipeline.
+    /// Creates the cache image (`extent` texels) for `scalar` data, per-frame tables for
+    /// `brick_count` bricks and `slot_count` cache slots, and the fixup pipeline.
     pub(crate) fn new(
         shared: &Arc<DeviceShared>,
         scalar: ScalarType,
         extent: UVec3,
+        brick_count: usize,
+        slot_count: usize,
+        frames: u32,
+        smooth: bool,
     ) -> Result<Self> {
         let (format, glsl_format) = cache_format(scalar);
         if scalar != ScalarType::F32 && !shared.info.storage_image_extended_formats {
@@ -135,117 +172,83 @@ impl GpuBrickCache {
                 vk::DescriptorType::STORAGE_BUFFER,
             ],
             std::mem::size_of::<FixupPush>() as u32,
+            frames,
         )?;
+        let slots = (0..frames)
+            .map(|_| {
+                Ok(SlotTables {
+                    layout: host_buffer(shared, "layout table", brick_count * 16)?,
+                    neighbours: host_buffer(shared, "neighbour table", brick_count * 4)?,
+                    reverse: host_buffer(shared, "reverse table", slot_count * 32)?,
+                    jobs: host_buffer(shared, "fixup jobs", slot_count * 4)?,
+                    version: 0,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
         Ok(Self {
             image,
             extent,
             bytes_per_texel: scalar.size_bytes(),
-            layout: None,
-            neighbours: None,
-            reverse: None,
-            jobs: None,
+            slots,
+            tables: OwnedTables::default(),
+            version: 0,
+            pending: None,
             fixup,
+            smooth,
             initialized: false,
             shared: shared.clone(),
         })
     }
 
-    /// Writes the tables, copies `regions` into the cache with ONE vkCmdCopyBufferToImage (one
-    /// region per brick) and runs the fixup over `tables.fixup_slots`, all in one submission.
-    /// Leaves the cache ready for fragment-shader sampling.
-    pub(crate) fn update(
-        &mut self,
-        submitter: &mut Submitter,
-        regions: &[CacheRegion],
-        tables: &CacheTables,
-        smooth: bool,
-    ) -> Result<()> {
-        let shared = &self.shared;
-        table_buffer(
-            shared,
-            &mut self.layout,
-            "layout table",
-            bytemuck::cast_slice(tables.layout),
-        )?;
-        table_buffer(
-            shared,
-            &mut self.neighbours,
-            "neighbour table",
-            bytemuck::cast_slice(tables.neighbours),
-        )?;
-        table_buffer(
-            shared,
-            &mut self.reverse,
-            "reverse table",
-            bytemuck::cast_slice(tables.reverse),
-        )?;
-        table_buffer(
-            shared,
-            &mut self.jobs,
-            "fixup jobs",
-            bytemuck::cast_slice(tables.fixup_slots),
-        )?;
-        let total: usize = regions.iter().map(|r| r.bytes.len()).sum();
-        let mut staging = None;
-        let mut copies = Vec::with_capacity(regions.len());
-        if total > 0 {
-            let mut buffer = Buffer::new(
-                shared,
-                "brick staging",
-                total as u64,
-                vk::BufferUsageFlags::TRANSFER_SRC,
-                MemoryLocation::CpuToGpu,
-            )?;
-            let mapped = buffer.mapped_mut()?;
-            let mut offset = 0usize;
-            for r in regions {
-                let expected =
-                    (r.extent.x * r.extent.y * r.extent.z) as usize * self.bytes_per_texel;
-                if r.bytes.len() != expected {
-                    return Err(Error::InvalidInput(format!(
-                        "brick region {:?} holds {} bytes, expected {expected}",
-                        r.extent,
-                        r.bytes.len()
-                    )));
-                }
-                mapped[offset..offset + r.bytes.len()].copy_from_slice(r.bytes);
-                copies.push(
-                    vk::BufferImageCopy::default()
-                        .buffer_offset(offset as u64)
-                        .image_subresource(COLOR_LAYERS)
-                        .image_offset(vk::Offset3D {
-                            x: r.origin.x as i32,
-                            y: r.origin.y as i32,
-                            z: r.origin.z as i32,
-                        })
-                        .image_extent(vk::Extent3D {
-                            width: r.extent.x,
-                            height: r.extent.y,
-                            depth: r.extent.z,
-                        }),
-                );
-                offset += r.bytes.len();
+    /// Takes the tables and the bricks of one residency change; they reach the GPU with the
+    /// next [`GpuBrickCache::record`]. A second call before that merges into the same update.
+    pub(crate) fn stage(&mut self, regions: &[CacheRegion], tables: &CacheTables) -> Result<()> {
+        let mut pending = self.pending.take().unwrap_or(PendingUpdate {
+            bytes: Vec::new(),
+            copies: Vec::new(),
+            jobs: 0,
+            push: FixupPush::zeroed(),
+        });
+        for r in regions {
+            let expected = (r.extent.x * r.extent.y * r.extent.z) as usize * self.bytes_per_texel;
+            if r.bytes.len() != expected {
+                return Err(Error::InvalidInput(format!(
+                    "brick region {:?} holds {} bytes, expected {expected}",
+                    r.extent,
+                    r.bytes.len()
+                )));
             }
-            staging = Some(buffer);
+            // Regions are 4-byte aligned in the staging buffer (the copy offset rule for any
+            // texel size we use).
+            while pending.bytes.len() % 4 != 0 {
+                pending.bytes.push(0);
+            }
+            pending.copies.push(
+                vk::BufferImageCopy::default()
+                    .buffer_offset(pending.bytes.len() as u64)
+                    .image_subresource(COLOR_LAYERS)
+                    .image_offset(vk::Offset3D {
+                        x: r.origin.x as i32,
+                        y: r.origin.y as i32,
+                        z: r.origin.z as i32,
+                    })
+                    .image_extent(vk::Extent3D {
+                        width: r.extent.x,
+                        height: r.extent.y,
+                        depth: r.extent.z,
+                    }),
+            );
+            pending.bytes.extend_from_slice(r.bytes);
         }
         let jobs = tables.fixup_slots.len() as u32;
-        let run_fixup = smooth && jobs > 0;
-        if run_fixup {
-            self.fixup.write_descriptors(&[
-                ComputeResource::StorageImage(self.image.view),
-                ComputeResource::StorageBuffer(self.layout.as_ref().expect("written").raw),
-                ComputeResource::StorageBuffer(self.neighbours.as_ref().expect("written").raw),
-                ComputeResource::StorageBuffer(self.reverse.as_ref().expect("written").raw),
-                ComputeResource::StorageBuffer(self.jobs.as_ref().expect("written").raw),
-            ]);
-        }
-        let max_groups = shared.info.limits.max_compute_work_group_count[2];
+        let max_groups = self.shared.info.limits.max_compute_work_group_count[2];
         if jobs.saturating_mul(6) > max_groups {
             return Err(Error::Unsupported(format!(
                 "{jobs} fixup jobs exceed maxComputeWorkGroupCount[2] = {max_groups}"
             )));
         }
-        let push = FixupPush {
+        pending.jobs = jobs;
+        pending.push = FixupPush {
             bricks: [
                 tables.bricks.x as i32,
                 tables.bricks.y as i32,
@@ -259,62 +262,165 @@ impl GpuBrickCache {
                 jobs as i32,
             ],
         };
-        let groups_xy = (tables.brick_size + 2).div_ceil(8);
+        self.tables = OwnedTables {
+            layout: tables.layout.to_vec(),
+            neighbours: tables.neighbours.to_vec(),
+            reverse: tables.reverse.to_vec(),
+            fixup_slots: tables.fixup_slots.to_vec(),
+        };
+        self.version += 1;
+        self.pending = Some(pending);
+        Ok(())
+    }
+
+    /// Brings frame slot `frame`'s table copy up to date (the GPU must be done with that slot).
+    pub(crate) fn sync_slot(&mut self, frame: usize) -> Result<()> {
+        let slot = &mut self.slots[frame];
+        if slot.version != self.version {
+            write_buffer(&mut slot.layout, bytemuck::cast_slice(&self.tables.layout))?;
+            write_buffer(
+                &mut slot.neighbours,
+                bytemuck::cast_slice(&self.tables.neighbours),
+            )?;
+            write_buffer(
+                &mut slot.reverse,
+                bytemuck::cast_slice(&self.tables.reverse),
+            )?;
+            write_buffer(
+                &mut slot.jobs,
+                bytemuck::cast_slice(&self.tables.fixup_slots),
+            )?;
+            slot.version = self.version;
+        }
+        Ok(())
+    }
+
+    /// The layout and neighbour tables of frame slot `frame`, for the ray-caster's descriptors.
+    pub(crate) fn slot_tables(&self, frame: usize) -> (vk::Buffer, vk::Buffer) {
+        (
+            self.slots[frame].layout.raw,
+            self.slots[frame].neighbours.raw,
+        )
+    }
+
+    /// True when a staged update waits to be recorded.
+    pub(crate) fn has_pending(&self) -> bool {
+        self.pending.is_some()
+    }
+
+    /// Records the staged update into `cmd` for frame slot `frame`: the bricks through `staging`
+    /// (grown as needed; the GPU must be done with it) with ONE vkCmdCopyBufferToImage, one region
+    /// per brick, then the fixup over the hi-res bricks with low-res neighbours. Between two
+    /// timestamps `queries` (upload end, fixup end) when given. Leaves the cache ready for
+    /// fragment-shader sampling. Returns false when nothing was staged.
+    pub(crate) fn record(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        frame: usize,
+        staging: &mut Option<Buffer>,
+        queries: Option<(vk::QueryPool, u32)>,
+    ) -> Result<bool> {
+        let Some(pending) = self.pending.take() else {
+            return Ok(false);
+        };
+        self.sync_slot(frame)?;
+        let shared = self.shared.clone();
+        let device = &shared.device;
+        if !pending.bytes.is_empty() {
+            if staging
+                .as_ref()
+                .is_none_or(|b| b.size < pending.bytes.len() as u64)
+            {
+                *staging = Some(Buffer::new(
+                    &shared,
+                    "brick staging",
+                    (pending.bytes.len() as u64).next_power_of_two(),
+                    vk::BufferUsageFlags::TRANSFER_SRC,
+                    MemoryLocation::CpuToGpu,
+                )?);
+            }
+            let buffer = staging.as_mut().expect("created above");
+            buffer.mapped_mut()?[..pending.bytes.len()].copy_from_slice(&pending.bytes);
+        }
         let image = self.image.raw;
         let previous = if self.initialized {
             Access::FragmentSampled
         } else {
             Access::Nothing
         };
-        let fixup = &self.fixup;
-        submitter.run(|device, cmd| {
-            image_barrier(device, cmd, image, previous, Access::TransferWrite);
-            if let Some(staging) = &staging {
-                // SAFETY: the staging buffer holds every region at its offset; the cache is in
-                // TRANSFER_DST_OPTIMAL after the barrier.
+        image_barrier(device, cmd, image, previous, Access::TransferWrite);
+        if let (Some(buffer), false) = (staging.as_ref(), pending.copies.is_empty()) {
+            // SAFETY: the staging buffer holds every region at its offset; the cache is in
+            // TRANSFER_DST_OPTIMAL after the barrier; `cmd` is recording.
+            unsafe {
+                device.cmd_copy_buffer_to_image(
+                    cmd,
+                    buffer.raw,
+                    image,
+                    vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                    &pending.copies,
+                )
+            };
+        }
+        let write_timestamp = |index: u32| {
+            if let Some((pool, base)) = queries {
+                // SAFETY: the query was reset earlier in this command buffer.
                 unsafe {
-                    device.cmd_copy_buffer_to_image(
+                    device.cmd_write_timestamp2(
                         cmd,
-                        staging.raw,
-                        image,
-                        vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                        &copies,
+                        vk::PipelineStageFlags2::ALL_COMMANDS,
+                        pool,
+                        base + index,
                     )
                 };
             }
-            if run_fixup {
-                image_barrier(
-                    device,
-                    cmd,
-                    image,
-                    Access::TransferWrite,
-                    Access::CacheComputeReadWrite,
-                );
-                fixup.record_dispatch(
-                    cmd,
-                    bytemuck::bytes_of(&push),
-                    [groups_xy, groups_xy, jobs * 6],
-                );
-                image_barrier(
-                    device,
-                    cmd,
-                    image,
-                    Access::CacheComputeReadWrite,
-                    Access::FragmentSampled,
-                );
-            } else {
-                image_barrier(
-                    device,
-                    cmd,
-                    image,
-                    Access::TransferWrite,
-                    Access::FragmentSampled,
-                );
-            }
-            Ok(())
-        })?;
+        };
+        write_timestamp(0);
+        if self.smooth && pending.jobs > 0 {
+            let slot = &self.slots[frame];
+            self.fixup.write_descriptors(
+                frame,
+                &[
+                    ComputeResource::StorageImage(self.image.view),
+                    ComputeResource::StorageBuffer(slot.layout.raw),
+                    ComputeResource::StorageBuffer(slot.neighbours.raw),
+                    ComputeResource::StorageBuffer(slot.reverse.raw),
+                    ComputeResource::StorageBuffer(slot.jobs.raw),
+                ],
+            );
+            let groups_xy = (pending.push.bricks[3] as u32 + 2).div_ceil(8);
+            image_barrier(
+                device,
+                cmd,
+                image,
+                Access::TransferWrite,
+                Access::CacheComputeReadWrite,
+            );
+            self.fixup.record_dispatch(
+                cmd,
+                frame,
+                bytemuck::bytes_of(&pending.push),
+                [groups_xy, groups_xy, pending.jobs * 6],
+            );
+            image_barrier(
+                device,
+                cmd,
+                image,
+                Access::CacheComputeReadWrite,
+                Access::FragmentSampled,
+            );
+        } else {
+            image_barrier(
+                device,
+                cmd,
+                image,
+                Access::TransferWrite,
+                Access::FragmentSampled,
+            );
+        }
+        write_timestamp(1);
         self.initialized = true;
-        Ok(())
+        Ok(true)
     }
 
     /// Reads the whole cache image back (for tests): texel bytes, x fastest.
@@ -400,6 +506,7 @@ impl FieldProbe {
                 vk::DescriptorType::STORAGE_BUFFER,
             ],
             std::mem::size_of::<ProbePush>() as u32,
+            1,
         )?;
         let sampler = Sampler::linear_clamp(shared)?;
         Ok(Self {
@@ -409,11 +516,13 @@ impl FieldProbe {
         })
     }
 
-    /// Values at `points`; `None` where the point lies in an absent brick.
+    /// Values at `points`; `None` where the point lies in an absent brick. Reads the tables of
+    /// frame slot `frame` (synced first) and submits through `submitter`.
     pub(crate) fn sample(
         &self,
         submitter: &mut Submitter,
-        cache: &GpuBrickCache,
+        cache: &mut GpuBrickCache,
+        frame: usize,
         volume_dims: UVec3,
         brick_size: u32,
         points: &[glam::Vec3],
@@ -423,13 +532,8 @@ impl FieldProbe {
         }
         let shared = &self.shared;
         let packed: Vec<[f32; 4]> = points.iter().map(|p| p.extend(0.0).to_array()).collect();
-        let mut input = None;
-        table_buffer(
-            shared,
-            &mut input,
-            "probe points",
-            bytemuck::cast_slice(&packed),
-        )?;
+        let mut input = host_buffer(shared, "probe points", packed.len() * 16)?;
+        write_buffer(&mut input, bytemuck::cast_slice(&packed))?;
         let output = Buffer::new(
             shared,
             "probe values",
@@ -437,20 +541,23 @@ impl FieldProbe {
             vk::BufferUsageFlags::STORAGE_BUFFER,
             MemoryLocation::GpuToCpu,
         )?;
-        let (Some(layout), Some(neighbours), Some(input)) =
-            (&cache.layout, &cache.neighbours, &input)
-        else {
+        if !cache.initialized || cache.has_pending() {
             return Err(Error::InvalidInput(
-                "probe before the first cache update".into(),
+                "probe before the cache update was recorded".into(),
             ));
-        };
-        self.pipeline.write_descriptors(&[
-            ComputeResource::SampledImage(cache.image.view, self.sampler.raw),
-            ComputeResource::StorageBuffer(layout.raw),
-            ComputeResource::StorageBuffer(neighbours.raw),
-            ComputeResource::StorageBuffer(input.raw),
-            ComputeResource::StorageBuffer(output.raw),
-        ]);
+        }
+        cache.sync_slot(frame)?;
+        let (layout, neighbours) = cache.slot_tables(frame);
+        self.pipeline.write_descriptors(
+            0,
+            &[
+                ComputeResource::SampledImage(cache.image.view, self.sampler.raw),
+                ComputeResource::StorageBuffer(layout),
+                ComputeResource::StorageBuffer(neighbours),
+                ComputeResource::StorageBuffer(input.raw),
+                ComputeResource::StorageBuffer(output.raw),
+            ],
+        );
         let push = ProbePush {
             volume_dims: volume_dims.as_vec3().extend(brick_size as f32).to_array(),
             cache_extent_inv: (glam::Vec3::ONE / cache.extent.as_vec3())
@@ -469,6 +576,7 @@ impl FieldProbe {
             );
             pipeline.record_dispatch(
                 cmd,
+                0,
                 bytemuck::bytes_of(&push),
                 [(points.len() as u32).div_ceil(64), 1, 1],
             );

@@ -223,21 +223,36 @@ impl TimestampPool {
             shared: shared.clone(),
         })
     }
+}
 
-    /// Reads all timestamps (in ticks) of a completed submission.
-    pub(crate) fn read(&self) -> Result<Vec<u64>> {
-        let mut ticks = vec![0u64; self.count as usize];
-        // SAFETY: the pool is live and the queries were written by a submission that completed.
-        unsafe {
+impl TimestampPool {
+    /// Reads every timestamp that is available, without waiting: `None` for queries not
+    /// written (or not yet complete) since their last reset.
+    pub(crate) fn read_available(&self) -> Result<Vec<Option<u64>>> {
+        let mut raw = vec![[0u64; 2]; self.count as usize];
+        // SAFETY: the pool is live; WITH_AVAILABILITY writes a value + availability pair per
+        // query and never blocks without WAIT.
+        let result = unsafe {
             self.shared.device.get_query_pool_results(
                 self.raw,
                 0,
-                &mut ticks,
-                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+                &mut raw,
+                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WITH_AVAILABILITY,
             )
+        };
+        match result {
+            Ok(()) | Err(vk::Result::NOT_READY) => {}
+            Err(result) => {
+                return Err(crate::Error::Vulkan {
+                    call: "vkGetQueryPoolResults",
+                    result,
+                })
+            }
         }
-        .vk("vkGetQueryPoolResults")?;
-        Ok(ticks)
+        Ok(raw
+            .into_iter()
+            .map(|[value, available]| (available != 0).then_some(value))
+            .collect())
     }
 }
 

@@ -1,5 +1,5 @@
-//! A small compute pipeline: one descriptor set of storage/sampled resources, push constants,
-//! one shader. The fixup pass and the field probe are built on it.
+//! A small compute pipeline: one descriptor set layout of storage/sampled resources (a set per
+//! frame in flight), push constants, one shader. The fixup pass and the field probe use it.
 
 use super::context::DeviceShared;
 use super::descriptors::DescriptorBundle;
@@ -29,7 +29,7 @@ impl ComputeResource {
     }
 }
 
-/// A compute pipeline with one descriptor set (bindings 0..n in the order given at creation).
+/// A compute pipeline; descriptor sets (one per frame slot) have bindings 0..n in the order given.
 pub(crate) struct ComputePipeline {
     pub(crate) pipeline: vk::Pipeline,
     pub(crate) layout: vk::PipelineLayout,
@@ -46,10 +46,13 @@ impl ComputePipeline {
         defines: &[(&str, String)],
         types: &[vk::DescriptorType],
         push_constant_bytes: u32,
+        sets: u32,
     ) -> Result<Self> {
         let code = compile(shader, ShaderStage::Compute, defines)?;
         let device = &shared.device;
-        let descriptors = DescriptorBundle::new(shared, types, vk::ShaderStageFlags::COMPUTE)?;
+        let bindings: Vec<_> = (0u32..).zip(types.iter().copied()).collect();
+        let descriptors =
+            DescriptorBundle::new(shared, &bindings, vk::ShaderStageFlags::COMPUTE, sets)?;
         let ranges = [vk::PushConstantRange {
             stage_flags: vk::ShaderStageFlags::COMPUTE,
             offset: 0,
@@ -95,9 +98,9 @@ impl ComputePipeline {
         Ok(this)
     }
 
-    /// Points the descriptor set at `resources` (binding i = resources[i]); their kinds must match
-    /// the types given at creation. The set must not be in use by pending GPU work.
-    pub(crate) fn write_descriptors(&self, resources: &[ComputeResource]) {
+    /// Points descriptor set `set` at `resources` (binding i = resources[i]); their kinds must
+    /// match the types given at creation. The set must not be in use by pending GPU work.
+    pub(crate) fn write_descriptors(&self, set: usize, resources: &[ComputeResource]) {
         assert_eq!(
             resources.len(),
             self.types.len(),
@@ -134,7 +137,7 @@ impl ComputePipeline {
             .map(|(i, r)| {
                 assert_eq!(r.descriptor_type(), self.types[i], "binding {i} kind");
                 let write = vk::WriteDescriptorSet::default()
-                    .dst_set(self.descriptors.set)
+                    .dst_set(self.descriptors.sets[set])
                     .dst_binding(i as u32)
                     .descriptor_type(r.descriptor_type());
                 match r {
@@ -151,6 +154,7 @@ impl ComputePipeline {
     pub(crate) fn record_dispatch(
         &self,
         cmd: vk::CommandBuffer,
+        set: usize,
         push_constants: &[u8],
         groups: [u32; 3],
     ) {
@@ -163,7 +167,7 @@ impl ComputePipeline {
                 vk::PipelineBindPoint::COMPUTE,
                 self.layout,
                 0,
-                &[self.descriptors.set],
+                &[self.descriptors.sets[set]],
                 &[],
             );
             device.cmd_push_constants(

@@ -7,6 +7,7 @@ use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 use std::ffi::{c_void, CStr};
 use std::mem::ManuallyDrop;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 
 const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
@@ -149,7 +150,12 @@ pub struct DeviceInfo {
 /// State shared by every object of the backend. Dropped last: waits idle, drops the allocator
 /// (which reports leaks), destroys the device, the messenger and the instance, in that order.
 pub(crate) struct DeviceShared {
-    pub(crate) allocator: ManuallyDrop<Mutex<Allocator>>,
+    allocator: AllocatorSlot,
+    /// Allocations made by this crate and not yet freed (works with a host allocator too).
+    pub(crate) live_allocations: AtomicUsize,
+    /// False when the instance and device belong to a host engine: they are then never
+    /// destroyed here.
+    owns_device: bool,
     pub(crate) device: ash::Device,
     pub(crate) physical_device: vk::PhysicalDevice,
     pub(crate) queue: vk::Queue,
@@ -173,7 +179,11 @@ unsafe impl Sync for DeviceShared {}
 impl DeviceShared {
     /// Locks the allocator (recovering from a poisoned lock: the allocator state stays valid).
     pub(crate) fn allocator(&self) -> MutexGuard<'_, Allocator> {
-        self.allocator.lock().unwrap_or_else(|e| e.into_inner())
+        let mutex = match &self.allocator {
+            AllocatorSlot::Owned(a) => &**a,
+            AllocatorSlot::Host(a) => &**a,
+        };
+        mutex.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     /// Format features of `format` with optimal tiling.
@@ -205,14 +215,45 @@ impl DeviceShared {
     }
 }
 
+/// The allocator: created here, or lent by a host engine.
+enum AllocatorSlot {
+    Owned(ManuallyDrop<Mutex<Allocator>>),
+    Host(Arc<Mutex<Allocator>>),
+}
+
 impl Drop for DeviceShared {
     fn drop(&mut self) {
+        let live = self.live_allocations.load(Ordering::SeqCst);
+        if live != 0 {
+            self.log.push(DebugMessage {
+                severity: Severity::Error,
+                id_name: "mixvol-leaked-allocation".into(),
+                text: format!("{live} allocation(s) made by mixvol still live at shutdown"),
+            });
+        }
+        if !self.owns_device {
+            // The host's instance and device stay alive; an allocator we made for them is
+            // dropped (the host waited for its GPU work, per `from_host`'s contract).
+            if let AllocatorSlot::Owned(allocator) = &mut self.allocator {
+                // SAFETY: dropped exactly once, here; no allocation of ours is live.
+                unsafe { ManuallyDrop::drop(allocator) };
+            }
+            // SAFETY: the pointer came from Arc::into_raw in `from_host` and is reclaimed once.
+            unsafe { drop(Arc::from_raw(self.log_user_data)) };
+            return;
+        }
+        let AllocatorSlot::Owned(allocator) = &mut self.allocator else {
+            unreachable!("an owned device always has an owned allocator");
+        };
         // SAFETY: every object created from the device holds an Arc to this struct, so none is
         // alive now; waiting idle makes sure the GPU no longer uses freed memory. Destruction
         // runs in reverse creation order: allocator, device, messenger, instance.
         unsafe {
             let _ = self.device.device_wait_idle();
-            let report = self.allocator().generate_report();
+            let report = allocator
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .generate_report();
             for leak in &report.allocations {
                 self.log.push(DebugMessage {
                     severity: Severity::Error,
@@ -220,7 +261,7 @@ impl Drop for DeviceShared {
                     text: format!("allocation '{}' ({} bytes) leaked", leak.name, leak.size),
                 });
             }
-            ManuallyDrop::drop(&mut self.allocator);
+            ManuallyDrop::drop(allocator);
             self.device.destroy_device(None);
             if let Some((loader, messenger)) = self.debug_utils.take() {
                 loader.destroy_debug_utils_messenger(messenger, None);
@@ -229,6 +270,26 @@ impl Drop for DeviceShared {
             drop(Arc::from_raw(self.log_user_data));
         }
     }
+}
+
+/// A host engine's Vulkan objects, lent to [`GpuContext::from_host`].
+pub struct HostDevice {
+    /// The loader entry the host uses.
+    pub entry: ash::Entry,
+    /// The host's instance.
+    pub instance: ash::Instance,
+    /// The physical device of `device`.
+    pub physical_device: vk::PhysicalDevice,
+    /// The host's device.
+    pub device: ash::Device,
+    /// A graphics + compute queue family of `device`.
+    pub queue_family: u32,
+    /// A queue of `queue_family`; only the offscreen [`crate::renderer::Renderer`] submits to it,
+    /// the embedding path ([`crate::embed::VolumePass`]) never does.
+    pub queue: vk::Queue,
+    /// The host's gpu-allocator allocator, if it wants ours to share it; otherwise the context
+    /// creates its own for `device`.
+    pub allocator: Option<Arc<Mutex<Allocator>>>,
 }
 
 /// A headless Vulkan instance + device + allocator. Cheap to clone (reference counted).
@@ -490,7 +551,9 @@ impl GpuContext {
             info.synchronization_validation
         );
         Ok(DeviceShared {
-            allocator: ManuallyDrop::new(Mutex::new(allocator)),
+            allocator: AllocatorSlot::Owned(ManuallyDrop::new(Mutex::new(allocator))),
+            live_allocations: AtomicUsize::new(0),
+            owns_device: true,
             device,
             physical_device,
             queue,
@@ -578,6 +641,107 @@ impl GpuContext {
         })
     }
 
+    /// Wraps a host engine's Vulkan objects instead of creating our own. Nothing the host owns
+    /// is ever destroyed by this crate; the context records no message of the host's layers
+    /// (the host's own messenger receives them).
+    ///
+    /// # Safety
+    /// - `host.device` was created from `host.instance` and `host.physical_device` with Vulkan
+    ///   1.3 and the features `dynamicRendering`, `synchronization2` and `maintenance4` enabled
+    ///   (and `shaderStorageImageExtendedFormats` for u8/u16 brick caches); `host.queue` is a
+    ///   queue of `host.queue_family`, which supports graphics and compute.
+    /// - `host.allocator`, when given, allocates from `host.device`.
+    /// - All of them outlive the context and every object created from it, and the host waits
+    ///   for GPU work that uses those objects before dropping them.
+    pub unsafe fn from_host(host: HostDevice) -> Result<Self> {
+        // SAFETY: the caller guarantees the handles are valid and related.
+        let properties = unsafe {
+            host.instance
+                .get_physical_device_properties(host.physical_device)
+        };
+        if properties.api_version < vk::API_VERSION_1_3 {
+            return Err(Error::Unsupported(
+                "the host device must support Vulkan 1.3".into(),
+            ));
+        }
+        // SAFETY: as above.
+        let families = unsafe {
+            host.instance
+                .get_physical_device_queue_family_properties(host.physical_device)
+        };
+        let family = families
+            .get(host.queue_family as usize)
+            .ok_or_else(|| Error::InvalidInput(format!("no queue family {}", host.queue_family)))?;
+        if !family
+            .queue_flags
+            .contains(vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE)
+        {
+            return Err(Error::Unsupported(format!(
+                "queue family {} lacks graphics + compute",
+                host.queue_family
+            )));
+        }
+        // SAFETY: as above.
+        let features = unsafe {
+            host.instance
+                .get_physical_device_features(host.physical_device)
+        };
+        let allocator = match host.allocator {
+            Some(a) => AllocatorSlot::Host(a),
+            None => {
+                let allocator = Allocator::new(&AllocatorCreateDesc {
+                    instance: host.instance.clone(),
+                    device: host.device.clone(),
+                    physical_device: host.physical_device,
+                    debug_settings: Default::default(),
+                    buffer_device_address: false,
+                    allocation_sizes: Default::default(),
+                })
+                .map_err(|source| Error::Allocation {
+                    name: "allocator".into(),
+                    source,
+                })?;
+                AllocatorSlot::Owned(ManuallyDrop::new(Mutex::new(allocator)))
+            }
+        };
+        let name = properties
+            .device_name_as_c_str()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let log = Arc::new(MessageLog::default());
+        let log_user_data = Arc::into_raw(log.clone());
+        let info = DeviceInfo {
+            name,
+            device_type: properties.device_type,
+            limits: properties.limits,
+            timestamp_period_ns: properties.limits.timestamp_period,
+            timestamps_supported: family.timestamp_valid_bits > 0,
+            validation: false,
+            synchronization_validation: false,
+            storage_image_extended_formats: features.shader_storage_image_extended_formats
+                == vk::TRUE,
+        };
+        let shared = DeviceShared {
+            allocator,
+            live_allocations: AtomicUsize::new(0),
+            owns_device: false,
+            device: host.device,
+            physical_device: host.physical_device,
+            queue: host.queue,
+            queue_lock: Mutex::new(()),
+            queue_family: host.queue_family,
+            info,
+            instance: host.instance,
+            debug_utils: None,
+            log,
+            log_user_data,
+            _entry: host.entry,
+        };
+        Ok(Self {
+            shared: Arc::new(shared),
+        })
+    }
+
     /// What the device is and what it can do.
     pub fn info(&self) -> &DeviceInfo {
         &self.shared.info
@@ -588,9 +752,9 @@ impl GpuContext {
         self.shared.log.clone()
     }
 
-    /// Number of live gpu-allocator allocations (0 once every resource is dropped).
+    /// Number of live allocations this crate made (0 once every resource is dropped).
     pub fn live_allocation_count(&self) -> usize {
-        self.shared.allocator().generate_report().allocations.len()
+        self.shared.live_allocations.load(Ordering::SeqCst)
     }
 
     /// The ash device, for hosts that record into their own command buffers.
@@ -630,7 +794,10 @@ mod tests {
                 allocation_scheme: gpu_allocator::vulkan::AllocationScheme::GpuAllocatorManaged,
             })
             .unwrap();
-        assert_eq!(ctx.live_allocation_count(), 1);
+        assert_eq!(
+            ctx.shared.allocator().generate_report().allocations.len(),
+            1
+        );
         std::mem::forget(leaked);
         drop(ctx);
         let leaks: Vec<_> = log

@@ -5,44 +5,44 @@ use crate::error::{Result, VkResultExt};
 use ash::vk;
 use std::sync::Arc;
 
-/// A descriptor set layout with bindings 0..n of the given types, a pool sized for exactly one
-/// such set, and that set.
+/// A descriptor set layout with the given `(binding, type)` pairs, a pool, and `count` sets of
+/// that layout (one per frame in flight).
 pub(crate) struct DescriptorBundle {
     pub(crate) set_layout: vk::DescriptorSetLayout,
     pool: vk::DescriptorPool,
-    pub(crate) set: vk::DescriptorSet,
+    pub(crate) sets: Vec<vk::DescriptorSet>,
     shared: Arc<DeviceShared>,
 }
 
 impl DescriptorBundle {
     pub(crate) fn new(
         shared: &Arc<DeviceShared>,
-        types: &[vk::DescriptorType],
+        bindings: &[(u32, vk::DescriptorType)],
         stages: vk::ShaderStageFlags,
+        count: u32,
     ) -> Result<Self> {
         let device = &shared.device;
         let mut this = Self {
             set_layout: vk::DescriptorSetLayout::null(),
             pool: vk::DescriptorPool::null(),
-            set: vk::DescriptorSet::null(),
+            sets: Vec::new(),
             shared: shared.clone(),
         };
-        let bindings: Vec<_> = types
+        let layout_bindings: Vec<_> = bindings
             .iter()
-            .enumerate()
-            .map(|(i, ty)| {
+            .map(|(binding, ty)| {
                 vk::DescriptorSetLayoutBinding::default()
-                    .binding(i as u32)
+                    .binding(*binding)
                     .descriptor_type(*ty)
                     .descriptor_count(1)
                     .stage_flags(stages)
             })
             .collect();
-        let pool_sizes: Vec<_> = types
+        let pool_sizes: Vec<_> = bindings
             .iter()
-            .map(|ty| vk::DescriptorPoolSize {
+            .map(|(_, ty)| vk::DescriptorPoolSize {
                 ty: *ty,
-                descriptor_count: 1,
+                descriptor_count: count,
             })
             .collect();
         // SAFETY: valid create infos on a live device; handles are stored in `this` at once so
@@ -50,26 +50,26 @@ impl DescriptorBundle {
         unsafe {
             this.set_layout = device
                 .create_descriptor_set_layout(
-                    &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
+                    &vk::DescriptorSetLayoutCreateInfo::default().bindings(&layout_bindings),
                     None,
                 )
                 .vk("vkCreateDescriptorSetLayout")?;
             this.pool = device
                 .create_descriptor_pool(
                     &vk::DescriptorPoolCreateInfo::default()
-                        .max_sets(1)
+                        .max_sets(count)
                         .pool_sizes(&pool_sizes),
                     None,
                 )
                 .vk("vkCreateDescriptorPool")?;
-            let set_layouts = [this.set_layout];
-            this.set = device
+            let set_layouts = vec![this.set_layout; count as usize];
+            this.sets = device
                 .allocate_descriptor_sets(
                     &vk::DescriptorSetAllocateInfo::default()
                         .descriptor_pool(this.pool)
                         .set_layouts(&set_layouts),
                 )
-                .vk("vkAllocateDescriptorSets")?[0];
+                .vk("vkAllocateDescriptorSets")?;
         }
         Ok(this)
     }
@@ -78,7 +78,7 @@ impl DescriptorBundle {
 impl Drop for DescriptorBundle {
     fn drop(&mut self) {
         // SAFETY: owners wait for their GPU work before dropping; destroying the pool frees the
-        // set; null handles (half-built) are ignored.
+        // sets; null handles (half-built) are ignored.
         unsafe {
             self.shared.device.destroy_descriptor_pool(self.pool, None);
             self.shared

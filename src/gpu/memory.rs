@@ -58,6 +58,9 @@ impl Buffer {
         // SAFETY: memory and offset come from an allocation made for these requirements.
         let bound =
             unsafe { device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) };
+        shared
+            .live_allocations
+            .fetch_add(1, std::sync::atomic::Ordering::SeqCst);
         let buffer = Self {
             raw,
             size,
@@ -89,6 +92,9 @@ impl Drop for Buffer {
     fn drop(&mut self) {
         if let Some(allocation) = self.allocation.take() {
             let _ = self.shared.allocator().free(allocation);
+            self.shared
+                .live_allocations
+                .fetch_sub(1, std::sync::atomic::Ordering::SeqCst);
         }
         // SAFETY: owners wait for the GPU to finish with the buffer before dropping it.
         unsafe { self.shared.device.destroy_buffer(self.raw, None) };
@@ -241,6 +247,9 @@ impl Image {
                 });
             }
         };
+        shared
+            .live_allocations
+            .fetch_add(1, std::sync::atomic::Ordering::SeqCst);
         let mut image = Self {
             raw,
             view: vk::ImageView::null(),
@@ -275,6 +284,9 @@ impl Drop for Image {
         if let Some(allocation) = self.allocation.take() {
             let _ = self.shared.allocator().free(allocation);
         }
+        self.shared
+            .live_allocations
+            .fetch_sub(1, std::sync::atomic::Ordering::SeqCst);
         // SAFETY: as above; the view on it is already gone.
         unsafe { self.shared.device.destroy_image(self.raw, None) };
     }

@@ -12,12 +12,13 @@ mod memory;
 mod raycast;
 pub mod shaders;
 
-pub use context::{ContextDesc, DebugMessage, DeviceInfo, GpuContext, MessageLog, Severity};
+pub use context::{
+    ContextDesc, DebugMessage, DeviceInfo, GpuContext, HostDevice, MessageLog, Severity,
+};
 pub use shaders::ShaderStage;
 
 pub(crate) use brick_cache::{CacheRegion, CacheTables, FieldProbe, GpuBrickCache};
 pub(crate) use commands::{image_barrier, memory_barrier, Access, Submitter, TimestampPool};
-pub(crate) use context::DeviceShared;
 pub(crate) use memory::{Buffer, Image, ImageDesc, COLOR_LAYERS};
 pub(crate) use raycast::RaycastPipeline;
 pub use raycast::RaycastVariant;

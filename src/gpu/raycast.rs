@@ -17,6 +17,8 @@ pub struct RaycastVariant {
     pub mixed_resolution: bool,
     /// Add the C0 transition blend (mixed resolution only).
     pub smooth_transitions: bool,
+    /// Stop rays at a host depth buffer (embedding).
+    pub host_depth: bool,
 }
 
 impl RaycastVariant {
@@ -31,6 +33,9 @@ impl RaycastVariant {
             if self.smooth_transitions {
                 defines.push(("SMOOTH_TRANSITIONS", "1".into()));
             }
+        }
+        if self.host_depth {
+            defines.push(("HOST_DEPTH", "1".into()));
         }
         defines
     }
@@ -47,24 +52,32 @@ pub(crate) struct RaycastPipeline {
 }
 
 impl RaycastPipeline {
+    /// Builds the variant for `color_format` targets with `sets` descriptor sets (one per frame
+    /// slot). The pipeline blends premultiplied colour *over* what the target holds.
     pub(crate) fn new(
         shared: &Arc<DeviceShared>,
         color_format: vk::Format,
         variant: RaycastVariant,
+        sets: u32,
     ) -> Result<Self> {
         let defines = variant.defines();
         let vert = compile("raycast.vert", ShaderStage::Vertex, &defines)?;
         let frag = compile("raycast.frag", ShaderStage::Fragment, &defines)?;
         let device = &shared.device;
-        let mut types = vec![
-            vk::DescriptorType::UNIFORM_BUFFER,
-            vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
-            vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+        let mut bindings = vec![
+            (0, vk::DescriptorType::UNIFORM_BUFFER),
+            (1, vk::DescriptorType::COMBINED_IMAGE_SAMPLER),
+            (2, vk::DescriptorType::COMBINED_IMAGE_SAMPLER),
         ];
         if variant.mixed_resolution {
-            types.extend([vk::DescriptorType::STORAGE_BUFFER; 2]);
+            bindings.push((3, vk::DescriptorType::STORAGE_BUFFER));
+            bindings.push((4, vk::DescriptorType::STORAGE_BUFFER));
         }
-        let descriptors = DescriptorBundle::new(shared, &types, vk::ShaderStageFlags::FRAGMENT)?;
+        if variant.host_depth {
+            bindings.push((5, vk::DescriptorType::COMBINED_IMAGE_SAMPLER));
+        }
+        let descriptors =
+            DescriptorBundle::new(shared, &bindings, vk::ShaderStageFlags::FRAGMENT, sets)?;
         let sampler = Sampler::linear_clamp(shared)?;
         let set_layouts = [descriptors.set_layout];
         // SAFETY: valid create info on a live device.
@@ -137,7 +150,15 @@ impl RaycastPipeline {
                 .line_width(1.0);
             let multisample = vk::PipelineMultisampleStateCreateInfo::default()
                 .rasterization_samples(vk::SampleCountFlags::TYPE_1);
+            // Premultiplied "over": result = volume + (1 - volume alpha) * target.
             let attachments = [vk::PipelineColorBlendAttachmentState::default()
+                .blend_enable(true)
+                .src_color_blend_factor(vk::BlendFactor::ONE)
+                .dst_color_blend_factor(vk::BlendFactor::ONE_MINUS_SRC_ALPHA)
+                .color_blend_op(vk::BlendOp::ADD)
+                .src_alpha_blend_factor(vk::BlendFactor::ONE)
+                .dst_alpha_blend_factor(vk::BlendFactor::ONE_MINUS_SRC_ALPHA)
+                .alpha_blend_op(vk::BlendOp::ADD)
                 .color_write_mask(vk::ColorComponentFlags::RGBA)];
             let blend = vk::PipelineColorBlendStateCreateInfo::default().attachments(&attachments);
             let dynamic_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
@@ -169,16 +190,18 @@ impl RaycastPipeline {
         }
     }
 
-    /// Points the descriptor set at the parameter buffer, the volume (or brick cache), the
-    /// transfer function and, for mixed resolution, the layout and neighbour tables. The caller
-    /// guarantees the set is not in use by pending GPU work.
+    /// Points descriptor set `set` at the parameter buffer, the volume (or brick cache), the
+    /// transfer function, for mixed resolution the layout and neighbour tables, and for host
+    /// depth the depth view (in `depth_layout`). The set must not be in use by pending GPU work.
+    #[allow(clippy::too_many_arguments)] // reason: one argument per binding.
     pub(crate) fn write_descriptors(
         &self,
+        set: usize,
         params: vk::Buffer,
         volume_view: vk::ImageView,
-        volume_layout: vk::ImageLayout,
         tf_view: vk::ImageView,
         tables: Option<(vk::Buffer, vk::Buffer)>,
+        depth: Option<(vk::ImageView, vk::ImageLayout)>,
     ) {
         let buffer_info = [vk::DescriptorBufferInfo {
             buffer: params,
@@ -192,8 +215,9 @@ impl RaycastPipeline {
                 image_layout,
             }]
         };
-        let volume_info = image_info(volume_view, volume_layout);
+        let volume_info = image_info(volume_view, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL);
         let tf_info = image_info(tf_view, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL);
+        let depth_info = depth.map(|(view, layout)| image_info(view, layout));
         let table_info = |buffer| {
             [vk::DescriptorBufferInfo {
                 buffer,
@@ -210,17 +234,17 @@ impl RaycastPipeline {
         };
         let mut writes = vec![
             vk::WriteDescriptorSet::default()
-                .dst_set(self.descriptors.set)
+                .dst_set(self.descriptors.sets[set])
                 .dst_binding(0)
                 .descriptor_type(vk::DescriptorType::UNIFORM_BUFFER)
                 .buffer_info(&buffer_info),
             vk::WriteDescriptorSet::default()
-                .dst_set(self.descriptors.set)
+                .dst_set(self.descriptors.sets[set])
                 .dst_binding(1)
                 .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
                 .image_info(&volume_info),
             vk::WriteDescriptorSet::default()
-                .dst_set(self.descriptors.set)
+                .dst_set(self.descriptors.sets[set])
                 .dst_binding(2)
                 .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
                 .image_info(&tf_info),
@@ -229,12 +253,21 @@ impl RaycastPipeline {
             for (binding, info) in [(3, &layout_info), (4, &neighbour_info)] {
                 writes.push(
                     vk::WriteDescriptorSet::default()
-                        .dst_set(self.descriptors.set)
+                        .dst_set(self.descriptors.sets[set])
                         .dst_binding(binding)
                         .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
                         .buffer_info(info),
                 );
             }
+        }
+        if let (true, Some(info)) = (self.variant.host_depth, &depth_info) {
+            writes.push(
+                vk::WriteDescriptorSet::default()
+                    .dst_set(self.descriptors.sets[set])
+                    .dst_binding(5)
+                    .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
+                    .image_info(info),
+            );
         }
         // SAFETY: all handles are live; the caller guarantees no pending GPU use of the set.
         unsafe { self.shared.device.update_descriptor_sets(&writes, &[]) };

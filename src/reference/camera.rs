@@ -49,6 +49,14 @@ pub fn intersect_box(ray: &Ray, box_min: Vec3, box_max: Vec3) -> (f32, f32) {
     (t_near.max_element(), t_far.min_element())
 }
 
+/// Ray parameter of a host depth-buffer surface: `depth` is the stored depth (Vulkan clip z in
+/// [0, 1]) at pixel centre `pixel`. Mirrors `depth_limit` in camera.glsl.
+pub fn depth_limit(p: &RaycastParams, ray: &Ray, pixel: Vec2, depth: f32) -> f32 {
+    let ndc = pixel / Vec2::new(p.viewport.x, p.viewport.y) * 2.0 - Vec2::ONE;
+    let w = p.world_from_clip * glam::Vec4::new(ndc.x, ndc.y, depth, 1.0);
+    (w.truncate() / w.w - ray.origin).dot(ray.dir)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

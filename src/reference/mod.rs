@@ -5,7 +5,7 @@ mod camera;
 mod mixed;
 mod sampling;
 
-pub use camera::{generate_ray, intersect_box, safe_inverse, Ray};
+pub use camera::{depth_limit, generate_ray, intersect_box, safe_inverse, Ray};
 pub use mixed::{
     active_axes, band, band_bounds, brick_of, dequantize, feature_touches_low_res, fixup_brick,
     fixup_value, low_res_border_coord, neighbour_bit, sample_hi_res_transition, sample_in_brick,
@@ -20,11 +20,23 @@ use glam::{Vec2, Vec4};
 
 /// Casts one ray. Mirrors `cast_ray` in `glsl/raycast.frag` step by step; returns premultiplied
 /// RGB and opacity.
-#[allow(clippy::neg_cmp_op_on_partial_ord)] // reason: `!(t0 < t1)` mirrors the GLSL and also rejects NaN.
 pub fn cast_ray(volume: &Volume, tf: &TransferFunction, p: &RaycastParams, ray: &Ray) -> Vec4 {
+    cast_ray_until(volume, tf, p, ray, f32::INFINITY)
+}
+
+/// [`cast_ray`] with the ray also ending at `t_limit` (e.g. a host depth, see [`depth_limit`]):
+/// `ray_end` in raycast.frag.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // reason: `!(t0 < t1)` mirrors the GLSL and also rejects NaN.
+pub fn cast_ray_until(
+    volume: &Volume,
+    tf: &TransferFunction,
+    p: &RaycastParams,
+    ray: &Ray,
+    t_limit: f32,
+) -> Vec4 {
     let (enter, exit) = intersect_box(ray, p.box_min.truncate(), p.box_max.truncate());
     let t0 = enter.max(p.forward.w);
-    let t1 = exit.min(p.right.w);
+    let t1 = exit.min(p.right.w).min(t_limit);
     let mut acc = Vec4::ZERO;
     if !(t0 < t1) {
         return acc;

@@ -1,0 +1,758 @@
+//! The volume pass, embeddable in a host engine's Vulkan frame.
+//!
+//! [`VolumePass`] records everything it does into a command buffer the caller owns: staged
+//! uploads (volume, brick cache, transfer function), the fixup pass, and the ray-cast, which
+//! renders with dynamic rendering into the caller's colour view and can stop rays at the caller's
+//! depth buffer. It never submits, never waits and never creates an instance or device (wrap the
+//! host's objects with [`GpuContext::from_host`]). The offscreen [`crate::renderer::Renderer`] is
+//! a small host built on it.
+//!
+//! # Synchronisation contract
+//! For [`VolumePass::record`] into command buffer `cmd` with frame slot `frame`:
+//! - **Frame slots.** Slot `frame` (`< frames_in_flight`) owns a parameter buffer, staging
+//!   buffers, table copies, descriptor sets and a timestamp pool. The host may record slot
+//!   `frame` again only after the command buffer that last used it has completed (wait on its
+//!   fence). Use one slot per frame in flight.
+//! - **Queue.** All command buffers recorded by one pass go to one queue, in recording order:
+//!   the pass's own barriers order its cache updates after earlier frames' reads through queue
+//!   submission order.
+//! - **Colour target, before.** The image of `target.view` is in `COLOR_ATTACHMENT_OPTIMAL`;
+//!   earlier writes to it are available and visible to `COLOR_ATTACHMENT_OUTPUT` (the pass loads
+//!   and blends: premultiplied volume *over* the existing content, or clears first with
+//!   [`TargetLoad::Clear`]). Its format is [`PassDesc::color_format`].
+//! - **Depth, before** (optional). The depth image was created with `SAMPLED` usage, is in the
+//!   layout given in [`HostDepth::layout`] (e.g. `DEPTH_STENCIL_READ_ONLY_OPTIMAL`), and the depth
+//!   writes are available and visible to `FRAGMENT_SHADER` sampled reads. Rays end where
+//!   `clip_from_world` puts the stored depth.
+//! - **After.** The pass wrote the colour target at `COLOR_ATTACHMENT_OUTPUT` /
+//!   `COLOR_ATTACHMENT_WRITE`, layout unchanged; the host adds the barrier for its next use.
+//!   Depth was only read. The pass's own resources need nothing from the host.
+//! - **Changing the source** ([`VolumePass::set_volume`], [`VolumePass::set_mixed_volume`]) and
+//!   dropping the pass require that no command buffer recorded by it is still executing.
+//! - **Residency changes** ([`VolumePass::set_levels`]) and transfer-function changes are staged
+//!   on the CPU and recorded by the next [`VolumePass::record`]; they need no wait.
+
+use crate::bricks::{
+    pack_hi_res_brick, pack_low_res_brick, quantize_to, BrickGrid, DownsampleFilter,
+};
+use crate::cache::{BrickCache, CacheGeometry, Level};
+use crate::error::{Error, Result};
+use crate::gpu::{
+    image_barrier, Access, Buffer, CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image,
+    ImageDesc, RaycastPipeline, RaycastVariant, TimestampPool, COLOR_LAYERS,
+};
+use crate::optics::{TfPreset, TransferFunction, TF_SIZE};
+use crate::reference::Transition;
+use crate::scene::{Camera, RaycastParams, RenderSettings};
+use crate::volume::{ScalarType, Volume};
+use ash::vk;
+use glam::{Mat4, UVec3};
+use gpu_allocator::MemoryLocation;
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Timestamp queries per frame slot: frame start, upload end, fixup end, ray-cast start, end.
+const QUERIES_PER_FRAME: u32 = 5;
+
+/// How a pass is set up: what it renders into and how many frames may be in flight.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub struct PassDesc {
+    /// Format of the colour targets (must support colour attachment + blending).
+    pub color_format: vk::Format,
+    /// Frames in flight: independent sets of per-frame resources (at least 1).
+    pub frames_in_flight: u32,
+}
+
+/// What happens to the colour target before the volume is blended over it.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub enum TargetLoad {
+    /// Keep the content (the host's scene): the volume composites over it.
+    Load,
+    /// Clear to this premultiplied RGBA first.
+    Clear([f32; 4]),
+}
+
+/// A host depth buffer the rays stop at.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct HostDepth {
+    /// View of the depth image (depth aspect).
+    pub view: vk::ImageView,
+    /// The layout the depth image is in during the pass (a read-only depth layout).
+    pub layout: vk::ImageLayout,
+    /// The host's world-to-clip transform (Vulkan clip space, depth in [0, 1]) that produced the
+    /// depth buffer, in the crate's world space (see [`crate::scene`]).
+    pub clip_from_world: Mat4,
+}
+
+/// Where one frame is drawn.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct PassTarget {
+    /// The colour view (format [`PassDesc::color_format`], layout `COLOR_ATTACHMENT_OPTIMAL`).
+    pub view: vk::ImageView,
+    /// Its size in pixels; may change from frame to frame (resizing needs nothing else).
+    pub extent: vk::Extent2D,
+    /// Load or clear.
+    pub load: TargetLoad,
+    /// Optional depth buffer.
+    pub depth: Option<HostDepth>,
+}
+
+/// GPU times of one frame's passes, in milliseconds (`None` when the pass did not run in that
+/// frame or the queue has no timestamps).
+#[derive(Copy, Clone, Debug, Default, PartialEq)]
+pub struct PassTimings {
+    /// Brick / volume / transfer-function copies.
+    pub upload_ms: Option<f64>,
+    /// The fixup compute pass.
+    pub fixup_ms: Option<f64>,
+    /// The ray-cast.
+    pub raycast_ms: Option<f64>,
+}
+
+/// What one [`VolumePass::record`] drew with.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct RecordedFrame {
+    /// The parameter block (what the CPU reference needs to reproduce the frame).
+    pub params: RaycastParams,
+    /// The pipeline variant that drew it.
+    pub variant: RaycastVariant,
+}
+
+/// How a volume is rendered through the brick cache.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct MixedConfig {
+    /// Brick edge `n` in voxels (power of two).
+    pub brick_size: u32,
+    /// Filter that builds the low-res level.
+    pub filter: DownsampleFilter,
+    /// Upper bound on the cache image's size in bytes.
+    pub cache_budget_bytes: u64,
+    /// Smooth (C0) or discontinuous transitions.
+    pub transition: Transition,
+}
+
+impl Default for MixedConfig {
+    fn default() -> Self {
+        Self {
+            brick_size: 32,
+            filter: DownsampleFilter::Mean2,
+            cache_budget_bytes: 256 << 20,
+            transition: Transition::Smooth,
+        }
+    }
+}
+
+/// What one residency change moved.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ResidencyReport {
+    /// Bricks written into the cache (one copy region each).
+    pub uploaded_bricks: usize,
+    /// Bytes copied into the cache.
+    pub uploaded_bytes: usize,
+    /// Hi-res bricks resident after the change.
+    pub hi_bricks: usize,
+    /// Low-res bricks resident after the change.
+    pub lo_bricks: usize,
+    /// Hi-res bricks whose border the fixup pass rewrites.
+    pub fixup_bricks: usize,
+    /// CPU time spent packing bricks, in milliseconds.
+    pub pack_ms: f64,
+    /// Wall time of the update's submission in milliseconds: filled by the offscreen
+    /// [`crate::renderer::Renderer`], which submits and waits; 0 when only staged.
+    pub update_ms: f64,
+}
+
+struct SingleVolume {
+    image: Image,
+    dims: UVec3,
+    spacing: glam::Vec3,
+    value_range: (f32, f32),
+    scalar: ScalarType,
+    pending: Option<Vec<u8>>,
+}
+
+pub(crate) struct MixedState {
+    pub(crate) volume: Arc<Volume>,
+    pub(crate) config: MixedConfig,
+    pub(crate) cache: BrickCache,
+    pub(crate) gpu: GpuBrickCache,
+    any_transition: bool,
+    value_range: (f32, f32),
+}
+
+enum Source {
+    None,
+    Single(SingleVolume),
+    Mixed(Box<MixedState>),
+}
+
+struct FrameSlot {
+    params: Buffer,
+    staging: Option<Buffer>,
+    tf_staging: Buffer,
+    queries: TimestampPool,
+}
+
+/// The embeddable volume pass (see the module docs for the contract).
+pub struct VolumePass {
+    // GPU objects first; the context (which keeps the device alive) last.
+    frames: Vec<FrameSlot>,
+    source: Source,
+    tf_image: Image,
+    tf_pending: Option<Vec<u8>>,
+    tf_initialized: bool,
+    pipelines: HashMap<RaycastVariant, RaycastPipeline>,
+    desc: PassDesc,
+    ctx: GpuContext,
+}
+
+fn volume_format(scalar: ScalarType) -> vk::Format {
+    match scalar {
+        ScalarType::U8 => vk::Format::R8_UNORM,
+        ScalarType::U16 => vk::Format::R16_UNORM,
+        ScalarType::F32 => vk::Format::R32_SFLOAT,
+    }
+}
+
+/// Writes `bytes` into `staging` (growing it) and records a whole-image copy into `image`,
+/// leaving it ready for fragment sampling.
+fn record_image_upload(
+    ctx: &GpuContext,
+    cmd: vk::CommandBuffer,
+    staging: &mut Option<Buffer>,
+    image: &Image,
+    bytes: &[u8],
+    previous: Access,
+) -> Result<()> {
+    let shared = &ctx.shared;
+    if staging.as_ref().is_none_or(|b| b.size < bytes.len() as u64) {
+        *staging = Some(Buffer::new(
+            shared,
+            "staging",
+            (bytes.len() as u64).next_power_of_two(),
+            vk::BufferUsageFlags::TRANSFER_SRC,
+            MemoryLocation::CpuToGpu,
+        )?);
+    }
+    let buffer = staging.as_mut().expect("created above");
+    buffer.mapped_mut()?[..bytes.len()].copy_from_slice(bytes);
+    let region = vk::BufferImageCopy::default()
+        .image_subresource(COLOR_LAYERS)
+        .image_extent(image.desc.extent);
+    let device = &shared.device;
+    image_barrier(device, cmd, image.raw, previous, Access::TransferWrite);
+    // SAFETY: the staging buffer holds the image's texels; the image is in TRANSFER_DST_OPTIMAL
+    // after the barrier; `cmd` is recording.
+    unsafe {
+        device.cmd_copy_buffer_to_image(
+            cmd,
+            buffer.raw,
+            image.raw,
+            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+            &[region],
+        )
+    };
+    image_barrier(
+        device,
+        cmd,
+        image.raw,
+        Access::TransferWrite,
+        Access::FragmentSampled,
+    );
+    Ok(())
+}
+
+impl VolumePass {
+    /// Creates the per-frame resources; checks the formats it needs.
+    pub fn new(ctx: &GpuContext, desc: PassDesc) -> Result<Self> {
+        if desc.frames_in_flight == 0 {
+            return Err(Error::InvalidInput(
+                "frames_in_flight must be at least 1".into(),
+            ));
+        }
+        let shared = &ctx.shared;
+        shared.require_format(
+            desc.color_format,
+            vk::FormatFeatureFlags::COLOR_ATTACHMENT
+                | vk::FormatFeatureFlags::COLOR_ATTACHMENT_BLEND,
+            "volume pass colour target",
+        )?;
+        let tf_format = vk::Format::R32G32B32A32_SFLOAT;
+        shared.require_format(
+            tf_format,
+            vk::FormatFeatureFlags::SAMPLED_IMAGE_FILTER_LINEAR
+                | vk::FormatFeatureFlags::TRANSFER_DST,
+            "transfer function",
+        )?;
+        let tf_image = Image::new(
+            shared,
+            "transfer function",
+            ImageDesc::new_1d(
+                tf_format,
+                TF_SIZE as u32,
+                vk::ImageUsageFlags::SAMPLED | vk::ImageUsageFlags::TRANSFER_DST,
+            ),
+        )?;
+        let frames = (0..desc.frames_in_flight)
+            .map(|_| {
+                Ok(FrameSlot {
+                    params: Buffer::new(
+                        shared,
+                        "raycast params",
+                        std::mem::size_of::<RaycastParams>() as u64,
+                        vk::BufferUsageFlags::UNIFORM_BUFFER,
+                        MemoryLocation::CpuToGpu,
+                    )?,
+                    staging: None,
+                    tf_staging: Buffer::new(
+                        shared,
+                        "transfer function staging",
+                        (TF_SIZE * 16) as u64,
+                        vk::BufferUsageFlags::TRANSFER_SRC,
+                        MemoryLocation::CpuToGpu,
+                    )?,
+                    queries: TimestampPool::new(shared, QUERIES_PER_FRAME)?,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let default_tf = TransferFunction::preset(TfPreset::Grey);
+        Ok(Self {
+            frames,
+            source: Source::None,
+            tf_image,
+            tf_pending: Some(bytemuck::cast_slice(default_tf.entries()).to_vec()),
+            tf_initialized: false,
+            pipelines: HashMap::new(),
+            desc,
+            ctx: ctx.clone(),
+        })
+    }
+
+    /// The pass's set-up.
+    pub fn desc(&self) -> PassDesc {
+        self.desc
+    }
+
+    /// The context the pass records for.
+    pub fn context(&self) -> &GpuContext {
+        &self.ctx
+    }
+
+    /// Stages a transfer function; the next [`VolumePass::record`] uploads it.
+    pub fn set_transfer_function(&mut self, tf: &TransferFunction) {
+        self.tf_pending = Some(bytemuck::cast_slice(tf.entries()).to_vec());
+    }
+
+    /// Renders `volume` as one plain 3D texture from now on (uploaded by the next record).
+    /// No command buffer recorded by this pass may still be executing.
+    pub fn set_volume(&mut self, volume: &Volume) -> Result<()> {
+        let shared = &self.ctx.shared;
+        let format = volume_format(volume.scalar_type());
+        shared.require_format(
+            format,
+            vk::FormatFeatureFlags::SAMPLED_IMAGE
+                | vk::FormatFeatureFlags::SAMPLED_IMAGE_FILTER_LINEAR
+                | vk::FormatFeatureFlags::TRANSFER_DST,
+            "volume texture",
+        )?;
+        let image = Image::new(
+            shared,
+            "volume",
+            ImageDesc::new_3d(
+                format,
+                volume.dims().to_array(),
+                vk::ImageUsageFlags::SAMPLED | vk::ImageUsageFlags::TRANSFER_DST,
+            ),
+        )?;
+        self.source = Source::Single(SingleVolume {
+            image,
+            dims: volume.dims(),
+            spacing: volume.spacing(),
+            value_range: volume.value_range(),
+            scalar: volume.scalar_type(),
+            pending: Some(volume.data().as_bytes().to_vec()),
+        });
+        Ok(())
+    }
+
+    /// Renders `volume` through a brick cache from now on: bricks it into `config.brick_size`^3
+    /// bricks, sizes the cache image from the budget and the device limit, and makes every brick
+    /// absent. Call [`VolumePass::set_levels`] to make bricks resident. No command buffer
+    /// recorded by this pass may still be executing.
+    pub fn set_mixed_volume(&mut self, volume: Arc<Volume>, config: MixedConfig) -> Result<()> {
+        let shared = &self.ctx.shared;
+        let grid = BrickGrid::new(volume.dims(), config.brick_size)
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        let scalar = volume.scalar_type();
+        let geometry = CacheGeometry::choose(
+            config.brick_size,
+            scalar.size_bytes() as u32,
+            config.cache_budget_bytes,
+            shared.info.limits.max_image_dimension3_d,
+            u32::try_from(grid.brick_count()).unwrap_or(u32::MAX),
+        )
+        .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        let cache =
+            BrickCache::new(grid, geometry).map_err(|e| Error::InvalidInput(e.to_string()))?;
+        self.source = Source::None;
+        let gpu = GpuBrickCache::new(
+            shared,
+            scalar,
+            cache.geometry().extent(),
+            cache.grid().brick_count(),
+            cache.geometry().slot_count() as usize,
+            self.desc.frames_in_flight,
+            config.transition == Transition::Smooth,
+        )?;
+        let value_range = volume.value_range();
+        self.source = Source::Mixed(Box::new(MixedState {
+            volume,
+            config,
+            cache,
+            gpu,
+            any_transition: false,
+            value_range,
+        }));
+        Ok(())
+    }
+
+    /// The brick grid and cache model of the mixed-resolution volume, if one is set.
+    pub fn brick_cache(&self) -> Option<&BrickCache> {
+        match &self.source {
+            Source::Mixed(m) => Some(&m.cache),
+            _ => None,
+        }
+    }
+
+    pub(crate) fn mixed_state_mut(&mut self) -> Option<&mut MixedState> {
+        match &mut self.source {
+            Source::Mixed(m) => Some(m),
+            _ => None,
+        }
+    }
+
+    /// Moves the cache to `levels` (one per brick): packs the bricks that changed and stages
+    /// them with the new tables; the next [`VolumePass::record`] copies them (one copy command,
+    /// one region each) and runs the fixup.
+    pub fn set_levels(&mut self, levels: &[Level]) -> Result<ResidencyReport> {
+        let Source::Mixed(state) = &mut self.source else {
+            return Err(Error::InvalidInput(
+                "set_levels needs set_mixed_volume first".into(),
+            ));
+        };
+        let update = state
+            .cache
+            .update(levels)
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        let pack_start = Instant::now();
+        let grid = state.cache.grid();
+        let scalar = state.volume.scalar_type();
+        let brick_err = |e: crate::bricks::BrickError| Error::InvalidInput(e.to_string());
+        let mut packed = Vec::with_capacity(update.uploads.len());
+        for upload in &update.uploads {
+            let brick = grid.brick_coords(upload.brick as usize);
+            let values = match upload.level {
+                Level::Hi => pack_hi_res_brick(&state.volume, grid, brick).map_err(brick_err)?,
+                _ => pack_low_res_brick(&state.volume, grid, state.config.filter, brick)
+                    .map_err(brick_err)?,
+            };
+            packed.push((upload, quantize_to(&values, scalar)));
+        }
+        let regions: Vec<CacheRegion> = packed
+            .iter()
+            .map(|(u, bytes)| CacheRegion {
+                origin: UVec3::from_array(u.dst_origin),
+                extent: UVec3::from_array(u.extent),
+                bytes,
+            })
+            .collect();
+        let pack_ms = pack_start.elapsed().as_secs_f64() * 1e3;
+        let layout = state.cache.layout_table();
+        let neighbours = state.cache.neighbour_bits();
+        let reverse = state.cache.reverse_table();
+        let fixup_slots = state.cache.fixup_slots();
+        let tables = CacheTables {
+            layout: &layout,
+            neighbours: &neighbours,
+            reverse: &reverse,
+            fixup_slots: &fixup_slots,
+            bricks: grid.bricks_per_axis(),
+            brick_size: grid.brick_size(),
+            slots_per_axis: state.cache.geometry().slots_per_axis(),
+        };
+        state.gpu.stage(&regions, &tables)?;
+        state.any_transition = !fixup_slots.is_empty();
+        let smooth = state.config.transition == Transition::Smooth;
+        let current = state.cache.levels();
+        Ok(ResidencyReport {
+            uploaded_bricks: regions.len(),
+            uploaded_bytes: regions.iter().map(|r| r.bytes.len()).sum(),
+            hi_bricks: current.iter().filter(|l| **l == Level::Hi).count(),
+            lo_bricks: current.iter().filter(|l| **l == Level::Lo).count(),
+            fixup_bricks: if smooth { fixup_slots.len() } else { 0 },
+            pack_ms,
+            update_ms: 0.0,
+        })
+    }
+
+    /// The pipeline variant the current source draws with, with or without a host depth buffer:
+    /// only the effects the scene uses.
+    pub fn current_variant(&self, host_depth: bool) -> RaycastVariant {
+        match &self.source {
+            Source::Mixed(m) => RaycastVariant {
+                mixed_resolution: true,
+                smooth_transitions: m.config.transition == Transition::Smooth && m.any_transition,
+                host_depth,
+            },
+            _ => RaycastVariant {
+                host_depth,
+                ..RaycastVariant::default()
+            },
+        }
+    }
+
+    /// The parameter block a frame with these arguments uses.
+    pub fn params(
+        &self,
+        camera: &Camera,
+        settings: &RenderSettings,
+        width: u32,
+        height: u32,
+    ) -> Result<RaycastParams> {
+        match &self.source {
+            Source::None => Err(Error::InvalidInput(
+                "render called before set_volume / set_mixed_volume".into(),
+            )),
+            Source::Single(v) => RaycastParams::for_dims(
+                v.dims,
+                v.spacing,
+                v.value_range,
+                v.scalar == ScalarType::F32,
+                camera,
+                settings,
+                width,
+                height,
+            ),
+            Source::Mixed(m) => Ok(RaycastParams::for_dims(
+                m.volume.dims(),
+                m.volume.spacing(),
+                m.value_range,
+                m.volume.scalar_type() == ScalarType::F32,
+                camera,
+                settings,
+                width,
+                height,
+            )?
+            .with_cache(m.config.brick_size, m.gpu.extent)),
+        }
+    }
+
+    /// Records staged uploads (and the fixup) for frame slot `frame` without drawing. The host
+    /// contract of [`VolumePass::record`] applies.
+    pub fn record_updates(&mut self, cmd: vk::CommandBuffer, frame: usize) -> Result<()> {
+        self.check_frame(frame)?;
+        let device = &self.ctx.shared.device;
+        let slot = &mut self.frames[frame];
+        let pool = slot.queries.raw;
+        // SAFETY: `cmd` is recording (caller contract); the slot's queries are not in use.
+        unsafe {
+            device.cmd_reset_query_pool(cmd, pool, 0, QUERIES_PER_FRAME);
+            device.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, pool, 0);
+        }
+        if let Some(bytes) = self.tf_pending.take() {
+            let tf_staging = &mut slot.tf_staging;
+            tf_staging.mapped_mut()?[..bytes.len()].copy_from_slice(&bytes);
+            let region = vk::BufferImageCopy::default()
+                .image_subresource(COLOR_LAYERS)
+                .image_extent(self.tf_image.desc.extent);
+            let previous = if self.tf_initialized {
+                Access::FragmentSampled
+            } else {
+                Access::Nothing
+            };
+            image_barrier(
+                device,
+                cmd,
+                self.tf_image.raw,
+                previous,
+                Access::TransferWrite,
+            );
+            // SAFETY: the staging buffer holds the table; TRANSFER_DST_OPTIMAL after the barrier.
+            unsafe {
+                device.cmd_copy_buffer_to_image(
+                    cmd,
+                    tf_staging.raw,
+                    self.tf_image.raw,
+                    vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                    &[region],
+                )
+            };
+            image_barrier(
+                device,
+                cmd,
+                self.tf_image.raw,
+                Access::TransferWrite,
+                Access::FragmentSampled,
+            );
+            self.tf_initialized = true;
+        }
+        match &mut self.source {
+            Source::Single(v) => {
+                if let Some(bytes) = v.pending.take() {
+                    record_image_upload(
+                        &self.ctx,
+                        cmd,
+                        &mut slot.staging,
+                        &v.image,
+                        &bytes,
+                        Access::Nothing,
+                    )?;
+                }
+            }
+            Source::Mixed(m) => {
+                m.gpu
+                    .record(cmd, frame, &mut slot.staging, Some((pool, 1)))?;
+            }
+            Source::None => {}
+        }
+        Ok(())
+    }
+
+    fn check_frame(&self, frame: usize) -> Result<()> {
+        if frame >= self.frames.len() {
+            return Err(Error::InvalidInput(format!(
+                "frame slot {frame} out of range (frames in flight: {})",
+                self.frames.len()
+            )));
+        }
+        Ok(())
+    }
+
+    /// Records one frame into `cmd` (see the module docs for what the host must guarantee):
+    /// staged uploads, the fixup, and the ray-cast into `target`.
+    pub fn record(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        frame: usize,
+        target: &PassTarget,
+        camera: &Camera,
+        settings: &RenderSettings,
+    ) -> Result<RecordedFrame> {
+        self.check_frame(frame)?;
+        let (width, height) = (target.extent.width, target.extent.height);
+        let mut params = self.params(camera, settings, width, height)?;
+        if let Some(depth) = &target.depth {
+            let inverse = depth.clip_from_world.inverse();
+            if !inverse.is_finite() {
+                return Err(Error::InvalidInput(
+                    "host clip_from_world is not invertible".into(),
+                ));
+            }
+            params.world_from_clip = inverse;
+        }
+        self.record_updates(cmd, frame)?;
+        let variant = self.current_variant(target.depth.is_some());
+        if !self.pipelines.contains_key(&variant) {
+            let pipeline = RaycastPipeline::new(
+                &self.ctx.shared,
+                self.desc.color_format,
+                variant,
+                self.desc.frames_in_flight,
+            )?;
+            self.pipelines.insert(variant, pipeline);
+        }
+        let slot = &mut self.frames[frame];
+        slot.params.mapped_mut()?[..std::mem::size_of::<RaycastParams>()]
+            .copy_from_slice(bytemuck::bytes_of(&params));
+        let (view, tables) = match &mut self.source {
+            Source::Single(v) => (v.image.view, None),
+            Source::Mixed(m) => {
+                m.gpu.sync_slot(frame)?;
+                (m.gpu.image.view, Some(m.gpu.slot_tables(frame)))
+            }
+            Source::None => unreachable!("params() checked the source"),
+        };
+        let pipeline = &self.pipelines[&variant];
+        pipeline.write_descriptors(
+            frame,
+            slot.params.raw,
+            view,
+            self.tf_image.view,
+            tables,
+            target.depth.map(|d| (d.view, d.layout)),
+        );
+        let device = &self.ctx.shared.device;
+        let (load_op, clear) = match target.load {
+            TargetLoad::Load => (vk::AttachmentLoadOp::LOAD, [0.0; 4]),
+            TargetLoad::Clear(c) => (vk::AttachmentLoadOp::CLEAR, c),
+        };
+        let color = [vk::RenderingAttachmentInfo::default()
+            .image_view(target.view)
+            .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+            .load_op(load_op)
+            .store_op(vk::AttachmentStoreOp::STORE)
+            .clear_value(vk::ClearValue {
+                color: vk::ClearColorValue { float32: clear },
+            })];
+        let area = vk::Rect2D {
+            offset: vk::Offset2D { x: 0, y: 0 },
+            extent: target.extent,
+        };
+        let rendering = vk::RenderingInfo::default()
+            .render_area(area)
+            .layer_count(1)
+            .color_attachments(&color);
+        let viewport = vk::Viewport {
+            x: 0.0,
+            y: 0.0,
+            width: width as f32,
+            height: height as f32,
+            min_depth: 0.0,
+            max_depth: 1.0,
+        };
+        let pool = slot.queries.raw;
+        // SAFETY: `cmd` is recording (caller contract); every handle is live; the descriptor set
+        // of this slot was written above while the slot is not in use (contract).
+        unsafe {
+            device.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, pool, 3);
+            device.cmd_begin_rendering(cmd, &rendering);
+            device.cmd_set_viewport(cmd, 0, &[viewport]);
+            device.cmd_set_scissor(cmd, 0, &[area]);
+            device.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipeline.pipeline);
+            device.cmd_bind_descriptor_sets(
+                cmd,
+                vk::PipelineBindPoint::GRAPHICS,
+                pipeline.layout,
+                0,
+                &[pipeline.descriptors.sets[frame]],
+                &[],
+            );
+            device.cmd_draw(cmd, 3, 1, 0, 0);
+            device.cmd_end_rendering(cmd);
+            device.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, pool, 4);
+        }
+        Ok(RecordedFrame { params, variant })
+    }
+
+    /// GPU times of the last frame recorded with slot `frame`, read without waiting: call it
+    /// after the host's fence for that frame (before recording the slot again).
+    pub fn timings(&self, frame: usize) -> Result<PassTimings> {
+        self.check_frame(frame)?;
+        let info = self.ctx.info();
+        if !info.timestamps_supported {
+            return Ok(PassTimings::default());
+        }
+        let ticks = self.frames[frame].queries.read_available()?;
+        let period = f64::from(info.timestamp_period_ns) * 1e-6;
+        let span = |a: usize, b: usize| match (ticks[a], ticks[b]) {
+            (Some(x), Some(y)) => Some(y.wrapping_sub(x) as f64 * period),
+            _ => None,
+        };
+        Ok(PassTimings {
+            upload_ms: span(0, 1),
+            fixup_ms: span(1, 2),
+            raycast_ms: span(3, 4),
+        })
+    }
+}

@@ -560,7 +560,9 @@ impl VolumePass {
             device.cmd_reset_query_pool(cmd, pool, 0, QUERIES_PER_FRAME);
             device.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, pool, 0);
         }
+        let mut uploaded = false;
         if let Some(bytes) = self.tf_pending.take() {
+            uploaded = true;
             let tf_staging = &mut slot.tf_staging;
             tf_staging.mapped_mut()?[..bytes.len()].copy_from_slice(&bytes);
             let region = vk::BufferImageCopy::default()
@@ -597,9 +599,10 @@ impl VolumePass {
             );
             self.tf_initialized = true;
         }
-        match &mut self.source {
+        let cache_recorded = match &mut self.source {
             Source::Single(v) => {
                 if let Some(bytes) = v.pending.take() {
+                    uploaded = true;
                     record_image_upload(
                         &self.ctx,
                         cmd,
@@ -609,12 +612,19 @@ impl VolumePass {
                         Access::Nothing,
                     )?;
                 }
+                false
             }
-            Source::Mixed(m) => {
-                m.gpu
-                    .record(cmd, frame, &mut slot.staging, Some((pool, 1)))?;
-            }
-            Source::None => {}
+            // Writes the upload-end and fixup-end timestamps itself.
+            Source::Mixed(m) => m
+                .gpu
+                .record(cmd, frame, &mut slot.staging, Some((pool, 1)))?,
+            Source::None => false,
+        };
+        if uploaded && !cache_recorded {
+            // SAFETY: `cmd` is recording; query 1 was reset above.
+            unsafe {
+                device.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, pool, 1)
+            };
         }
         Ok(())
     }

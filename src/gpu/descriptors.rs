@@ -98,9 +98,18 @@ impl Sampler {
     /// Linear filtering, clamp to edge on every axis, one mip level: `texture()` on volumes,
     /// caches and transfer functions.
     pub(crate) fn linear_clamp(shared: &Arc<DeviceShared>) -> Result<Self> {
+        Self::clamp(shared, vk::Filter::LINEAR)
+    }
+
+    /// Nearest filtering, clamp to edge: for formats without linear filtering (host depth).
+    pub(crate) fn nearest_clamp(shared: &Arc<DeviceShared>) -> Result<Self> {
+        Self::clamp(shared, vk::Filter::NEAREST)
+    }
+
+    fn clamp(shared: &Arc<DeviceShared>, filter: vk::Filter) -> Result<Self> {
         let info = vk::SamplerCreateInfo::default()
-            .mag_filter(vk::Filter::LINEAR)
-            .min_filter(vk::Filter::LINEAR)
+            .mag_filter(filter)
+            .min_filter(filter)
             .mipmap_mode(vk::SamplerMipmapMode::NEAREST)
             .address_mode_u(vk::SamplerAddressMode::CLAMP_TO_EDGE)
             .address_mode_v(vk::SamplerAddressMode::CLAMP_TO_EDGE)

@@ -47,6 +47,7 @@ pub(crate) struct RaycastPipeline {
     pub(crate) layout: vk::PipelineLayout,
     pub(crate) descriptors: DescriptorBundle,
     sampler: Sampler,
+    depth_sampler: Sampler,
     pub(crate) variant: RaycastVariant,
     shared: Arc<DeviceShared>,
 }
@@ -79,6 +80,7 @@ impl RaycastPipeline {
         let descriptors =
             DescriptorBundle::new(shared, &bindings, vk::ShaderStageFlags::FRAGMENT, sets)?;
         let sampler = Sampler::linear_clamp(shared)?;
+        let depth_sampler = Sampler::nearest_clamp(shared)?;
         let set_layouts = [descriptors.set_layout];
         // SAFETY: valid create info on a live device.
         let layout = unsafe {
@@ -93,6 +95,7 @@ impl RaycastPipeline {
             layout,
             descriptors,
             sampler,
+            depth_sampler,
             variant,
             shared: shared.clone(),
         };
@@ -217,7 +220,13 @@ impl RaycastPipeline {
         };
         let volume_info = image_info(volume_view, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL);
         let tf_info = image_info(tf_view, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL);
-        let depth_info = depth.map(|(view, layout)| image_info(view, layout));
+        let depth_info = depth.map(|(view, image_layout)| {
+            [vk::DescriptorImageInfo {
+                sampler: self.depth_sampler.raw,
+                image_view: view,
+                image_layout,
+            }]
+        });
         let table_info = |buffer| {
             [vk::DescriptorBufferInfo {
                 buffer,

@@ -766,3 +766,187 @@ impl VolumePass {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::{ContextDesc, Severity};
+    use crate::volume::SyntheticField;
+
+    /// Two frames in flight, residency changes staged between frames while the other frame may
+    /// still run, and a target resize halfway: clean under synchronization validation.
+    #[test]
+    fn frames_in_flight_with_residency_changes_and_a_resize_are_validation_clean() {
+        let ctx = GpuContext::new(&ContextDesc {
+            validation: true,
+            device_name: None,
+        })
+        .unwrap();
+        let log = ctx.message_log();
+        {
+            let shared = &ctx.shared;
+            let device = &shared.device;
+            let frames = 2usize;
+            let mut pass = VolumePass::new(
+                &ctx,
+                PassDesc {
+                    color_format: vk::Format::R8G8B8A8_UNORM,
+                    frames_in_flight: frames as u32,
+                },
+            )
+            .unwrap();
+            let volume = Arc::new(
+                SyntheticField::MarschnerLobb
+                    .generate(UVec3::splat(32), ScalarType::U8)
+                    .unwrap(),
+            );
+            pass.set_mixed_volume(
+                volume,
+                MixedConfig {
+                    brick_size: 8,
+                    ..MixedConfig::default()
+                },
+            )
+            .unwrap();
+            let count = pass.brick_cache().unwrap().grid().brick_count();
+            // SAFETY: plain object creation on a live device; destroyed below after waiting.
+            let (pool, cmds, fences) = unsafe {
+                let pool = device
+                    .create_command_pool(
+                        &vk::CommandPoolCreateInfo::default()
+                            .queue_family_index(shared.queue_family)
+                            .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
+                        None,
+                    )
+                    .unwrap();
+                let cmds = device
+                    .allocate_command_buffers(
+                        &vk::CommandBufferAllocateInfo::default()
+                            .command_pool(pool)
+                            .command_buffer_count(frames as u32),
+                    )
+                    .unwrap();
+                let fences: Vec<_> = (0..frames)
+                    .map(|_| {
+                        device
+                            .create_fence(
+                                &vk::FenceCreateInfo::default()
+                                    .flags(vk::FenceCreateFlags::SIGNALED),
+                                None,
+                            )
+                            .unwrap()
+                    })
+                    .collect();
+                (pool, cmds, fences)
+            };
+            let make_targets = |size: u32| -> Vec<Image> {
+                (0..frames)
+                    .map(|_| {
+                        Image::new(
+                            shared,
+                            "test target",
+                            ImageDesc::new_2d(
+                                vk::Format::R8G8B8A8_UNORM,
+                                size,
+                                size,
+                                vk::ImageUsageFlags::COLOR_ATTACHMENT,
+                            ),
+                        )
+                        .unwrap()
+                    })
+                    .collect()
+            };
+            let mut targets = make_targets(24);
+            let mut size = 24;
+            for i in 0..12 {
+                let slot = i % frames;
+                if i % 3 == 0 {
+                    let levels: Vec<Level> = (0..count)
+                        .map(|b| if (b + i) % 3 == 0 { Level::Lo } else { Level::Hi })
+                        .collect();
+                    pass.set_levels(&levels).unwrap();
+                }
+                if i == 6 {
+                    // Resize: wait for the frames using the old targets, then replace them.
+                    // SAFETY: waiting on our own fences.
+                    unsafe { device.wait_for_fences(&fences, true, u64::MAX).unwrap() };
+                    size = 40;
+                    targets = make_targets(size);
+                }
+                let cmd = cmds[slot];
+                // SAFETY: the slot's fence guarantees its previous frame completed.
+                unsafe {
+                    device.wait_for_fences(&[fences[slot]], true, u64::MAX).unwrap();
+                    device.reset_fences(&[fences[slot]]).unwrap();
+                    device
+                        .reset_command_buffer(cmd, vk::CommandBufferResetFlags::empty())
+                        .unwrap();
+                    device
+                        .begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
+                        .unwrap();
+                }
+                let target = &targets[slot];
+                image_barrier(device, cmd, target.raw, Access::Nothing, Access::ColorAttachmentWrite);
+                let angle = i as f32 * 0.2;
+                let camera = Camera::perspective(
+                    glam::Vec3::new(2.0 * angle.cos(), 0.6, 2.0 * angle.sin()),
+                    glam::Vec3::ZERO,
+                    40.0,
+                );
+                let recorded = pass
+                    .record(
+                        cmd,
+                        slot,
+                        &PassTarget {
+                            view: target.view,
+                            extent: vk::Extent2D {
+                                width: size,
+                                height: size,
+                            },
+                            load: TargetLoad::Clear([0.0; 4]),
+                            depth: None,
+                        },
+                        &camera,
+                        &RenderSettings::default(),
+                    )
+                    .unwrap();
+                assert!(recorded.variant.mixed_resolution);
+                let cmd_infos = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
+                let submits = [vk::SubmitInfo2::default().command_buffer_infos(&cmd_infos)];
+                // SAFETY: the command buffer is complete; the fence is unsignalled.
+                unsafe {
+                    device.end_command_buffer(cmd).unwrap();
+                    device
+                        .queue_submit2(shared.queue, &submits, fences[slot])
+                        .unwrap();
+                }
+                if i >= frames {
+                    // The slot recorded two frames ago has completed: its timings are readable.
+                    let other = (i + 1) % frames;
+                    // SAFETY: waiting on our own fence.
+                    unsafe { device.wait_for_fences(&[fences[other]], true, u64::MAX).unwrap() };
+                    let t = pass.timings(other).unwrap();
+                    assert!(t.raycast_ms.is_some_and(|ms| ms >= 0.0), "{t:?}");
+                }
+            }
+            // SAFETY: wait for everything, then destroy our objects.
+            unsafe {
+                device.device_wait_idle().unwrap();
+                for f in fences {
+                    device.destroy_fence(f, None);
+                }
+                device.destroy_command_pool(pool, None);
+            }
+            drop(targets);
+            drop(pass);
+        }
+        assert_eq!(ctx.live_allocation_count(), 0);
+        drop(ctx);
+        let problems: Vec<_> = log
+            .all()
+            .into_iter()
+            .filter(|m| m.severity >= Severity::Warning)
+            .collect();
+        assert!(problems.is_empty(), "{problems:#?}");
+    }
+}

@@ -31,6 +31,22 @@ enum Command {
     /// Render a close-up of a hi-res / low-res brick junction, discontinuous (left) and smooth
     /// (right), side by side into one PNG.
     Junction(JunctionArgs),
+    /// Render a scene for N frames and report min / median / max GPU time per pass (upload,
+    /// fixup, ray-cast) and CPU frame time, as a table and as JSON.
+    Bench(BenchArgs),
+}
+
+#[derive(Args, Debug)]
+struct BenchArgs {
+    #[command(flatten)]
+    render: RenderArgs,
+    /// Change the brick levels every frame (alternating two patterns) so uploads and the fixup
+    /// are timed too (needs --levels).
+    #[arg(long)]
+    churn: bool,
+    /// Also write the results as JSON to this path ('-' for standard output).
+    #[arg(long)]
+    json: Option<PathBuf>,
 }
 
 #[derive(ValueEnum, Copy, Clone, Debug, PartialEq)]
@@ -501,11 +517,163 @@ fn junction(args: &JunctionArgs) -> Result<()> {
     Ok(())
 }
 
+/// min / median / max of a series.
+fn summary(values: &[f64]) -> Option<(f64, f64, f64)> {
+    if values.is_empty() {
+        return None;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(|a, b| a.total_cmp(b));
+    Some((v[0], v[v.len() / 2], v[v.len() - 1]))
+}
+
+fn bench(args: &BenchArgs) -> Result<()> {
+    let r = &args.render;
+    if r.frames == 0 {
+        return Err(Error::InvalidInput("--frames must be at least 1".into()));
+    }
+    if args.churn && r.mixed.levels.is_none() {
+        return Err(Error::InvalidInput("--churn needs --levels".into()));
+    }
+    let volume = Arc::new(load_volume(r)?);
+    let ctx = GpuContext::new(&ContextDesc {
+        validation: r.validation,
+        device_name: r.device.clone(),
+    })?;
+    let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
+    renderer.set_transfer_function(&TransferFunction::preset(r.tf))?;
+    let mut patterns = Vec::new();
+    match r.mixed.levels {
+        None => renderer.set_volume(&volume)?,
+        Some(pattern) => {
+            let config = MixedConfig {
+                brick_size: r.mixed.brick_size,
+                cache_budget_bytes: r.mixed.cache_mb << 20,
+                transition: transition_of(r.mixed.transition),
+                ..MixedConfig::default()
+            };
+            renderer.set_mixed_volume(volume.clone(), config)?;
+            let grid = BrickGrid::new(volume.dims(), r.mixed.brick_size)
+                .map_err(|e| Error::InvalidInput(e.to_string()))?;
+            patterns.push(level_pattern(&grid, pattern));
+            // The churn partner: the same pattern with hi and lo swapped.
+            patterns.push(
+                patterns[0]
+                    .iter()
+                    .map(|l| {
+                        if *l == Level::Hi {
+                            Level::Lo
+                        } else {
+                            Level::Hi
+                        }
+                    })
+                    .collect(),
+            );
+            renderer.set_levels(&patterns[0])?;
+        }
+    }
+    let camera = Camera {
+        projection: match r.projection {
+            ProjectionArg::Perspective => Projection::Perspective {
+                fov_y_degrees: r.fov,
+            },
+            ProjectionArg::Orthographic => Projection::Orthographic {
+                height: r.ortho_height,
+            },
+        },
+        ..Camera::perspective(r.eye, r.target, r.fov)
+    };
+    let settings = RenderSettings {
+        samples_per_voxel: r.samples_per_voxel,
+        early_termination: r.early_termination,
+        ..RenderSettings::default()
+    };
+    renderer.render(&camera, &settings, r.width, r.height)?; // warm-up
+    let (mut upload, mut fixup, mut raycast, mut cpu) = (vec![], vec![], vec![], vec![]);
+    let mut variant = None;
+    for i in 0..r.frames {
+        if args.churn {
+            renderer.stage_levels(&patterns[(i as usize + 1) % 2])?;
+        }
+        let frame = renderer.render(&camera, &settings, r.width, r.height)?;
+        upload.extend(frame.timing.gpu_upload_ms);
+        fixup.extend(frame.timing.gpu_fixup_ms);
+        raycast.extend(frame.timing.gpu_raycast_ms);
+        cpu.push(frame.timing.cpu_frame_ms);
+        variant = Some(frame.variant);
+    }
+    let info = ctx.info();
+    let rows = [
+        ("upload (gpu)", &upload),
+        ("fixup (gpu)", &fixup),
+        ("ray-cast (gpu)", &raycast),
+        ("frame (cpu)", &cpu),
+    ];
+    println!(
+        "# {} frames, {}x{}, volume {} {:?}, device {} ({:?})",
+        r.frames,
+        r.width,
+        r.height,
+        r.volume,
+        volume.dims().to_array(),
+        info.name,
+        info.device_type
+    );
+    println!("# variant {:?}", variant.expect("frames >= 1"));
+    println!("| pass | samples | min ms | median ms | max ms |");
+    println!("|---|---|---|---|---|");
+    let mut json_passes = Vec::new();
+    for (name, values) in rows {
+        match summary(values) {
+            Some((lo, med, hi)) => {
+                println!(
+                    "| {name} | {} | {lo:.3} | {med:.3} | {hi:.3} |",
+                    values.len()
+                );
+                json_passes.push(format!(
+                    "{{\"pass\":\"{name}\",\"samples\":{},\"min_ms\":{lo},\"median_ms\":{med},\"max_ms\":{hi}}}",
+                    values.len()
+                ));
+            }
+            None => println!("| {name} | 0 | - | - | - |"),
+        }
+    }
+    if info.device_type == ash::vk::PhysicalDeviceType::CPU {
+        println!(
+            "note: {} is a CPU implementation; compare ratios, not absolute times",
+            info.name
+        );
+    }
+    if let Some(path) = &args.json {
+        let json = format!(
+            "{{\"device\":\"{}\",\"device_type\":\"{:?}\",\"width\":{},\"height\":{},\"frames\":{},\"volume\":\"{}\",\"passes\":[{}]}}\n",
+            info.name.replace('"', "'"),
+            info.device_type,
+            r.width,
+            r.height,
+            r.frames,
+            r.volume.replace('"', "'"),
+            json_passes.join(",")
+        );
+        if path.as_os_str() == "-" {
+            print!("{json}");
+        } else {
+            create_parent(path)?;
+            std::fs::write(path, json).map_err(|e| Error::ImageWrite {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+        }
+    }
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Render(args) => render(args),
         Command::Junction(args) => junction(args),
+        Command::Bench(args) => bench(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -190,6 +190,12 @@ impl Renderer {
         Ok(report)
     }
 
+    /// Stages a residency change without submitting it: the next [`Renderer::render`] records
+    /// the uploads and the fixup in its own command buffer (so the frame's timings include them).
+    pub fn stage_levels(&mut self, levels: &[Level]) -> Result<ResidencyReport> {
+        self.pass.set_levels(levels)
+    }
+
     /// Uploads a new transfer function.
     pub fn set_transfer_function(&mut self, tf: &TransferFunction) -> Result<()> {
         self.pass.set_transfer_function(tf);

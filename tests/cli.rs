@@ -179,3 +179,56 @@ fn junction_image_shows_the_jump_only_in_discontinuous_mode() {
         "smooth junction step {smooth_jump} vs discontinuous {disc_jump}"
     );
 }
+
+#[test]
+fn bench_reports_every_pass_as_a_table_and_json() {
+    let out = mixvol()
+        .args([
+            "bench",
+            "--volume",
+            "sphere",
+            "--dims",
+            "32,32,32",
+            "--levels",
+            "checker",
+            "--brick-size",
+            "8",
+            "--churn",
+            "--frames",
+            "3",
+            "--width",
+            "32",
+            "--height",
+            "32",
+            "--json",
+            "-",
+        ])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for pass in [
+        "upload (gpu)",
+        "fixup (gpu)",
+        "ray-cast (gpu)",
+        "frame (cpu)",
+    ] {
+        assert!(
+            stdout.contains(&format!("| {pass} | 3 |")),
+            "{pass} missing:\n{stdout}"
+        );
+    }
+    let json = stdout
+        .lines()
+        .find(|l| l.starts_with('{'))
+        .expect("a JSON line");
+    assert!(
+        json.contains("\"frames\":3") && json.contains("\"pass\":\"ray-cast (gpu)\",\"samples\":3"),
+        "{json}"
+    );
+    assert!(json.ends_with("]}"), "{json}");
+}

@@ -8,6 +8,7 @@
 //! - [`gpu`]: the ash backend (context, memory, shaders, ray-cast pipeline).
 //! - [`embed`]: the volume pass recorded into a host engine's command buffers.
 //! - [`renderer`]: the offscreen façade that turns a volume + scene into an image.
+//! - [`report`]: the accuracy-versus-time report.
 #![warn(
     missing_docs,
     unsafe_op_in_unsafe_fn,
@@ -23,6 +24,7 @@ pub mod lod;
 pub mod optics;
 pub mod reference;
 pub mod renderer;
+pub mod report;
 pub mod scene;
 pub mod volume;
 

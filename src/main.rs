@@ -34,6 +34,30 @@ enum Command {
     /// Render a scene for N frames and report min / median / max GPU time per pass (upload,
     /// fixup, ray-cast) and CPU frame time, as a table and as JSON.
     Bench(BenchArgs),
+    /// The accuracy-versus-time report of the default scene (Markdown, CSV and a PNG chart).
+    Report(ReportArgs),
+}
+
+#[derive(Args, Debug)]
+struct ReportArgs {
+    /// Folder for accuracy-vs-time.md, .csv and .png.
+    #[arg(long, default_value = "docs/report")]
+    output_dir: PathBuf,
+    /// Image width and height.
+    #[arg(long, default_value_t = 256)]
+    size: u32,
+    /// Timed frames per setting (median reported).
+    #[arg(long, default_value_t = 5)]
+    frames: u32,
+    /// Edge of the cubic Marschner-Lobb volume.
+    #[arg(long, default_value_t = 128)]
+    volume_size: u32,
+    /// Brick size of the mixed-resolution rows.
+    #[arg(long, default_value_t = 16)]
+    brick_size: u32,
+    /// Enable the validation layers.
+    #[arg(long)]
+    validation: bool,
 }
 
 #[derive(Args, Debug)]
@@ -668,12 +692,69 @@ fn bench(args: &BenchArgs) -> Result<()> {
     Ok(())
 }
 
+fn report(args: &ReportArgs) -> Result<()> {
+    let volume = Arc::new(
+        SyntheticField::MarschnerLobb.generate(UVec3::splat(args.volume_size), ScalarType::U8)?,
+    );
+    let ctx = GpuContext::new(&ContextDesc {
+        validation: args.validation,
+        device_name: None,
+    })?;
+    let tf = TransferFunction::preset(TfPreset::Fire);
+    let options = mixvol::report::ReportOptions {
+        size: args.size,
+        frames: args.frames,
+        brick_size: args.brick_size,
+        camera: Camera::perspective(Vec3::new(1.0, 1.3, 1.4), Vec3::ZERO, 35.0),
+    };
+    let report = mixvol::report::accuracy_report(&ctx, volume, &tf, &options)?;
+    std::fs::create_dir_all(&args.output_dir).map_err(|e| Error::ImageWrite {
+        path: args.output_dir.clone(),
+        message: e.to_string(),
+    })?;
+    let when = std::process::Command::new("date")
+        .arg("-u")
+        .arg("+%Y-%m-%d %H:%M UTC")
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+        .unwrap_or_default();
+    let command = format!(
+        "cargo run --release -- report --size {} --frames {} --volume-size {} --brick-size {}",
+        args.size, args.frames, args.volume_size, args.brick_size
+    );
+    let write = |name: &str, text: String| -> Result<()> {
+        let path = args.output_dir.join(name);
+        std::fs::write(&path, text).map_err(|e| Error::ImageWrite {
+            path,
+            message: e.to_string(),
+        })
+    };
+    let md = report.to_markdown(&when, &command);
+    write("accuracy-vs-time.md", md.clone())?;
+    write("accuracy-vs-time.csv", report.to_csv())?;
+    let chart_path = args.output_dir.join("accuracy-vs-time.png");
+    report
+        .chart()
+        .save(&chart_path)
+        .map_err(|e| Error::ImageWrite {
+            path: chart_path.clone(),
+            message: e.to_string(),
+        })?;
+    print!("{md}");
+    println!(
+        "wrote {}/accuracy-vs-time.{{md,csv,png}}",
+        args.output_dir.display()
+    );
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Render(args) => render(args),
         Command::Junction(args) => junction(args),
         Command::Bench(args) => bench(args),
+        Command::Report(args) => report(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

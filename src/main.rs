@@ -131,8 +131,9 @@ enum ProjectionArg {
 
 #[derive(Args, Debug)]
 struct RenderArgs {
-    /// Volume to render: a synthetic field (`ml` = Marschner-Lobb, `sphere`, `wall`) or a path to a
-    /// headerless raw file (then --dims and --scalar describe it).
+    /// Volume to render: a synthetic field (`ml` = Marschner-Lobb, `sphere`, `wall`), a file with
+    /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), or a
+    /// headerless raw file (then --dims, --scalar, --spacing describe it).
     #[arg(long, default_value = "ml")]
     volume: String,
     /// Dimensions x,y,z: of the synthetic field, or of the raw file.
@@ -240,7 +241,23 @@ fn parse_tf(s: &str) -> std::result::Result<TfPreset, String> {
     TfPreset::parse(s).ok_or_else(|| format!("unknown preset '{s}' ({})", TfPreset::NAMES))
 }
 
+/// Whether `path` is a format with its own header (NIfTI, NRRD, sidecar JSON, VolPack .den, or a
+/// .raw file with a sidecar next to it).
+fn has_header(path: &std::path::Path) -> bool {
+    let name = path.to_string_lossy().to_ascii_lowercase();
+    let headed = [".nii", ".nii.gz", ".nrrd", ".nhdr", ".json", ".den"];
+    if headed.iter().any(|e| name.ends_with(e)) {
+        return true;
+    }
+    name.ends_with(".raw")
+        && (path.with_extension("raw.json").exists() || path.with_extension("json").exists())
+}
+
 fn load_volume(args: &RenderArgs) -> Result<Volume> {
+    let path = std::path::Path::new(&args.volume);
+    if SyntheticField::parse(&args.volume).is_none() && has_header(path) {
+        return Ok(mixvol::volume::load_volume(path)?);
+    }
     match SyntheticField::parse(&args.volume) {
         Some(field) => Ok(field.generate(args.dims, args.scalar)?),
         None => Ok(load_raw(

@@ -121,7 +121,7 @@ pub fn levels_for_fraction(
     let lod = |e: crate::lod::LodError| Error::InvalidInput(e.to_string());
     let ranges = brick_value_ranges(volume, grid, DownsampleFilter::Mean2)
         .map_err(|e| Error::InvalidInput(e.to_string()))?;
-    let geometry = BrickGeometry::new(grid.clone(), volume.spacing()).map_err(lod)?;
+    let geometry = BrickGeometry::new(*grid, volume.spacing()).map_err(lod)?;
     let window = if volume.scalar_type() == crate::volume::ScalarType::F32 {
         volume.value_range()
     } else {

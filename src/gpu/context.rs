@@ -216,6 +216,7 @@ impl DeviceShared {
 }
 
 /// The allocator: created here, or lent by a host engine.
+#[allow(clippy::large_enum_variant)] // reason: one per context; boxing buys nothing.
 enum AllocatorSlot {
     Owned(ManuallyDrop<Mutex<Allocator>>),
     Host(Arc<Mutex<Allocator>>),

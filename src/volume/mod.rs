@@ -4,9 +4,14 @@
 //! exposed *normalised* the way the GPU sees them: u8 / 255, u16 / 65535 (UNORM formats) and f32 as
 //! is (SFLOAT). Every sampler in the crate, CPU and GPU, works on normalised values.
 
+pub mod formats;
 mod loader;
 mod synthetic;
 
+pub use formats::{
+    load_den, load_nifti, load_nrrd, load_sidecar, load_volume, load_volume_with_meta, FileFormat,
+    LoadedVolume, StoredType, VolumeMeta,
+};
 pub use loader::{load_raw, save_raw, RawDescriptor};
 pub use synthetic::{
     marschner_lobb, marschner_lobb_value, sphere, wall, SyntheticField,
@@ -189,6 +194,18 @@ pub enum VolumeError {
     /// A synthetic field parameter is out of range.
     #[error("invalid synthetic field parameter: {0}")]
     InvalidParameter(String),
+    /// A volume file's header (or the data it describes) is invalid or unsupported.
+    #[error("{path}: field `{field}`: {message}")]
+    Format {
+        /// The file whose header is at fault.
+        path: PathBuf,
+        /// The header field at fault, as the format names it (`sizes`, `type`, `encoding`,
+        /// `dim[3]`, `vox_offset`, `dims`, `map_length`, ...; `magic` / `header` / `json` for
+        /// the file's structure, `extension` for an unknown file type).
+        field: String,
+        /// What is wrong.
+        message: String,
+    },
 }
 
 /// A scalar volume: dimensions, voxel spacing and voxel values.

@@ -1,0 +1,12 @@
+//! Fuzzes `mixvol::volume::formats::parse_den_header` with arbitrary bytes standing for the first
+//! 62 bytes of a VolPack .den file. It must return `Ok` or a typed `VolumeError` and never panic;
+//! it only parses, so it never allocates from the sizes a header claims.
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+use mixvol::volume::formats::parse_den_header;
+use std::path::Path;
+
+fuzz_target!(|data: &[u8]| {
+    let _ = parse_den_header(Path::new("fuzz-input"), data);
+});

@@ -862,7 +862,13 @@ mod tests {
                 let slot = i % frames;
                 if i % 3 == 0 {
                     let levels: Vec<Level> = (0..count)
-                        .map(|b| if (b + i) % 3 == 0 { Level::Lo } else { Level::Hi })
+                        .map(|b| {
+                            if (b + i) % 3 == 0 {
+                                Level::Lo
+                            } else {
+                                Level::Hi
+                            }
+                        })
                         .collect();
                     pass.set_levels(&levels).unwrap();
                 }
@@ -876,7 +882,9 @@ mod tests {
                 let cmd = cmds[slot];
                 // SAFETY: the slot's fence guarantees its previous frame completed.
                 unsafe {
-                    device.wait_for_fences(&[fences[slot]], true, u64::MAX).unwrap();
+                    device
+                        .wait_for_fences(&[fences[slot]], true, u64::MAX)
+                        .unwrap();
                     device.reset_fences(&[fences[slot]]).unwrap();
                     device
                         .reset_command_buffer(cmd, vk::CommandBufferResetFlags::empty())
@@ -886,7 +894,13 @@ mod tests {
                         .unwrap();
                 }
                 let target = &targets[slot];
-                image_barrier(device, cmd, target.raw, Access::Nothing, Access::ColorAttachmentWrite);
+                image_barrier(
+                    device,
+                    cmd,
+                    target.raw,
+                    Access::Nothing,
+                    Access::ColorAttachmentWrite,
+                );
                 let angle = i as f32 * 0.2;
                 let camera = Camera::perspective(
                     glam::Vec3::new(2.0 * angle.cos(), 0.6, 2.0 * angle.sin()),
@@ -924,7 +938,11 @@ mod tests {
                     // The slot recorded two frames ago has completed: its timings are readable.
                     let other = (i + 1) % frames;
                     // SAFETY: waiting on our own fence.
-                    unsafe { device.wait_for_fences(&[fences[other]], true, u64::MAX).unwrap() };
+                    unsafe {
+                        device
+                            .wait_for_fences(&[fences[other]], true, u64::MAX)
+                            .unwrap()
+                    };
                     let t = pass.timings(other).unwrap();
                     assert!(t.raycast_ms.is_some_and(|ms| ms >= 0.0), "{t:?}");
                 }

@@ -151,9 +151,17 @@ struct RenderArgs {
     /// The raw file's multi-byte values are big-endian.
     #[arg(long)]
     big_endian: bool,
-    /// Transfer-function preset: grey, fire, bands, constant.
+    /// Transfer-function preset: grey, fire, bands, constant, ct, mri.
     #[arg(long, default_value = "fire", value_parser = parse_tf)]
     tf: TfPreset,
+    /// Scan preset: `ct` or `mri` picks that transfer function and an automatic window from the
+    /// histogram (overrides --tf).
+    #[arg(long, value_parser = parse_tf)]
+    preset: Option<TfPreset>,
+    /// Value window `lo,hi` in normalised units mapped onto the transfer function, or `auto`
+    /// (histogram percentiles). Default: [0, 1] for integer data, the value range for floats.
+    #[arg(long)]
+    window: Option<String>,
     /// Camera projection.
     #[arg(long, value_enum, default_value_t = ProjectionArg::Perspective)]
     projection: ProjectionArg,
@@ -273,6 +281,26 @@ fn load_volume(args: &RenderArgs) -> Result<Volume> {
     }
 }
 
+/// The value window from --window / --preset.
+fn window_of(args: &RenderArgs, volume: &Volume) -> Result<Option<(f32, f32)>> {
+    match args.window.as_deref() {
+        Some("auto") => Ok(Some(volume.auto_window())),
+        Some(text) => {
+            let [lo, hi] = parse_floats::<2>(text).map_err(|e| {
+                Error::InvalidInput(format!("--window: {e} (expected lo,hi or auto)"))
+            })?;
+            if !(hi > lo) {
+                return Err(Error::InvalidInput(format!(
+                    "--window: hi {hi} must exceed lo {lo}"
+                )));
+            }
+            Ok(Some((lo, hi)))
+        }
+        None if args.preset.is_some() => Ok(Some(volume.auto_window())),
+        None => Ok(None),
+    }
+}
+
 fn stats(ms: &mut [f64]) -> (f64, f64, f64) {
     ms.sort_by(|a, b| a.total_cmp(b));
     (ms[0], ms[ms.len() / 2], ms[ms.len() - 1])
@@ -307,7 +335,11 @@ fn render(args: &RenderArgs) -> Result<()> {
         d.z,
         volume.scalar_type()
     );
-    let tf = TransferFunction::preset(args.tf);
+    let tf = TransferFunction::preset(args.preset.unwrap_or(args.tf));
+    let value_window = window_of(args, &volume)?;
+    if let Some((lo, hi)) = value_window {
+        println!("window: [{lo:.4}, {hi:.4}] (normalised values)");
+    }
     let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     renderer.set_transfer_function(&tf)?;
     let volume = Arc::new(volume);
@@ -364,6 +396,7 @@ fn render(args: &RenderArgs) -> Result<()> {
     let settings = RenderSettings {
         samples_per_voxel: args.samples_per_voxel,
         early_termination: args.early_termination,
+        value_window,
         ..RenderSettings::default()
     };
     // Warm-up: llvmpipe compiles shaders at the first draw.

@@ -26,6 +26,10 @@ pub enum TfPreset {
     Bands,
     /// Constant white at opacity 0.1 everywhere, values included: for analytic tests.
     ConstantWhite,
+    /// CT: soft tissue faint and warm, bone bright and opaque (use with a window over the data).
+    Ct,
+    /// MRI: background transparent, tissue in warm greys rising with intensity.
+    Mri,
 }
 
 impl TfPreset {
@@ -36,12 +40,14 @@ impl TfPreset {
             "fire" => Some(TfPreset::Fire),
             "bands" => Some(TfPreset::Bands),
             "constant" | "constant-white" => Some(TfPreset::ConstantWhite),
+            "ct" => Some(TfPreset::Ct),
+            "mri" => Some(TfPreset::Mri),
             _ => None,
         }
     }
 
     /// All preset names, for help texts.
-    pub const NAMES: &'static str = "grey, fire, bands, constant";
+    pub const NAMES: &'static str = "grey, fire, bands, constant, ct, mri";
 }
 
 impl TransferFunction {
@@ -125,6 +131,21 @@ impl TransferFunction {
                 (1.0, Vec4::new(1.0, 0.1, 0.1, 0.5)),
             ],
             TfPreset::ConstantWhite => &[(0.0, Vec4::new(1.0, 1.0, 1.0, 0.1))],
+            TfPreset::Ct => &[
+                (0.0, Vec4::ZERO),
+                (0.25, Vec4::new(0.5, 0.15, 0.1, 0.0)),
+                (0.4, Vec4::new(0.85, 0.45, 0.35, 0.03)),
+                (0.6, Vec4::new(0.95, 0.85, 0.7, 0.15)),
+                (0.8, Vec4::new(1.0, 0.97, 0.9, 0.5)),
+                (1.0, Vec4::new(1.0, 1.0, 1.0, 0.8)),
+            ],
+            TfPreset::Mri => &[
+                (0.0, Vec4::ZERO),
+                (0.12, Vec4::ZERO),
+                (0.35, Vec4::new(0.6, 0.5, 0.45, 0.04)),
+                (0.7, Vec4::new(0.95, 0.9, 0.85, 0.25)),
+                (1.0, Vec4::new(1.0, 1.0, 1.0, 0.5)),
+            ],
         };
         Self::from_control_points(points).expect("presets are valid")
     }

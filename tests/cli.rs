@@ -232,3 +232,54 @@ fn bench_reports_every_pass_as_a_table_and_json() {
     );
     assert!(json.ends_with("]}"), "{json}");
 }
+
+#[test]
+fn renders_the_real_mri_template_with_the_mri_preset_and_auto_window() {
+    let dir = std::env::var("MIXVOL_DATA_DIR").unwrap_or_else(|_| "target/datasets".into());
+    let nii = std::path::Path::new(&dir).join("mni_icbm152_t1_tal_nlin_sym_09a_converted.nii.gz");
+    assert!(
+        nii.exists(),
+        "{} missing: run scripts/fetch-datasets.sh (scripts/test.sh does)",
+        nii.display()
+    );
+    let png = std::env::temp_dir().join(format!("mixvol-cli-mni-{}.png", std::process::id()));
+    let out = mixvol()
+        .args([
+            "render",
+            "--preset",
+            "mri",
+            "--frames",
+            "1",
+            "--width",
+            "48",
+            "--height",
+            "48",
+            "--validation",
+            "--volume",
+        ])
+        .arg(&nii)
+        .arg("--output")
+        .arg(&png)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("volume:") && stdout.contains("197x233x189"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("window: ["), "{stdout}");
+    let img = image::open(&png).unwrap().to_rgba8();
+    std::fs::remove_file(&png).ok();
+    // The brain fills the middle of the frame; the corner is background.
+    let centre = img.get_pixel(24, 24).0;
+    let corner = img.get_pixel(0, 0).0;
+    assert!(
+        centre[0] > corner[0] + 60,
+        "centre {centre:?} corner {corner:?}"
+    );
+}

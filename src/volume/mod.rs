@@ -316,11 +316,72 @@ impl Volume {
         self.value(c(x, self.dims.x), c(y, self.dims.y), c(z, self.dims.z))
     }
 
+    /// A window (normalised values mapped to transfer-function positions 0 and 1) from the
+    /// histogram: the 1st to 99.5th percentile of the voxels, leaving out the background (the
+    /// most populated of 1024 bins when it is the lowest one, as air in CT and MRI is).
+    pub fn auto_window(&self) -> (f32, f32) {
+        const BINS: usize = 1024;
+        let (lo, hi) = self.value_range();
+        if !(hi > lo) {
+            return (lo, lo + 1.0);
+        }
+        let bin_of = |v: f32| (((v - lo) / (hi - lo)) * (BINS - 1) as f32).round() as usize;
+        let mut histogram = vec![0u64; BINS];
+        for i in 0..self.data.len() {
+            histogram[bin_of(self.data.normalized(i))] += 1;
+        }
+        let fullest = (0..BINS).max_by_key(|&b| histogram[b]).unwrap_or(0);
+        if fullest == 0 {
+            histogram[0] = 0;
+        }
+        let total: u64 = histogram.iter().sum();
+        if total == 0 {
+            return (lo, hi);
+        }
+        let value_at = |fraction: f64| {
+            let target = (total as f64 * fraction) as u64;
+            let mut seen = 0;
+            for (b, count) in histogram.iter().enumerate() {
+                seen += count;
+                if seen > target {
+                    return lo + (hi - lo) * b as f32 / (BINS - 1) as f32;
+                }
+            }
+            hi
+        };
+        let (a, b) = (value_at(0.01), value_at(0.995));
+        if b > a {
+            (a, b)
+        } else {
+            (lo, hi)
+        }
+    }
+
     /// Smallest and largest normalised voxel value.
     pub fn value_range(&self) -> (f32, f32) {
         (0..self.data.len()).fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), i| {
             let v = self.data.normalized(i);
             (lo.min(v), hi.max(v))
         })
+    }
+}
+
+#[cfg(test)]
+mod window_tests {
+    use super::*;
+
+    #[test]
+    fn auto_window_skips_background_and_outliers() {
+        // 70 % background at 0, tissue spread over [0.3, 0.5], one outlier voxel at 1.0.
+        let mut values = vec![0.0f32; 7000];
+        values.extend((0..2999).map(|i| 0.3 + 0.2 * i as f32 / 2998.0));
+        values.push(1.0);
+        let v = Volume::new(UVec3::new(10, 10, 100), Vec3::ONE, VoxelData::F32(values)).unwrap();
+        let (lo, hi) = v.auto_window();
+        assert!((lo - 0.3).abs() < 0.01, "{lo}");
+        assert!((hi - 0.5).abs() < 0.01, "{hi}");
+        let constant = Volume::new(UVec3::splat(2), Vec3::ONE, VoxelData::U8(vec![7; 8])).unwrap();
+        let (a, b) = constant.auto_window();
+        assert!(b > a);
     }
 }

@@ -86,7 +86,10 @@ pub struct RenderSettings {
     /// A ray stops once its accumulated opacity reaches this.
     pub early_termination: f32,
     /// Normalised value mapped to TF position 0 and 1; `None` uses [0, 1] for integer volumes and
-    /// the value range for float volumes.
+    /// the value range for float volumes (widened to `[min(v, 0), max(v, 1)]` when the volume is
+    /// constant, so it is classified like an integer volume of the same value). A window that
+    /// cannot be classified in f32 (width outside 2^-128..2^126, or float data below 2^-110 in
+    /// magnitude) is an `InvalidInput` error, never a black frame.
     pub value_window: Option<(f32, f32)>,
     /// Upper bound on samples along one ray.
     pub max_steps: u32,
@@ -232,11 +235,40 @@ impl RaycastParams {
                 camera.near, camera.far
             )));
         }
-        let (lo, hi) =
-            settings
-                .value_window
-                .unwrap_or(if is_float { value_range } else { (0.0, 1.0) });
-        let inv_range = if hi > lo { 1.0 / (hi - lo) } else { 0.0 };
+        let (lo, hi) = match settings.value_window {
+            Some(window) => window,
+            // A constant float volume has an empty range: classify it as an integer volume of
+            // the same value would be, inside [min(lo, 0), max(hi, 1)], not at TF position 0.
+            None if is_float && value_range.1 <= value_range.0 => {
+                (value_range.0.min(0.0), value_range.1.max(1.0))
+            }
+            None if is_float => value_range,
+            None => (0.0, 1.0),
+        };
+        // `1 / (hi - lo)` must be a normal f32: GPUs flush subnormal uniforms to zero (every
+        // sample would classify at TF position 0) and an infinite one makes `(v - lo) * inv` NaN;
+        // data below 2^-110 in magnitude is flushed by GPU texture filtering.
+        let range = f64::from(hi) - f64::from(lo);
+        let inv_range = if range > 0.0 {
+            (1.0 / range) as f32
+        } else {
+            0.0
+        };
+        let magnitude = value_range.0.abs().max(value_range.1.abs());
+        if !(lo.is_finite() && hi.is_finite())
+            || (range > 0.0 && !(inv_range.is_normal() && (range as f32).is_finite()))
+            || (is_float
+                && settings.value_window.is_none()
+                && magnitude < 2f32.powi(-110)
+                && magnitude > 0.0)
+        {
+            return Err(Error::InvalidInput(format!(
+                "value window [{lo:e}, {hi:e}] (value range [{:e}, {:e}]) cannot be classified \
+                 in f32: its width must be between 2^-128 and 2^126 and the data above 2^-110 in \
+                 magnitude; pass RenderSettings::value_window or rescale the volume",
+                value_range.0, value_range.1
+            )));
+        }
         let (box_min, box_max) = volume_box(dims, spacing);
         let voxel = ((box_max - box_min) / dims.as_vec3()).min_element();
         let step = voxel / settings.samples_per_voxel;

@@ -93,13 +93,15 @@ impl CacheImage {
         let base = x.floor();
         let f = x - base;
         let b = base.as_ivec3();
-        let v = |d: IVec3| self.texel(b + d);
-        let lerp = |a: f32, c: f32, t: f32| a + (c - a) * t;
+        // In f64: `c - a` cannot overflow between finite texels; one rounding at the end.
+        let v = |d: IVec3| f64::from(self.texel(b + d));
+        let f = f.as_dvec3();
+        let lerp = |a: f64, c: f64, t: f64| a + (c - a) * t;
         let c00 = lerp(v(IVec3::new(0, 0, 0)), v(IVec3::new(1, 0, 0)), f.x);
         let c10 = lerp(v(IVec3::new(0, 1, 0)), v(IVec3::new(1, 1, 0)), f.x);
         let c01 = lerp(v(IVec3::new(0, 0, 1)), v(IVec3::new(1, 0, 1)), f.x);
         let c11 = lerp(v(IVec3::new(0, 1, 1)), v(IVec3::new(1, 1, 1)), f.x);
-        lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z)
+        lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z) as f32
     }
 }
 

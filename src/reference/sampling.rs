@@ -11,11 +11,14 @@ pub fn sample_volume(volume: &Volume, tex: Vec3) -> f32 {
     let base = x.floor();
     let f = x - base;
     let (bx, by, bz) = (base.x as i64, base.y as i64, base.z as i64);
-    let v = |dx: i64, dy: i64, dz: i64| volume.value_clamped(bx + dx, by + dy, bz + dz);
-    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+    // In f64: `b - a` cannot overflow between finite f32 samples (the GPU's weighted sum does
+    // not either), and the result rounds once.
+    let v = |dx: i64, dy: i64, dz: i64| f64::from(volume.value_clamped(bx + dx, by + dy, bz + dz));
+    let f = f.as_dvec3();
+    let lerp = |a: f64, b: f64, t: f64| a + (b - a) * t;
     let c00 = lerp(v(0, 0, 0), v(1, 0, 0), f.x);
     let c10 = lerp(v(0, 1, 0), v(1, 1, 0), f.x);
     let c01 = lerp(v(0, 0, 1), v(1, 0, 1), f.x);
     let c11 = lerp(v(0, 1, 1), v(1, 1, 1), f.x);
-    lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z)
+    lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z) as f32
 }

@@ -289,7 +289,7 @@ fn window_of(args: &RenderArgs, volume: &Volume) -> Result<Option<(f32, f32)>> {
             let [lo, hi] = parse_floats::<2>(text).map_err(|e| {
                 Error::InvalidInput(format!("--window: {e} (expected lo,hi or auto)"))
             })?;
-            if !(hi > lo) {
+            if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
                 return Err(Error::InvalidInput(format!(
                     "--window: hi {hi} must exceed lo {lo}"
                 )));

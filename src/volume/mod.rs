@@ -322,7 +322,7 @@ impl Volume {
     pub fn auto_window(&self) -> (f32, f32) {
         const BINS: usize = 1024;
         let (lo, hi) = self.value_range();
-        if !(hi > lo) {
+        if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
             return (lo, lo + 1.0);
         }
         let bin_of = |v: f32| (((v - lo) / (hi - lo)) * (BINS - 1) as f32).round() as usize;

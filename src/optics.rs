@@ -173,7 +173,9 @@ pub fn classify(tf: &TransferFunction, window_lo: f32, window_inv_range: f32, va
 }
 
 /// Opacity of a segment `ratio` reference lengths long from the opacity `alpha` of one reference
-/// length: `1 - (1 - alpha)^ratio`, exact at alpha = 0 and 1. Mirrors `correct_opacity`.
+/// length: `1 - (1 - alpha)^ratio = -expm1(ratio * log1p(-alpha))`, exact at alpha = 0 and 1.
+/// Small arguments use third-order series (the same as the GLSL), so tiny opacities keep their
+/// relative accuracy. Mirrors `correct_opacity`.
 pub fn correct_opacity(alpha: f32, ratio: f32) -> f32 {
     if alpha >= 1.0 {
         return 1.0;
@@ -181,7 +183,17 @@ pub fn correct_opacity(alpha: f32, ratio: f32) -> f32 {
     if alpha <= 0.0 {
         return 0.0;
     }
-    1.0 - (ratio * (1.0 - alpha).log2()).exp2()
+    let l = if alpha < 1e-3 {
+        -alpha * (1.0 + alpha * (0.5 + alpha / 3.0))
+    } else {
+        (1.0 - alpha).ln()
+    };
+    let y = ratio * l;
+    if y > -1e-3 {
+        -y * (1.0 + y * (0.5 + y / 6.0))
+    } else {
+        1.0 - y.exp()
+    }
 }
 
 /// Front-to-back compositing of emission `rgb` with opacity `alpha` behind the premultiplied
@@ -204,6 +216,15 @@ mod tests {
             assert!((two_halves - a).abs() < 1e-5, "a={a}: {two_halves}");
         }
         assert_eq!(correct_opacity(1.0, 0.001), 1.0);
+        // Tiny opacities keep their relative accuracy (1 - exp(y) would lose it).
+        for &(a, r) in &[(1e-6f32, 1.0f32), (1e-7, 3.0), (2e-4, 0.01), (0.3, 1e-5)] {
+            let exact = -((r as f64) * (-(a as f64)).ln_1p()).exp_m1();
+            let got = correct_opacity(a, r) as f64;
+            assert!(
+                ((got - exact) / exact).abs() < 1e-5,
+                "a={a} r={r}: {got} vs {exact}"
+            );
+        }
         assert_eq!(correct_opacity(0.0, 1000.0), 0.0);
         assert!((correct_opacity(0.5, 1.0) - 0.5).abs() < 1e-6);
     }

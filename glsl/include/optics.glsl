@@ -10,7 +10,9 @@ vec4 classify(sampler1D tf, vec4 tf_window, float value) {
 }
 
 // Opacity of a segment `ratio` reference lengths long, given the opacity `alpha` of one
-// reference length: 1 - (1 - alpha)^ratio, exact at alpha = 0 and alpha = 1.
+// reference length: 1 - (1 - alpha)^ratio = -expm1(ratio * log1p(-alpha)), exact at alpha = 0 and
+// alpha = 1. Small arguments use third-order series for log1p and expm1, so tiny opacities keep
+// their relative accuracy (1 - exp(y) loses it below 2^-24).
 float correct_opacity(float alpha, float ratio) {
     if (alpha >= 1.0) {
         return 1.0;
@@ -18,7 +20,9 @@ float correct_opacity(float alpha, float ratio) {
     if (alpha <= 0.0) {
         return 0.0;
     }
-    return 1.0 - exp2(ratio * log2(1.0 - alpha));
+    float l = alpha < 1e-3 ? -alpha * (1.0 + alpha * (0.5 + alpha / 3.0)) : log(1.0 - alpha);
+    float y = ratio * l;
+    return y > -1e-3 ? -y * (1.0 + y * (0.5 + y / 6.0)) : 1.0 - exp(y);
 }
 
 // Front-to-back "under" operator on premultiplied colour: emission `rgb` with opacity `alpha`

@@ -83,6 +83,52 @@ bool accumulate(inout vec4 acc, float value, float len, float inv_d0) {
     return acc.a >= params.tf_window.z;
 }
 
+#ifndef SMOOTH_TRANSITIONS
+// Without transitions every sample is one fetch: a single loop over the samples that reloads the
+// layout entry only when a sample lands in a new brick (cheaper on SIMD CPUs than nested loops).
+vec4 cast_ray(Ray ray) {
+    vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
+    float t0 = max(hit.x, params.forward.w);
+    float t1 = ray_end(ray, hit.y);
+    vec4 acc = vec4(0.0);
+    if (!(t0 < t1)) {
+        return acc;
+    }
+    float step_len = params.box_min.w;
+    float inv_d0 = 1.0 / params.box_max.w;
+    vec3 box_size = params.box_max.xyz - params.box_min.xyz;
+    vec3 to_voxel = params.volume_dims.xyz / box_size;
+    float n = params.volume_dims.w;
+    ivec3 bricks = ivec3(ceil(params.volume_dims.xyz / n));
+    Ray voxel_ray = Ray((ray.origin - params.box_min.xyz) * to_voxel, ray.dir * to_voxel);
+    int steps = int(min(ceil((t1 - t0) / step_len), params.tf_window.w));
+    ivec3 current = ivec3(-1);
+    vec4 entry = vec4(0.0);
+    for (int i = 0; i < steps; ++i) {
+        float t_start = t0 + float(i) * step_len;
+        float len = max(min(step_len, t1 - t_start), 0.0);
+        vec3 x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
+        ivec3 b = brick_of(x, n, bricks);
+        if (any(notEqual(b, current))) {
+            current = b;
+            entry = layout_entries[b.x + bricks.x * (b.y + bricks.y * b.z)];
+            if (entry.w == 0.0) {
+                // Absent brick: jump to just before its exit.
+                float t_exit = intersect_box(voxel_ray, vec3(b) * n, vec3(b + 1) * n).y;
+                i = max(i, first_sample_after(t_exit, t0, step_len) - 2);
+                continue;
+            }
+        }
+        if (entry.w == 0.0) {
+            continue;
+        }
+        if (accumulate(acc, cache_fetch(x * entry.w + entry.xyz), len, inv_d0)) {
+            break;
+        }
+    }
+    return acc;
+}
+#else
 // The same samples as the single-resolution loop (and as `cast_ray_mixed` in the CPU reference,
 // which tests each sample's brick), scheduled brick by brick: the layout entry and neighbour bits
 // are read once per brick, absent bricks are skipped whole, and in a hi-res brick with low-res
@@ -171,6 +217,7 @@ vec4 cast_ray(Ray ray) {
     }
     return acc;
 }
+#endif
 #endif
 
 void main() {

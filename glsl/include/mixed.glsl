@@ -8,7 +8,8 @@
 
 // Brick containing volume point x (hi-res voxel units), clamped to the grid.
 ivec3 brick_of(vec3 x, float brick_size, ivec3 bricks) {
-    return clamp(ivec3(floor(x / brick_size)), ivec3(0), bricks - 1);
+    // brick_size is a power of two: multiplying by its inverse is exact (and cheaper).
+    return clamp(ivec3(floor(x * (1.0 / brick_size))), ivec3(0), bricks - 1);
 }
 
 // Band axes of brick-local point q: returns the band mask, writes sides and betas.

@@ -129,7 +129,8 @@ pub fn neighbour_bit(d: IVec3) -> u32 {
 
 /// Brick containing volume point `x`, clamped to the grid.
 pub fn brick_of(x: Vec3, brick_size: u32, bricks: UVec3) -> IVec3 {
-    (x / brick_size as f32)
+    // brick_size is a power of two: multiplying by its inverse is exact (as in the GLSL).
+    (x * (1.0 / brick_size as f32))
         .floor()
         .as_ivec3()
         .clamp(IVec3::ZERO, bricks.as_ivec3() - IVec3::ONE)

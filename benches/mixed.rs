@@ -29,7 +29,8 @@ fn main() -> mixvol::Result<()> {
     let frames = env_u32("MIXVOL_BENCH_FRAMES", 9).max(1);
     let brick_size = 32;
     let ctx = GpuContext::new(&ContextDesc::default())?;
-    let volume = Arc::new(SyntheticField::MarschnerLobb.generate(UVec3::splat(128), ScalarType::U8)?);
+    let volume =
+        Arc::new(SyntheticField::MarschnerLobb.generate(UVec3::splat(128), ScalarType::U8)?);
     let grid = BrickGrid::new(volume.dims(), brick_size)
         .map_err(|e| mixvol::Error::InvalidInput(e.to_string()))?;
     let tf = TransferFunction::preset(TfPreset::Bands);
@@ -67,9 +68,18 @@ fn main() -> mixvol::Result<()> {
     plain.set_volume(&volume)?;
     let mut configs: Vec<(&str, Renderer)> = vec![
         ("plain single-texture ray-cast", plain),
-        ("brick cache, all hi-res", mixed(Transition::Smooth, &all_hi)?),
-        ("checkerboard hi/lo, discontinuous", mixed(Transition::Discontinuous, &checker)?),
-        ("checkerboard hi/lo, smooth (C0)", mixed(Transition::Smooth, &checker)?),
+        (
+            "brick cache, all hi-res",
+            mixed(Transition::Smooth, &all_hi)?,
+        ),
+        (
+            "checkerboard hi/lo, discontinuous",
+            mixed(Transition::Discontinuous, &checker)?,
+        ),
+        (
+            "checkerboard hi/lo, smooth (C0)",
+            mixed(Transition::Smooth, &checker)?,
+        ),
     ];
     let mut times = vec![Vec::new(); configs.len()];
     for (_, r) in configs.iter_mut() {
@@ -92,9 +102,19 @@ fn main() -> mixvol::Result<()> {
     println!("| configuration | frame ms | ratio |");
     println!("|---|---|---|");
     println!("| {} | {:.2} | 1.00 |", configs[0].0, medians[0]);
-    println!("| {} | {:.2} | {:.2} vs plain |", configs[1].0, medians[1], medians[1] / medians[0]);
+    println!(
+        "| {} | {:.2} | {:.2} vs plain |",
+        configs[1].0,
+        medians[1],
+        medians[1] / medians[0]
+    );
     println!("| {} | {:.2} | 1.00 |", configs[2].0, medians[2]);
-    println!("| {} | {:.2} | {:.2} vs discontinuous |", configs[3].0, medians[3], medians[3] / medians[2]);
+    println!(
+        "| {} | {:.2} | {:.2} vs discontinuous |",
+        configs[3].0,
+        medians[3],
+        medians[3] / medians[2]
+    );
 
     // A full residency change and a small one, on the smooth checkerboard renderer.
     let smooth = &mut configs[3].1;
@@ -113,7 +133,11 @@ fn main() -> mixvol::Result<()> {
     );
     let mut moved = checker.clone();
     let i = grid.linear_index(bricks / 2);
-    moved[i] = if moved[i] == Level::Hi { Level::Lo } else { Level::Hi };
+    moved[i] = if moved[i] == Level::Hi {
+        Level::Lo
+    } else {
+        Level::Hi
+    };
     let small = smooth.set_levels(&moved)?;
     println!(
         "small change (one brick flipped): {} bricks re-uploaded of {} resident",

@@ -9,6 +9,7 @@
 //! - [`embed`]: the volume pass recorded into a host engine's command buffers.
 //! - [`renderer`]: the offscreen façade that turns a volume + scene into an image.
 //! - [`report`]: the accuracy-versus-time report.
+//! - [`store`]: the on-disk brick store (preprocessing) and background brick streaming.
 #![warn(
     missing_docs,
     unsafe_op_in_unsafe_fn,
@@ -26,6 +27,7 @@ pub mod reference;
 pub mod renderer;
 pub mod report;
 pub mod scene;
+pub mod store;
 pub mod volume;
 
 pub use error::{Error, Result};

@@ -1,0 +1,117 @@
+//! The preprocessed on-disk brick store and background brick streaming (out-of-core rendering).
+//!
+//! A volume too large for RAM (or for the GPU brick cache) is preprocessed once into a single
+//! versioned file ([`format`](mod@format), documented byte by byte in `docs/brick-store.md`)
+//! that holds, per brick, the packed hi-res brick (`(n+2)^3` texels with the duplicated border),
+//! the packed low-res brick (`(n/2+1)^3` texels) in the storage format, and the conservative
+//! per-brick min/max. At render time only the bricks the renderer currently wants are in RAM:
+//!
+//! - [`write_store`] builds the file from a *voxel producer* (`sample(voxel) -> f32`) on all cores
+//!   with bounded memory: no step ever needs the whole volume in RAM. [`write_store_from_volume`]
+//!   does the same for an in-memory [`Volume`](crate::volume::Volume); its bytes are identical to
+//!   [`pack_hi_res_brick`](crate::bricks::pack_hi_res_brick) /
+//!   [`pack_low_res_brick`](crate::bricks::pack_low_res_brick) +
+//!   [`quantize_to`](crate::bricks::quantize_to), and its ranges to
+//!   [`brick_value_ranges_for_storage`](crate::bricks::brick_value_ranges_for_storage).
+//! - [`BrickStore`] opens and validates a store file, keeps the small tables (offsets, min/max) in
+//!   RAM and reads one brick level with one positioned read ([`BrickStore::read_brick`]).
+//! - [`BrickStreamer`] loads the bricks a renderer asks for on a background thread, in priority
+//!   order, into an LRU RAM cache bounded by a byte budget; it never blocks the caller on disk.
+//! - [`BrickSource`] is what a renderer packs bricks from: the streamer, or [`VolumeBrickSource`]
+//!   (an in-memory volume, packed on demand). [`fallback_levels`] turns the levels the LOD
+//!   selector wants into levels whose bytes are available right now (a missing hi-res brick falls
+//!   back to its low-res version), so the renderer never waits for the disk.
+
+pub mod format;
+pub mod reader;
+pub mod source;
+pub mod streamer;
+pub mod writer;
+
+pub use format::{StoreHeader, FORMAT_VERSION, HEADER_SIZE, MAGIC};
+pub use reader::BrickStore;
+pub use source::{fallback_levels, request_plan, BrickSource, VolumeBrickSource};
+pub use streamer::{BrickStreamer, StreamStats, StreamerConfig};
+pub use writer::{
+    write_store, write_store_from_volume, write_store_from_volume_with_progress,
+    write_store_with_threads, ProgressBar, StoreDesc, WriteSummary,
+};
+
+use crate::cache::Level;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// Errors from writing, opening, reading and streaming brick stores.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    /// The operating system refused an operation on the store file.
+    #[error("brick store {path}: {action}: {source}")]
+    Io {
+        /// The store file.
+        path: PathBuf,
+        /// What was being done (`open`, `read header`, `write bricks`, ...).
+        action: &'static str,
+        /// What the OS said.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file is not a valid brick store: a field of the header or of a table is wrong.
+    #[error("brick store {path}: field `{field}`: {message}")]
+    Format {
+        /// The store file.
+        path: PathBuf,
+        /// The field at fault, as `docs/brick-store.md` names it (`magic`, `version`, `dims`,
+        /// `brick_count`, `file_size`, `table_checksum`, `value_ranges`, `offsets`, ...).
+        field: &'static str,
+        /// What is wrong.
+        message: String,
+    },
+    /// A [`StoreDesc`] (or the volume it came from) cannot be written as a store.
+    #[error("invalid store description: `{field}`: {message}")]
+    InvalidDesc {
+        /// The description field at fault (`dims`, `brick_size`, `spacing`).
+        field: &'static str,
+        /// What is wrong.
+        message: String,
+    },
+    /// The voxel producer returned a NaN or infinite value for an `F32` store.
+    #[error("sample({voxel:?}) returned {value}; f32 stores need finite values")]
+    NonFiniteSample {
+        /// The voxel asked for.
+        voxel: [i32; 3],
+        /// The value returned.
+        value: f32,
+    },
+    /// A brick index outside the grid.
+    #[error("brick {brick} is outside the store's {count} bricks")]
+    BrickOutOfRange {
+        /// The index given.
+        brick: u32,
+        /// Bricks in the store.
+        count: u32,
+    },
+    /// `Level::Absent` was asked for; only `Hi` and `Lo` have bytes.
+    #[error("brick {brick}: level Absent has no bytes")]
+    AbsentLevel {
+        /// The brick index given.
+        brick: u32,
+    },
+    /// The streamer's loader thread failed to load a brick (it is not retried until the brick is
+    /// requested again after [`BrickStreamer::clear_failures`]).
+    #[error("brick {brick} ({level:?}) failed to load: {source}")]
+    Load {
+        /// The brick index.
+        brick: u32,
+        /// The level.
+        level: Level,
+        /// The original error.
+        #[source]
+        source: Arc<StoreError>,
+    },
+    /// The streamer's loader thread could not be started.
+    #[error("cannot start the brick loader thread: {0}")]
+    Thread(#[source] std::io::Error),
+}
+
+/// Result with [`StoreError`].
+pub type Result<T, E = StoreError> = std::result::Result<T, E>;

@@ -1,0 +1,211 @@
+//! Where a renderer gets packed brick bytes from, and how it copes with bricks not loaded yet.
+
+use super::{Result, StoreError};
+use crate::bricks::{
+    brick_value_ranges_for_storage, pack_hi_res_brick, pack_low_res_brick, quantize_to, BrickGrid,
+    DownsampleFilter, ValueRange,
+};
+use crate::cache::Level;
+use crate::volume::{ScalarType, Volume};
+use glam::Vec3;
+use std::sync::Arc;
+
+/// A supplier of packed brick bytes for the brick cache.
+///
+/// Bytes are what [`crate::bricks::quantize_to`] returns for the packed brick: `(n+2)^3` (`Hi`)
+/// or `(n/2+1)^3` (`Lo`) native-endian texels of [`BrickSource::scalar`], x fastest, ready for a
+/// staging buffer. [`BrickSource::brick_bytes`] never blocks on I/O: `Ok(None)` means "not loaded
+/// yet" (ask again later; see [`fallback_levels`]).
+pub trait BrickSource: Send + Sync {
+    /// The brick grid.
+    fn grid(&self) -> BrickGrid;
+
+    /// Storage scalar type of the texels.
+    fn scalar(&self) -> ScalarType;
+
+    /// Filter that built the low-res bricks.
+    fn filter(&self) -> DownsampleFilter;
+
+    /// Physical voxel spacing.
+    fn spacing(&self) -> Vec3;
+
+    /// Per-brick conservative value ranges for culling (indexed by linear brick index), as
+    /// [`crate::bricks::brick_value_ranges_for_storage`] defines them.
+    fn value_ranges(&self) -> &[ValueRange];
+
+    /// Smallest and largest voxel value of the whole volume. The default is the union of the
+    /// brick ranges (conservative: it includes the low-res samples).
+    fn value_range(&self) -> ValueRange {
+        let mut all = ValueRange::EMPTY;
+        for r in self.value_ranges() {
+            all.include(r.min);
+            all.include(r.max);
+        }
+        all
+    }
+
+    /// The packed bytes of `brick` at `level` if they are available now, `Ok(None)` if they are
+    /// not loaded yet. Errors: brick out of range, `Level::Absent`, or a load that failed.
+    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>>;
+
+    /// True when [`BrickSource::brick_bytes`] would return bytes now.
+    fn is_loaded(&self, brick: u32, level: Level) -> bool {
+        matches!(self.brick_bytes(brick, level), Ok(Some(_)))
+    }
+}
+
+/// The levels to draw now, given the levels the LOD selector wants (one per brick) and what
+/// `source` has loaded:
+///
+/// - a wanted `Hi` brick stays `Hi` when its hi-res bytes are loaded, falls back to `Lo` when only
+///   its low-res bytes are, and is `Absent` for now when neither is;
+/// - a wanted `Lo` brick stays `Lo` when its low-res bytes are loaded, else is `Absent` for now;
+/// - `Absent` stays `Absent`.
+///
+/// This is what keeps the renderer from ever blocking on disk: it draws what is there and the
+/// streamer fills in the rest in the background. The result never needs more cache slots than
+/// `wanted` (`#Hi + ceil(#Lo / 8)` can only shrink), so it fits wherever `wanted` fits. Bricks the
+/// source reports an error for are treated as not loaded. A brick already resident on the GPU
+/// still needs its bytes here (for re-uploads: compaction moves, border restores): keep the
+/// bricks you draw in the streamer's wanted set so that their bytes stay in RAM.
+///
+/// With a [`super::BrickStreamer`], every level this function reports drawable stays loaded until
+/// the next [`super::BrickStreamer::request`] (it is pinned), so the uploads that follow in the
+/// same frame always find their bytes.
+pub fn fallback_levels(wanted: &[Level], source: &dyn BrickSource) -> Vec<Level> {
+    wanted
+        .iter()
+        .enumerate()
+        .map(|(i, &level)| {
+            let brick = i as u32;
+            match level {
+                Level::Hi if source.is_loaded(brick, Level::Hi) => Level::Hi,
+                Level::Hi | Level::Lo if source.is_loaded(brick, Level::Lo) => Level::Lo,
+                _ => Level::Absent,
+            }
+        })
+        .collect()
+}
+
+/// A streaming request for the levels the LOD selector wants: every non-absent brick's low-res
+/// level first (so that a complete low-res picture arrives quickly and every hi-res brick has its
+/// fallback), then the hi-res levels of the `Hi` bricks; within each tier by descending
+/// `priority[brick]` (the caller's LOD error, tie-broken by distance; equal priorities keep brick
+/// order). Missing or NaN priorities count as lowest.
+///
+/// The returned priorities are ranks (`len - position`), so [`super::BrickStreamer::request`]
+/// keeps exactly this order.
+pub fn request_plan(wanted: &[Level], priority: &[f32]) -> Vec<(u32, Level, f32)> {
+    let p = |i: usize| match priority.get(i) {
+        Some(v) if !v.is_nan() => *v,
+        _ => f32::NEG_INFINITY,
+    };
+    let mut lo: Vec<usize> = Vec::new();
+    let mut hi: Vec<usize> = Vec::new();
+    for (i, level) in wanted.iter().enumerate() {
+        match level {
+            Level::Hi => {
+                lo.push(i);
+                hi.push(i);
+            }
+            Level::Lo => lo.push(i),
+            Level::Absent => {}
+        }
+    }
+    lo.sort_by(|&a, &b| p(b).total_cmp(&p(a)));
+    hi.sort_by(|&a, &b| p(b).total_cmp(&p(a)));
+    let total = lo.len() + hi.len();
+    lo.iter()
+        .map(|&i| (i, Level::Lo))
+        .chain(hi.iter().map(|&i| (i, Level::Hi)))
+        .enumerate()
+        .map(|(pos, (i, level))| (i as u32, level, (total - pos) as f32))
+        .collect()
+}
+
+/// An in-memory volume as a [`BrickSource`]: every brick is always available, packed on demand
+/// with [`crate::bricks::pack_hi_res_brick`] / [`crate::bricks::pack_low_res_brick`] and
+/// [`crate::bricks::quantize_to`] (the volume's scalar type is the storage type).
+#[derive(Clone, Debug)]
+pub struct VolumeBrickSource {
+    volume: Arc<Volume>,
+    grid: BrickGrid,
+    filter: DownsampleFilter,
+    ranges: Vec<ValueRange>,
+    value_range: ValueRange,
+}
+
+impl VolumeBrickSource {
+    /// Bricks `volume` into `brick_size`^3 bricks with low-res level `filter` (computes the value
+    /// ranges up front).
+    pub fn new(volume: Arc<Volume>, brick_size: u32, filter: DownsampleFilter) -> Result<Self> {
+        let invalid = |e: crate::bricks::BrickError| StoreError::InvalidDesc {
+            field: "brick_size",
+            message: e.to_string(),
+        };
+        let grid = BrickGrid::new(volume.dims(), brick_size).map_err(invalid)?;
+        let ranges = brick_value_ranges_for_storage(&volume, &grid, filter, volume.scalar_type())
+            .map_err(invalid)?;
+        let (min, max) = volume.value_range();
+        Ok(Self {
+            volume,
+            grid,
+            filter,
+            ranges,
+            value_range: ValueRange { min, max },
+        })
+    }
+
+    /// The volume.
+    pub fn volume(&self) -> &Arc<Volume> {
+        &self.volume
+    }
+}
+
+impl BrickSource for VolumeBrickSource {
+    fn grid(&self) -> BrickGrid {
+        self.grid
+    }
+
+    fn scalar(&self) -> ScalarType {
+        self.volume.scalar_type()
+    }
+
+    fn filter(&self) -> DownsampleFilter {
+        self.filter
+    }
+
+    fn spacing(&self) -> Vec3 {
+        self.volume.spacing()
+    }
+
+    fn value_ranges(&self) -> &[ValueRange] {
+        &self.ranges
+    }
+
+    fn value_range(&self) -> ValueRange {
+        self.value_range
+    }
+
+    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>> {
+        let count = self.ranges.len() as u32;
+        if brick >= count {
+            return Err(StoreError::BrickOutOfRange { brick, count });
+        }
+        let coords = self.grid.brick_coords(brick as usize);
+        let values = match level {
+            Level::Hi => pack_hi_res_brick(&self.volume, &self.grid, coords),
+            Level::Lo => pack_low_res_brick(&self.volume, &self.grid, self.filter, coords),
+            Level::Absent => return Err(StoreError::AbsentLevel { brick }),
+        }
+        .map_err(|e| StoreError::InvalidDesc {
+            field: "brick",
+            message: e.to_string(),
+        })?;
+        Ok(Some(quantize_to(&values, self.volume.scalar_type()).into()))
+    }
+
+    fn is_loaded(&self, brick: u32, level: Level) -> bool {
+        (brick as usize) < self.ranges.len() && level != Level::Absent
+    }
+}

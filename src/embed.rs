@@ -32,9 +32,7 @@
 //! - **Residency changes** ([`VolumePass::set_levels`]) and transfer-function changes are staged
 //!   on the CPU and recorded by the next [`VolumePass::record`]; they need no wait.
 
-use crate::bricks::{
-    pack_hi_res_brick, pack_low_res_brick, quantize_to, BrickGrid, DownsampleFilter,
-};
+use crate::bricks::DownsampleFilter;
 use crate::cache::{BrickCache, CacheGeometry, Level};
 use crate::error::{Error, Result};
 use crate::gpu::{
@@ -44,6 +42,7 @@ use crate::gpu::{
 use crate::optics::{TfPreset, TransferFunction, TF_SIZE};
 use crate::reference::Transition;
 use crate::scene::{Camera, RaycastParams, RenderSettings};
+use crate::store::{fallback_levels, BrickSource, VolumeBrickSource};
 use crate::volume::{ScalarType, Volume};
 use ash::vk;
 use glam::{Mat4, UVec3};
@@ -156,7 +155,10 @@ pub struct ResidencyReport {
     pub lo_bricks: usize,
     /// Hi-res bricks whose border the fixup pass rewrites.
     pub fixup_bricks: usize,
-    /// CPU time spent packing bricks, in milliseconds.
+    /// Bricks drawn at a lower level than asked for because their bytes were not loaded yet
+    /// (streaming sources); 0 for in-memory volumes.
+    pub fallback_bricks: usize,
+    /// CPU time spent packing (or fetching) bricks, in milliseconds.
     pub pack_ms: f64,
     /// Wall time of the update's submission in milliseconds: filled by the offscreen
     /// [`crate::renderer::Renderer`], which submits and waits; 0 when only staged.
@@ -173,7 +175,7 @@ struct SingleVolume {
 }
 
 pub(crate) struct MixedState {
-    pub(crate) volume: Arc<Volume>,
+    pub(crate) source: Arc<dyn BrickSource>,
     pub(crate) config: MixedConfig,
     pub(crate) cache: BrickCache,
     pub(crate) gpu: GpuBrickCache,
@@ -381,10 +383,31 @@ impl VolumePass {
     /// absent. Call [`VolumePass::set_levels`] to make bricks resident. No command buffer
     /// recorded by this pass may still be executing.
     pub fn set_mixed_volume(&mut self, volume: Arc<Volume>, config: MixedConfig) -> Result<()> {
+        let source = VolumeBrickSource::new(volume, config.brick_size, config.filter)?;
+        self.set_brick_source(Arc::new(source), config)
+    }
+
+    /// Renders bricks from `source` (an in-memory volume, or a [`crate::store::BrickStreamer`]
+    /// streaming a brick store from disk) through the brick cache. `config.brick_size` and
+    /// `config.filter` must match the source's. No command buffer recorded by this pass may
+    /// still be executing.
+    pub fn set_brick_source(
+        &mut self,
+        source: Arc<dyn BrickSource>,
+        config: MixedConfig,
+    ) -> Result<()> {
         let shared = &self.ctx.shared;
-        let grid = BrickGrid::new(volume.dims(), config.brick_size)
-            .map_err(|e| Error::InvalidInput(e.to_string()))?;
-        let scalar = volume.scalar_type();
+        let grid = source.grid();
+        if grid.brick_size() != config.brick_size || source.filter() != config.filter {
+            return Err(Error::InvalidInput(format!(
+                "brick source has bricks of {} with filter {:?}; the config asks for {} with {:?}",
+                grid.brick_size(),
+                source.filter(),
+                config.brick_size,
+                config.filter
+            )));
+        }
+        let scalar = source.scalar();
         let geometry = CacheGeometry::choose(
             config.brick_size,
             scalar.size_bytes() as u32,
@@ -405,14 +428,14 @@ impl VolumePass {
             self.desc.frames_in_flight,
             config.transition == Transition::Smooth,
         )?;
-        let value_range = volume.value_range();
+        let range = source.value_range();
         self.source = Source::Mixed(Box::new(MixedState {
-            volume,
+            source,
             config,
             cache,
             gpu,
             any_transition: false,
-            value_range,
+            value_range: (range.min, range.max),
         }));
         Ok(())
     }
@@ -432,32 +455,36 @@ impl VolumePass {
         }
     }
 
-    /// Moves the cache to `levels` (one per brick): packs the bricks that changed and stages
-    /// them with the new tables; the next [`VolumePass::record`] copies them (one copy command,
-    /// one region each) and runs the fixup.
-    pub fn set_levels(&mut self, levels: &[Level]) -> Result<ResidencyReport> {
+    /// Moves the cache to `wanted` (one level per brick): bricks whose bytes the source has not
+    /// loaded yet fall back to their low-res level (or stay absent) so this never blocks on disk;
+    /// packs or fetches the bricks that changed and stages them with the new tables; the next
+    /// [`VolumePass::record`] copies them (one copy command, one region each) and runs the fixup.
+    pub fn set_levels(&mut self, wanted: &[Level]) -> Result<ResidencyReport> {
         let Source::Mixed(state) = &mut self.source else {
             return Err(Error::InvalidInput(
                 "set_levels needs set_mixed_volume first".into(),
             ));
         };
+        let pack_start = Instant::now();
+        let levels = fallback_levels(wanted, &*state.source);
+        let fallback_bricks = levels.iter().zip(wanted).filter(|(a, b)| a != b).count();
         let update = state
             .cache
-            .update(levels)
+            .update(&levels)
             .map_err(|e| Error::InvalidInput(e.to_string()))?;
-        let pack_start = Instant::now();
         let grid = state.cache.grid();
-        let scalar = state.volume.scalar_type();
-        let brick_err = |e: crate::bricks::BrickError| Error::InvalidInput(e.to_string());
         let mut packed = Vec::with_capacity(update.uploads.len());
         for upload in &update.uploads {
-            let brick = grid.brick_coords(upload.brick as usize);
-            let values = match upload.level {
-                Level::Hi => pack_hi_res_brick(&state.volume, grid, brick).map_err(brick_err)?,
-                _ => pack_low_res_brick(&state.volume, grid, state.config.filter, brick)
-                    .map_err(brick_err)?,
-            };
-            packed.push((upload, quantize_to(&values, scalar)));
+            let bytes = state
+                .source
+                .brick_bytes(upload.brick, upload.level)?
+                .ok_or_else(|| {
+                    Error::InvalidInput(format!(
+                        "brick {} ({:?}) vanished from the source between fallback and upload",
+                        upload.brick, upload.level
+                    ))
+                })?;
+            packed.push((upload, bytes));
         }
         let regions: Vec<CacheRegion> = packed
             .iter()
@@ -491,6 +518,7 @@ impl VolumePass {
             hi_bricks: current.iter().filter(|l| **l == Level::Hi).count(),
             lo_bricks: current.iter().filter(|l| **l == Level::Lo).count(),
             fixup_bricks: if smooth { fixup_slots.len() } else { 0 },
+            fallback_bricks,
             pack_ms,
             update_ms: 0.0,
         })
@@ -535,10 +563,10 @@ impl VolumePass {
                 height,
             ),
             Source::Mixed(m) => Ok(RaycastParams::for_dims(
-                m.volume.dims(),
-                m.volume.spacing(),
+                m.source.grid().dims(),
+                m.source.spacing(),
                 m.value_range,
-                m.volume.scalar_type() == ScalarType::F32,
+                m.source.scalar() == ScalarType::F32,
                 camera,
                 settings,
                 width,

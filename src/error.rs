@@ -44,6 +44,9 @@ pub enum Error {
     /// A volume could not be built or loaded.
     #[error(transparent)]
     Volume(#[from] VolumeError),
+    /// The brick store could not be written, read or streamed.
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
     /// An image could not be written.
     #[error("cannot write image {path}: {message}")]
     ImageWrite {

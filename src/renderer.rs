@@ -175,6 +175,17 @@ impl Renderer {
         self.pass.set_mixed_volume(volume, config)
     }
 
+    /// Renders bricks from `source` (e.g. a [`crate::store::BrickStreamer`]) through the brick
+    /// cache (see [`VolumePass::set_brick_source`]).
+    pub fn set_brick_source(
+        &mut self,
+        source: Arc<dyn crate::store::BrickSource>,
+        config: MixedConfig,
+    ) -> Result<()> {
+        self.probe = None;
+        self.pass.set_brick_source(source, config)
+    }
+
     /// The brick grid and cache model of the mixed-resolution volume, if one is set.
     pub fn brick_cache(&self) -> Option<&BrickCache> {
         self.pass.brick_cache()
@@ -215,7 +226,7 @@ impl Renderer {
             self.probe = Some(FieldProbe::new(&self.ctx.shared, smooth)?);
         }
         let probe = self.probe.as_ref().expect("created above");
-        let dims = state.volume.dims();
+        let dims = state.source.grid().dims();
         let brick_size = state.config.brick_size;
         probe.sample(
             &mut self.submitter,
@@ -235,10 +246,7 @@ impl Renderer {
             ));
         };
         let bytes = state.gpu.read_back(&mut self.submitter)?;
-        Ok(crate::reference::dequantize(
-            &bytes,
-            state.volume.scalar_type(),
-        ))
+        Ok(crate::reference::dequantize(&bytes, state.source.scalar()))
     }
 
     /// The pipeline variant the current source draws with: only the effects it uses.

@@ -9,9 +9,15 @@
 //!
 //! [`BrickGrid`] describes the subdivision, [`brick_value_ranges`] computes the per-brick min/max
 //! used for culling, [`filters`] builds the low-res level and [`packing`] lays bricks out for upload.
+//! [`build`] does all of that for every brick at once, in parallel ([`build_bricks`]).
 
+pub mod build;
 pub mod filters;
 pub mod packing;
+
+pub use build::{
+    available_threads, build_bricks, build_bricks_with_threads, build_low_res_level, BrickStore,
+};
 
 pub use filters::{
     downsample_rgba_extinction, downsample_rgba_opacity, low_res_block, low_res_dims,
@@ -71,6 +77,14 @@ pub enum BrickError {
         expected: usize,
         /// Texels supplied.
         actual: usize,
+    },
+    /// The packed bricks of a grid would not fit in the address space.
+    #[error("{bricks} packed bricks of size {brick_size} do not fit in memory")]
+    StoreTooLarge {
+        /// Bricks in the grid.
+        bricks: usize,
+        /// Brick edge length `n`.
+        brick_size: u32,
     },
 }
 

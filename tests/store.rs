@@ -19,10 +19,13 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// A fresh path under the cargo test tmp dir.
+/// A fresh path per call: tests run in parallel threads and may share a `name`.
 fn temp_path(name: &str) -> PathBuf {
+    static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let unique = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("store-tests");
     std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join(format!("{name}-{}.mvbs", std::process::id()));
+    let path = dir.join(format!("{name}-{}-{unique}.mvbs", std::process::id()));
     let _ = std::fs::remove_file(&path);
     path
 }
@@ -493,12 +496,12 @@ fn config(budget: usize) -> StreamerConfig {
     }
 }
 
-/// Polls until settled, at most 5 s.
+/// Polls until settled, at most 60 s (a hang guard, not a timing check: the machine may be busy).
 fn settle(streamer: &BrickStreamer) {
     let start = Instant::now();
     while !streamer.is_settled() {
         assert!(
-            start.elapsed() < Duration::from_secs(5),
+            start.elapsed() < Duration::from_secs(60),
             "streamer did not settle: {:?}",
             streamer.stats()
         );
@@ -797,7 +800,8 @@ fn failed_loads_are_reported_not_retried_and_drop_joins() {
     busy.request(&all).unwrap();
     let start = Instant::now();
     drop(busy);
-    assert!(start.elapsed() < Duration::from_secs(2));
+    // Generous: a hang guard (the loader finishes at most one in-flight read before it exits).
+    assert!(start.elapsed() < Duration::from_secs(20));
     drop(streamer);
     std::fs::remove_file(&path).unwrap();
     std::fs::remove_file(&path2).unwrap();

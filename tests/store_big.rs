@@ -273,7 +273,9 @@ fn out_of_core_volume_streams_within_the_ram_budget() {
         let t = Instant::now();
         streamer.request(&plan).unwrap();
         let request_time = t.elapsed();
-        assert!(request_time < Duration::from_millis(200), "request blocked");
+        // A hang guard for "request never reads the disk" (it takes 0.4-10 ms idle; reading the
+        // wanted levels would take seconds), generous for a busy machine.
+        assert!(request_time < Duration::from_secs(2), "request blocked");
         let start = Instant::now();
         assert!(
             streamer.wait_settled(Duration::from_secs(30)),

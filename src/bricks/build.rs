@@ -285,65 +285,43 @@ trait Texel: bytemuck::Pod + Send + Sync + 'static {
     fn fold_columns(lo: &mut [Self], hi: &mut [Self], values: &[Self]);
 }
 
-impl Texel for u8 {
-    const HIGHEST: Self = u8::MAX;
-    const LOWEST: Self = 0;
-    const UNORM: bool = true;
-    #[inline]
-    fn normalized(self) -> f32 {
-        f32::from(self) / 255.0
-    }
-    #[inline]
-    fn from_normalized(v: f32) -> Self {
-        unorm_round(v, 255.0) as u8
-    }
-    #[inline]
-    fn min_max(values: &[Self], (mut lo, mut hi): (Self, Self)) -> (Self, Self) {
-        // A plain reduction: the compiler vectorises it.
-        for &v in values {
-            lo = lo.min(v);
-            hi = hi.max(v);
+/// The UNORM texel types differ only in their maximum; one definition serves both.
+macro_rules! unorm_texel {
+    ($t:ty, $max:expr) => {
+        impl Texel for $t {
+            const HIGHEST: Self = <$t>::MAX;
+            const LOWEST: Self = 0;
+            const UNORM: bool = true;
+            #[inline]
+            fn normalized(self) -> f32 {
+                f32::from(self) / $max
+            }
+            #[inline]
+            fn from_normalized(v: f32) -> Self {
+                unorm_round(v, $max) as $t
+            }
+            #[inline]
+            fn min_max(values: &[Self], (mut lo, mut hi): (Self, Self)) -> (Self, Self) {
+                // A plain reduction: the compiler vectorises it.
+                for &v in values {
+                    lo = lo.min(v);
+                    hi = hi.max(v);
+                }
+                (lo, hi)
+            }
+            #[inline]
+            fn fold_columns(lo: &mut [Self], hi: &mut [Self], values: &[Self]) {
+                for ((l, h), &v) in lo.iter_mut().zip(hi.iter_mut()).zip(values) {
+                    *l = (*l).min(v);
+                    *h = (*h).max(v);
+                }
+            }
         }
-        (lo, hi)
-    }
-    #[inline]
-    fn fold_columns(lo: &mut [Self], hi: &mut [Self], values: &[Self]) {
-        for ((l, h), &v) in lo.iter_mut().zip(hi.iter_mut()).zip(values) {
-            *l = (*l).min(v);
-            *h = (*h).max(v);
-        }
-    }
+    };
 }
 
-impl Texel for u16 {
-    const HIGHEST: Self = u16::MAX;
-    const LOWEST: Self = 0;
-    const UNORM: bool = true;
-    #[inline]
-    fn normalized(self) -> f32 {
-        f32::from(self) / 65535.0
-    }
-    #[inline]
-    fn from_normalized(v: f32) -> Self {
-        unorm_round(v, 65535.0) as u16
-    }
-    #[inline]
-    fn min_max(values: &[Self], (mut lo, mut hi): (Self, Self)) -> (Self, Self) {
-        // A plain reduction: the compiler vectorises it.
-        for &v in values {
-            lo = lo.min(v);
-            hi = hi.max(v);
-        }
-        (lo, hi)
-    }
-    #[inline]
-    fn fold_columns(lo: &mut [Self], hi: &mut [Self], values: &[Self]) {
-        for ((l, h), &v) in lo.iter_mut().zip(hi.iter_mut()).zip(values) {
-            *l = (*l).min(v);
-            *h = (*h).max(v);
-        }
-    }
-}
+unorm_texel!(u8, 255.0);
+unorm_texel!(u16, 65535.0);
 
 impl Texel for f32 {
     const HIGHEST: Self = f32::INFINITY;

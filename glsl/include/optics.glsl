@@ -9,6 +9,11 @@ vec4 classify(sampler1D tf, vec4 tf_window, float value) {
     return texture(tf, (s * float(TF_SIZE - 1) + 0.5) / float(TF_SIZE));
 }
 
+// 1 - exp(y) for y <= 0, with a third-order series near 0 (keeps tiny results' relative accuracy).
+float one_minus_exp(float y) {
+    return y > -1e-3 ? -y * (1.0 + y * (0.5 + y / 6.0)) : 1.0 - exp(y);
+}
+
 // Opacity of a segment `ratio` reference lengths long, given the opacity `alpha` of one
 // reference length: 1 - (1 - alpha)^ratio = -expm1(ratio * log1p(-alpha)), exact at alpha = 0 and
 // alpha = 1. Small arguments use third-order series for log1p and expm1, so tiny opacities keep
@@ -21,8 +26,14 @@ float correct_opacity(float alpha, float ratio) {
         return 0.0;
     }
     float l = alpha < 1e-3 ? -alpha * (1.0 + alpha * (0.5 + alpha / 3.0)) : log(1.0 - alpha);
-    float y = ratio * l;
-    return y > -1e-3 ? -y * (1.0 + y * (0.5 + y / 6.0)) : 1.0 - exp(y);
+    return one_minus_exp(ratio * l);
+}
+
+// Opacity of a segment `len` long in a medium of extinction `tau` per unit length:
+// 1 - exp(-tau * len), never negative, 1 once exp underflows.
+float extinction_opacity(float tau, float len) {
+    float depth = tau * len;
+    return depth > 0.0 ? one_minus_exp(-depth) : 0.0;
 }
 
 // Front-to-back "under" operator on premultiplied colour: emission `rgb` with opacity `alpha`

@@ -188,11 +188,28 @@ pub fn correct_opacity(alpha: f32, ratio: f32) -> f32 {
     } else {
         (1.0 - alpha).ln()
     };
-    let y = ratio * l;
+    one_minus_exp(ratio * l)
+}
+
+/// `1 - exp(y)` for `y <= 0`, with a third-order series near 0 so tiny results keep their
+/// relative accuracy. Mirrors `one_minus_exp` in optics.glsl.
+pub fn one_minus_exp(y: f32) -> f32 {
     if y > -1e-3 {
         -y * (1.0 + y * (0.5 + y / 6.0))
     } else {
         1.0 - y.exp()
+    }
+}
+
+/// Opacity of a segment `length` long in a medium of extinction coefficient `tau` (per the same
+/// length unit): `1 - exp(-tau * length)`, the extinction-based sampling model of Kraus et al.
+/// Never negative, 1 once `exp` underflows, 0 for `tau <= 0`. Mirrors `extinction_opacity`.
+pub fn extinction_opacity(tau: f32, length: f32) -> f32 {
+    let depth = tau * length;
+    if depth > 0.0 {
+        one_minus_exp(-depth)
+    } else {
+        0.0
     }
 }
 

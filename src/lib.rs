@@ -9,6 +9,7 @@
 //! - [`embed`]: the volume pass recorded into a host engine's command buffers.
 //! - [`renderer`]: the offscreen façade that turns a volume + scene into an image.
 //! - [`report`]: the accuracy-versus-time report.
+//! - [`kraus`]: Kraus & Bürger's opacity- vs extinction-based sampling experiments (CPU).
 //! - [`store`]: the on-disk brick store (preprocessing) and background brick streaming.
 #![warn(
     missing_docs,
@@ -21,6 +22,7 @@ pub mod cache;
 pub mod embed;
 pub mod error;
 pub mod gpu;
+pub mod kraus;
 pub mod lod;
 pub mod optics;
 pub mod reference;

@@ -36,6 +36,16 @@ enum Command {
     Bench(BenchArgs),
     /// The accuracy-versus-time report of the default scene (Markdown, CSV and a PNG chart).
     Report(ReportArgs),
+    /// Kraus & Bürger's sampling experiments on the CPU: opacity- vs extinction-based deviation
+    /// from the exact integral (docs/report/kraus.md, .csv and a PNG chart).
+    Kraus(KrausArgs),
+}
+
+#[derive(Args, Debug)]
+struct KrausArgs {
+    /// Folder for kraus.md, .csv and .png.
+    #[arg(long, default_value = "docs/report")]
+    output_dir: PathBuf,
 }
 
 #[derive(Args, Debug)]
@@ -805,6 +815,11 @@ fn main() -> ExitCode {
         Command::Junction(args) => junction(args),
         Command::Bench(args) => bench(args),
         Command::Report(args) => report(args),
+        Command::Kraus(args) => mixvol::kraus::write_report(&args.output_dir, &Default::default())
+            .map(|r| {
+                print!("{}", r.to_markdown());
+                println!("wrote {}/kraus.{{md,csv,png}}", args.output_dir.display());
+            }),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

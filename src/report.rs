@@ -363,7 +363,13 @@ impl Report {
 }
 
 /// 3x5 bitmap glyphs for digits, '.', '-' (bit 2 = left column), drawn at twice the size.
-fn draw_text(img: &mut image::RgbImage, x: i64, y: i64, text: &str, colour: image::Rgb<u8>) {
+pub(crate) fn draw_text(
+    img: &mut image::RgbImage,
+    x: i64,
+    y: i64,
+    text: &str,
+    colour: image::Rgb<u8>,
+) {
     const DIGITS: [[u8; 5]; 10] = [
         [7, 5, 5, 5, 7],
         [2, 6, 2, 2, 7],

@@ -2,10 +2,12 @@
 // One ray per pixel: emission-absorption, front to back. Mirrors `cast_ray` (single resolution)
 // and `cast_ray_mixed` (MIXED_RESOLUTION) in src/reference/mod.rs step by step.
 // Variants (macros): MIXED_RESOLUTION reads the brick cache through the layout table and walks the
-// ray brick by brick; SMOOTH_TRANSITIONS adds the C0 transition blend (mixed only).
+// ray brick by brick; SMOOTH_TRANSITIONS adds the C0 transition blend (mixed only); what each
+// sample does (mode, shading, sampling model, ...) is include/modes.glsl's business.
 #include "include/params.glsl"
 #include "include/camera.glsl"
 #include "include/optics.glsl"
+#include "include/sampling.glsl"
 
 layout(set = 0, binding = 0, std140) uniform Params {
     RaycastParams params;
@@ -16,6 +18,9 @@ layout(location = 0) out vec4 out_color;
 
 #ifdef HOST_DEPTH
 layout(set = 0, binding = 5) uniform sampler2D depth_tex;
+#endif
+#ifdef PREINTEGRATED
+layout(set = 0, binding = 6) uniform sampler2D preint_tex;
 #endif
 
 // The far end of the ray: the volume box exit, the far plane and (HOST_DEPTH) the host's depth.
@@ -37,50 +42,117 @@ float cache_fetch(vec3 texel) {
     return textureLod(cache_tex, texel * params.cache_extent_inv.xyz, 0.0).r;
 }
 #include "include/mixed.glsl"
+
+// The reconstructed field at voxel position x (clamped into the volume), as the ray's samples
+// see it; `present` is false in an absent brick.
+float field_at(vec3 x, out bool present) {
+    float n = params.volume_dims.w;
+    ivec3 bricks = ivec3(ceil(params.volume_dims.xyz / n));
+    x = clamp(x, vec3(0.0), params.volume_dims.xyz);
+    ivec3 b = brick_of(x, n, bricks);
+    int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
+    vec4 entry = layout_entries[bi];
+    present = entry.w != 0.0;
+    if (!present) {
+        return 0.0;
+    }
+#ifdef SMOOTH_TRANSITIONS
+    uint bits = neighbour_bits[bi];
+    vec3 band_lo = vec3(-1.0);
+    vec3 band_hi = vec3(n + 1.0);
+    if (entry.w == 1.0 && bits != 0u) {
+        band_bounds(bits, n, band_lo, band_hi);
+    }
+    return sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
+#else
+    return cache_fetch(x * entry.w + entry.xyz);
+#endif
+}
 #else
 #include "include/sampling.glsl"
 layout(set = 0, binding = 1) uniform sampler3D volume_tex;
+
+// The reconstructed field at voxel position x (clamp-to-edge outside the volume); for an RGBA
+// volume its coefficient channel (unused: RGBA volumes have no gradient effects).
+float field_at(vec3 x, out bool present) {
+    present = true;
+#ifdef RGBA_VOLUME
+    return texture(volume_tex, x / params.volume_dims.xyz).a;
+#else
+    return sample_volume(volume_tex, x / params.volume_dims.xyz);
 #endif
+}
+#endif
+
+#ifdef TRICUBIC
+// The cubic B-spline of the field at voxel position x from 8 trilinear fetches; a fetch in an
+// absent brick takes the trilinear value at x itself. Mirrors `sample_tricubic`.
+float sample_tricubic(vec3 x) {
+    mat3 taps = tricubic_taps(x);
+    bool present;
+    float centre = field_at(x, present);
+    float sum = 0.0;
+    for (int k = 0; k < 8; ++k) {
+        ivec3 side = ivec3(k & 1, (k >> 1) & 1, (k >> 2) & 1);
+        vec3 p = mix(taps[0], taps[1], vec3(side));
+        vec3 w = mix(taps[2], 1.0 - taps[2], vec3(side));
+        float v = field_at(p, present);
+        sum += w.x * w.y * w.z * (present ? v : centre);
+    }
+    return sum;
+}
+#endif
+
+// The field the samples, gradients and iso refinement see: trilinear, or TRICUBIC its B-spline.
+float field_value(vec3 x, out bool present) {
+#ifdef TRICUBIC
+    present = true;
+    return sample_tricubic(x);
+#else
+    return field_at(x, present);
+#endif
+}
+#include "include/modes.glsl"
 
 #ifndef MIXED_RESOLUTION
 vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
     float t1 = ray_end(ray, hit.y);
-    vec4 acc = vec4(0.0);
+    RayState s = begin_ray();
     if (!(t0 < t1)) {
-        return acc;
+        return s.acc;
     }
     float step_len = params.box_min.w;
-    float inv_d0 = 1.0 / params.box_max.w;
     vec3 box_size = params.box_max.xyz - params.box_min.xyz;
+    vec3 to_voxel = params.volume_dims.xyz / box_size;
     int steps = int(min(ceil((t1 - t0) / step_len), params.tf_window.w));
     for (int i = 0; i < steps; ++i) {
         float t_start = t0 + float(i) * step_len;
         float len = max(min(step_len, t1 - t_start), 0.0);
         vec3 p = ray.origin + ray.dir * (t_start + 0.5 * len);
-        float value = sample_volume(volume_tex, (p - params.box_min.xyz) / box_size);
-        vec4 rgba = classify(tf_tex, params.tf_window, value);
-        float alpha = correct_opacity(rgba.a, len * inv_d0);
-        acc = composite(acc, rgba.rgb, alpha);
-        if (acc.a >= params.tf_window.z) {
+#if defined(RGBA_VOLUME)
+        vec4 weighted = texture(volume_tex, (p - params.box_min.xyz) / box_size);
+        if (integrate_weighted(s, weighted, len)) {
             break;
         }
+#else
+#ifdef TRICUBIC
+        float value = sample_tricubic((p - params.box_min.xyz) * to_voxel);
+#else
+        float value = sample_volume(volume_tex, (p - params.box_min.xyz) / box_size);
+#endif
+        if (integrate_sample(s, value, len, (p - params.box_min.xyz) * to_voxel, ray.dir)) {
+            break;
+        }
+#endif
     }
-    return acc;
+    return finish_ray(s, ray.dir);
 }
 #else
 // Index of the first sample whose midpoint t0 + (i + 0.5) * step lies at or after t.
 int first_sample_after(float t, float t0, float step_len) {
     return int(ceil((t - t0) / step_len - 0.5));
-}
-
-// Classifies and composites one sample; true once the ray is opaque enough to stop.
-bool accumulate(inout vec4 acc, float value, float len, float inv_d0) {
-    vec4 rgba = classify(tf_tex, params.tf_window, value);
-    float alpha = correct_opacity(rgba.a, len * inv_d0);
-    acc = composite(acc, rgba.rgb, alpha);
-    return acc.a >= params.tf_window.z;
 }
 
 #ifndef SMOOTH_TRANSITIONS
@@ -90,12 +162,11 @@ vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
     float t1 = ray_end(ray, hit.y);
-    vec4 acc = vec4(0.0);
+    RayState s = begin_ray();
     if (!(t0 < t1)) {
-        return acc;
+        return s.acc;
     }
     float step_len = params.box_min.w;
-    float inv_d0 = 1.0 / params.box_max.w;
     vec3 box_size = params.box_max.xyz - params.box_min.xyz;
     vec3 to_voxel = params.volume_dims.xyz / box_size;
     float n = params.volume_dims.w;
@@ -116,17 +187,23 @@ vec4 cast_ray(Ray ray) {
                 // Absent brick: jump to just before its exit.
                 float t_exit = intersect_box(voxel_ray, vec3(b) * n, vec3(b + 1) * n).y;
                 i = max(i, first_sample_after(t_exit, t0, step_len) - 2);
+                break_ray(s);
                 continue;
             }
         }
         if (entry.w == 0.0) {
             continue;
         }
-        if (accumulate(acc, cache_fetch(x * entry.w + entry.xyz), len, inv_d0)) {
+#ifdef TRICUBIC
+        float value = sample_tricubic(x);
+#else
+        float value = cache_fetch(x * entry.w + entry.xyz);
+#endif
+        if (integrate_sample(s, value, len, x, ray.dir)) {
             break;
         }
     }
-    return acc;
+    return finish_ray(s, ray.dir);
 }
 #else
 // The same samples as the single-resolution loop (and as `cast_ray_mixed` in the CPU reference,
@@ -138,12 +215,11 @@ vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
     float t1 = ray_end(ray, hit.y);
-    vec4 acc = vec4(0.0);
+    RayState s = begin_ray();
     if (!(t0 < t1)) {
-        return acc;
+        return s.acc;
     }
     float step_len = params.box_min.w;
-    float inv_d0 = 1.0 / params.box_max.w;
     vec3 box_size = params.box_max.xyz - params.box_min.xyz;
     vec3 to_voxel = params.volume_dims.xyz / box_size;
     float n = params.volume_dims.w;
@@ -163,6 +239,7 @@ vec4 cast_ray(Ray ray) {
         vec4 entry = layout_entries[bi];
         if (entry.w == 0.0) {
             i = i_end;
+            break_ray(s);
             continue;
         }
         int i_in = i;
@@ -188,8 +265,8 @@ vec4 cast_ray(Ray ray) {
             len = max(min(step_len, t1 - t_start), 0.0);
             x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
             float value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
-            if (accumulate(acc, value, len, inv_d0)) {
-                return acc;
+            if (integrate_sample(s, value, len, x, ray.dir)) {
+                return finish_ray(s, ray.dir);
             }
         }
 #endif
@@ -198,8 +275,8 @@ vec4 cast_ray(Ray ray) {
             t_start = t0 + float(i) * step_len;
             len = max(min(step_len, t1 - t_start), 0.0);
             x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
-            if (accumulate(acc, cache_fetch(x * entry.w + entry.xyz), len, inv_d0)) {
-                return acc;
+            if (integrate_sample(s, cache_fetch(x * entry.w + entry.xyz), len, x, ray.dir)) {
+                return finish_ray(s, ray.dir);
             }
         }
 #ifdef SMOOTH_TRANSITIONS
@@ -209,13 +286,13 @@ vec4 cast_ray(Ray ray) {
             len = max(min(step_len, t1 - t_start), 0.0);
             x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
             float value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
-            if (accumulate(acc, value, len, inv_d0)) {
-                return acc;
+            if (integrate_sample(s, value, len, x, ray.dir)) {
+                return finish_ray(s, ray.dir);
             }
         }
 #endif
     }
-    return acc;
+    return finish_ray(s, ray.dir);
 }
 #endif
 #endif

@@ -37,13 +37,14 @@ use crate::cache::{BrickCache, CacheGeometry, Level};
 use crate::error::{Error, Result};
 use crate::gpu::{
     image_barrier, Access, Buffer, CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image,
-    ImageDesc, RaycastPipeline, RaycastVariant, TimestampPool, COLOR_LAYERS,
+    ImageDesc, PipelineCache, RaycastPipeline, RaycastVariant, TimestampPool, COLOR_LAYERS,
 };
-use crate::optics::{TfPreset, TransferFunction, TF_SIZE};
+use crate::optics::preintegration::PreintegrationTable;
+use crate::optics::{ClassificationTable, SamplingModel, TfPreset, TransferFunction, TF_SIZE};
 use crate::reference::Transition;
-use crate::scene::{Camera, RaycastParams, RenderSettings};
+use crate::scene::{Camera, RayFeatures, RaycastParams, RenderSettings};
 use crate::store::{fallback_levels, BrickSource, VolumeBrickSource};
-use crate::volume::{ScalarType, Volume};
+use crate::volume::{RgbaVolume, ScalarType, Volume};
 use ash::vk;
 use glam::{Mat4, UVec3};
 use gpu_allocator::MemoryLocation;
@@ -172,6 +173,10 @@ struct SingleVolume {
     value_range: (f32, f32),
     scalar: ScalarType,
     pending: Option<Vec<u8>>,
+    /// Whether the image holds data (a later upload waits for earlier fragment reads).
+    uploaded: bool,
+    /// A pre-classified RGBA volume, and the sampling model its texture was filled for.
+    rgba: Option<(Arc<RgbaVolume>, Option<SamplingModel>)>,
 }
 
 pub(crate) struct MixedState {
@@ -180,6 +185,8 @@ pub(crate) struct MixedState {
     pub(crate) cache: BrickCache,
     pub(crate) gpu: GpuBrickCache,
     any_transition: bool,
+    /// Some resident brick is low-res (tricubic reconstruction then stays off).
+    any_low_res: bool,
     value_range: (f32, f32),
 }
 
@@ -193,7 +200,19 @@ struct FrameSlot {
     params: Buffer,
     staging: Option<Buffer>,
     tf_staging: Buffer,
+    preint_staging: Option<Buffer>,
     queries: TimestampPool,
+}
+
+/// The pre-integration table on the GPU: a TF_SIZE x TF_SIZE RGBA32F image, rebuilt when the
+/// transfer function, the sampling model or the step changes.
+struct PreintegrationImage {
+    image: Image,
+    /// (model, step ratio bits) the image (or its pending upload) was built for; `None` after a
+    /// transfer-function change.
+    key: Option<(SamplingModel, u32)>,
+    pending: Option<Vec<u8>>,
+    initialized: bool,
 }
 
 /// The embeddable volume pass (see the module docs for the contract).
@@ -204,7 +223,12 @@ pub struct VolumePass {
     tf_image: Image,
     tf_pending: Option<Vec<u8>>,
     tf_initialized: bool,
+    /// The transfer function and the sampling model its table on the GPU was built for.
+    tf: TransferFunction,
+    tf_model: Option<SamplingModel>,
+    preintegration: Option<PreintegrationImage>,
     pipelines: HashMap<RaycastVariant, RaycastPipeline>,
+    pipeline_cache: PipelineCache,
     desc: PassDesc,
     ctx: GpuContext,
 }
@@ -268,6 +292,17 @@ fn record_image_upload(
 impl VolumePass {
     /// Creates the per-frame resources; checks the formats it needs.
     pub fn new(ctx: &GpuContext, desc: PassDesc) -> Result<Self> {
+        Self::with_pipeline_cache(ctx, desc, &[])
+    }
+
+    /// [`VolumePass::new`] with pipeline variants built through a `VkPipelineCache` seeded with
+    /// `cache_data` (from [`VolumePass::pipeline_cache_data`] of an earlier run). Data made for
+    /// another device or driver is ignored (see [`VolumePass::pipeline_cache_seeded`]).
+    pub fn with_pipeline_cache(
+        ctx: &GpuContext,
+        desc: PassDesc,
+        cache_data: &[u8],
+    ) -> Result<Self> {
         if desc.frames_in_flight == 0 {
             return Err(Error::InvalidInput(
                 "frames_in_flight must be at least 1".into(),
@@ -314,18 +349,22 @@ impl VolumePass {
                         vk::BufferUsageFlags::TRANSFER_SRC,
                         MemoryLocation::CpuToGpu,
                     )?,
+                    preint_staging: None,
                     queries: TimestampPool::new(shared, QUERIES_PER_FRAME)?,
                 })
             })
             .collect::<Result<Vec<_>>>()?;
-        let default_tf = TransferFunction::preset(TfPreset::Grey);
         Ok(Self {
             frames,
             source: Source::None,
             tf_image,
-            tf_pending: Some(bytemuck::cast_slice(default_tf.entries()).to_vec()),
+            tf_pending: None,
             tf_initialized: false,
+            tf: TransferFunction::preset(TfPreset::Grey),
+            tf_model: None,
+            preintegration: None,
             pipelines: HashMap::new(),
+            pipeline_cache: PipelineCache::new(shared, cache_data)?,
             desc,
             ctx: ctx.clone(),
         })
@@ -341,9 +380,77 @@ impl VolumePass {
         &self.ctx
     }
 
-    /// Stages a transfer function; the next [`VolumePass::record`] uploads it.
+    /// Stages a transfer function; the next [`VolumePass::record`] uploads it (as the
+    /// classification table of the frame's sampling model, and the pre-integration table when
+    /// the frame asks for one).
     pub fn set_transfer_function(&mut self, tf: &TransferFunction) {
-        self.tf_pending = Some(bytemuck::cast_slice(tf.entries()).to_vec());
+        self.tf = tf.clone();
+        self.tf_model = None;
+        if let Some(pre) = &mut self.preintegration {
+            pre.key = None;
+        }
+    }
+
+    /// The contents of the pass's `VkPipelineCache` (every variant built so far), to save and
+    /// pass to [`VolumePass::with_pipeline_cache`] next time.
+    pub fn pipeline_cache_data(&self) -> Result<Vec<u8>> {
+        self.pipeline_cache.data()
+    }
+
+    /// Whether the pipeline cache was seeded with the data given at creation (false when there
+    /// was none or it was made for another device or driver).
+    pub fn pipeline_cache_seeded(&self) -> bool {
+        self.pipeline_cache.seeded
+    }
+
+    /// The pipeline variants built so far (each compiled once, then reused).
+    pub fn built_variants(&self) -> Vec<RaycastVariant> {
+        self.pipelines.keys().copied().collect()
+    }
+
+    /// Stages the classification table for `model` and, with `preintegration_ratio`, the 2D
+    /// pre-integration table for steps of that many reference lengths, unless already there.
+    fn stage_tables(
+        &mut self,
+        model: SamplingModel,
+        preintegration_ratio: Option<f32>,
+    ) -> Result<()> {
+        if self.tf_model != Some(model) {
+            let table = ClassificationTable::new(&self.tf, model);
+            self.tf_pending = Some(bytemuck::cast_slice(table.entries()).to_vec());
+            self.tf_model = Some(model);
+        }
+        let Some(ratio) = preintegration_ratio else {
+            return Ok(());
+        };
+        let key = Some((model, ratio.to_bits()));
+        if self.preintegration.as_ref().is_some_and(|p| p.key == key) {
+            return Ok(());
+        }
+        let table = PreintegrationTable::build(&ClassificationTable::new(&self.tf, model), ratio)?;
+        let bytes = bytemuck::cast_slice(table.entries()).to_vec();
+        if self.preintegration.is_none() {
+            let image = Image::new(
+                &self.ctx.shared,
+                "pre-integration table",
+                ImageDesc::new_2d(
+                    vk::Format::R32G32B32A32_SFLOAT,
+                    TF_SIZE as u32,
+                    TF_SIZE as u32,
+                    vk::ImageUsageFlags::SAMPLED | vk::ImageUsageFlags::TRANSFER_DST,
+                ),
+            )?;
+            self.preintegration = Some(PreintegrationImage {
+                image,
+                key: None,
+                pending: None,
+                initialized: false,
+            });
+        }
+        let pre = self.preintegration.as_mut().expect("created above");
+        pre.key = key;
+        pre.pending = Some(bytes);
+        Ok(())
     }
 
     /// Renders `volume` as one plain 3D texture from now on (uploaded by the next record).
@@ -374,6 +481,45 @@ impl VolumePass {
             value_range: volume.value_range(),
             scalar: volume.scalar_type(),
             pending: Some(volume.data().as_bytes().to_vec()),
+            uploaded: false,
+            rgba: None,
+        });
+        Ok(())
+    }
+
+    /// Renders the pre-classified `volume` as one RGBA32F 3D texture from now on (filled by the
+    /// next record for the frame's sampling model, and again when the model changes). RGBA
+    /// volumes render in DVR mode without shading, gradient opacity, pre-integration or tricubic
+    /// reconstruction (those need a scalar field); other settings are an `InvalidInput` error.
+    /// No command buffer recorded by this pass may still be executing.
+    pub fn set_rgba_volume(&mut self, volume: Arc<RgbaVolume>) -> Result<()> {
+        let shared = &self.ctx.shared;
+        let format = vk::Format::R32G32B32A32_SFLOAT;
+        shared.require_format(
+            format,
+            vk::FormatFeatureFlags::SAMPLED_IMAGE
+                | vk::FormatFeatureFlags::SAMPLED_IMAGE_FILTER_LINEAR
+                | vk::FormatFeatureFlags::TRANSFER_DST,
+            "RGBA volume texture",
+        )?;
+        let image = Image::new(
+            shared,
+            "RGBA volume",
+            ImageDesc::new_3d(
+                format,
+                volume.dims().to_array(),
+                vk::ImageUsageFlags::SAMPLED | vk::ImageUsageFlags::TRANSFER_DST,
+            ),
+        )?;
+        self.source = Source::Single(SingleVolume {
+            image,
+            dims: volume.dims(),
+            spacing: volume.spacing(),
+            value_range: (0.0, 1.0),
+            scalar: ScalarType::F32,
+            pending: None,
+            uploaded: false,
+            rgba: Some((volume, None)),
         });
         Ok(())
     }
@@ -435,6 +581,7 @@ impl VolumePass {
             cache,
             gpu,
             any_transition: false,
+            any_low_res: false,
             value_range: (range.min, range.max),
         }));
         Ok(())
@@ -510,6 +657,7 @@ impl VolumePass {
         };
         state.gpu.stage(&regions, &tables)?;
         state.any_transition = !fixup_slots.is_empty();
+        state.any_low_res = state.cache.levels().contains(&Level::Lo);
         let smooth = state.config.transition == Transition::Smooth;
         let current = state.cache.levels();
         Ok(ResidencyReport {
@@ -526,15 +674,28 @@ impl VolumePass {
 
     /// The pipeline variant the current source draws with, with or without a host depth buffer:
     /// only the effects the scene uses.
-    pub fn current_variant(&self, host_depth: bool) -> RaycastVariant {
+    pub fn current_variant(&self, host_depth: bool, features: RayFeatures) -> RaycastVariant {
         match &self.source {
             Source::Mixed(m) => RaycastVariant {
                 mixed_resolution: true,
                 smooth_transitions: m.config.transition == Transition::Smooth && m.any_transition,
                 host_depth,
+                rgba_volume: false,
+                features: RayFeatures {
+                    // The 8-fetch B-spline assumes a field trilinear on one grid.
+                    tricubic: features.tricubic && !m.any_low_res,
+                    ..features
+                },
             },
-            _ => RaycastVariant {
+            Source::Single(v) => RaycastVariant {
                 host_depth,
+                features,
+                rgba_volume: v.rgba.is_some(),
+                ..RaycastVariant::default()
+            },
+            Source::None => RaycastVariant {
+                host_depth,
+                features,
                 ..RaycastVariant::default()
             },
         }
@@ -589,6 +750,25 @@ impl VolumePass {
             device.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, pool, 0);
         }
         let mut uploaded = false;
+        if let Some(pre) = &mut self.preintegration {
+            if let Some(bytes) = pre.pending.take() {
+                uploaded = true;
+                let previous = if pre.initialized {
+                    Access::FragmentSampled
+                } else {
+                    Access::Nothing
+                };
+                record_image_upload(
+                    &self.ctx,
+                    cmd,
+                    &mut slot.preint_staging,
+                    &pre.image,
+                    &bytes,
+                    previous,
+                )?;
+                pre.initialized = true;
+            }
+        }
         if let Some(bytes) = self.tf_pending.take() {
             uploaded = true;
             let tf_staging = &mut slot.tf_staging;
@@ -631,14 +811,20 @@ impl VolumePass {
             Source::Single(v) => {
                 if let Some(bytes) = v.pending.take() {
                     uploaded = true;
+                    let previous = if v.uploaded {
+                        Access::FragmentSampled
+                    } else {
+                        Access::Nothing
+                    };
                     record_image_upload(
                         &self.ctx,
                         cmd,
                         &mut slot.staging,
                         &v.image,
                         &bytes,
-                        Access::Nothing,
+                        previous,
                     )?;
+                    v.uploaded = true;
                 }
                 false
             }
@@ -689,14 +875,47 @@ impl VolumePass {
             }
             params.world_from_clip = inverse;
         }
+        let features = settings.features();
+        if let Source::Single(SingleVolume {
+            rgba: Some((volume, model)),
+            pending,
+            ..
+        }) = &mut self.source
+        {
+            if features
+                != (RayFeatures {
+                    sampling_model: features.sampling_model,
+                    ..RayFeatures::default()
+                })
+            {
+                return Err(Error::InvalidInput(format!(
+                    "pre-classified RGBA volumes render in DVR mode without shading, gradient \
+                     opacity, pre-integration or tricubic reconstruction; the settings ask for \
+                     {features:?}"
+                )));
+            }
+            if *model != Some(features.sampling_model) {
+                *pending = Some(
+                    bytemuck::cast_slice(&volume.weighted(features.sampling_model)).to_vec(),
+                );
+                *model = Some(features.sampling_model);
+            }
+        }
+        self.stage_tables(
+            features.sampling_model,
+            features
+                .preintegrated
+                .then(|| params.box_min.w / params.box_max.w),
+        )?;
         self.record_updates(cmd, frame)?;
-        let variant = self.current_variant(target.depth.is_some());
+        let variant = self.current_variant(target.depth.is_some(), features);
         if !self.pipelines.contains_key(&variant) {
             let pipeline = RaycastPipeline::new(
                 &self.ctx.shared,
                 self.desc.color_format,
                 variant,
                 self.desc.frames_in_flight,
+                self.pipeline_cache.raw,
             )?;
             self.pipelines.insert(variant, pipeline);
         }
@@ -719,6 +938,7 @@ impl VolumePass {
             self.tf_image.view,
             tables,
             target.depth.map(|d| (d.view, d.layout)),
+            self.preintegration.as_ref().map(|p| p.image.view),
         );
         let device = &self.ctx.shared.device;
         let (load_op, clear) = match target.load {

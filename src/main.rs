@@ -5,11 +5,11 @@ use glam::{UVec3, Vec3};
 use mixvol::bricks::BrickGrid;
 use mixvol::cache::Level;
 use mixvol::gpu::{ContextDesc, GpuContext};
-use mixvol::optics::{TfPreset, TransferFunction};
+use mixvol::optics::{SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::{ReferenceCache, Transition};
 use mixvol::renderer::MixedConfig;
 use mixvol::renderer::{Renderer, TargetFormat};
-use mixvol::scene::{Camera, Projection, RenderSettings};
+use mixvol::scene::{Camera, Projection, Reconstruction, RenderMode, RenderSettings, Shading};
 use mixvol::volume::{load_raw, RawDescriptor, ScalarType, SyntheticField, Volume};
 use mixvol::{reference, Error, Result};
 use std::path::PathBuf;
@@ -219,6 +219,79 @@ struct RenderArgs {
     compare: bool,
     #[command(flatten)]
     mixed: MixedArgs,
+    #[command(flatten)]
+    optics: OpticsArgs,
+}
+
+/// Render mode and optical model (each compiles into the pipeline variant only when asked for).
+#[derive(Args, Debug)]
+struct OpticsArgs {
+    /// Render mode.
+    #[arg(long, value_enum, default_value_t = ModeArg::Dvr)]
+    mode: ModeArg,
+    /// Iso value (mode iso), in the units of --window (normalised for integer data).
+    #[arg(long, default_value_t = 0.5)]
+    iso: f32,
+    /// Iso-surface colour r,g,b.
+    #[arg(long, default_value = "0.9,0.75,0.55", value_parser = parse_vec3)]
+    iso_colour: Vec3,
+    /// MIDA gamma in [-1, 1]: -1 DVR, 0 MIDA, 1 MIP (mode mida).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    gamma: f32,
+    /// Blinn-Phong shading from field gradients.
+    #[arg(long)]
+    shading: bool,
+    /// Gradient-magnitude opacity modulation with this scale.
+    #[arg(long)]
+    gradient_opacity: Option<f32>,
+    /// Extinction-based sampling (default: opacity-based).
+    #[arg(long)]
+    extinction: bool,
+    /// Pre-integrated classification (DVR, MIDA).
+    #[arg(long)]
+    preintegrated: bool,
+    /// Tricubic B-spline reconstruction (single resolution, or every resident brick hi-res).
+    #[arg(long)]
+    tricubic: bool,
+}
+
+#[derive(Copy, Clone, Debug, ValueEnum)]
+enum ModeArg {
+    Dvr,
+    Iso,
+    Mip,
+    Mida,
+}
+
+impl OpticsArgs {
+    /// Fills the mode and optics fields of `settings`.
+    fn apply(&self, settings: RenderSettings) -> RenderSettings {
+        RenderSettings {
+            mode: match self.mode {
+                ModeArg::Dvr => RenderMode::Dvr,
+                ModeArg::Iso => RenderMode::Iso {
+                    value: self.iso,
+                    colour: self.iso_colour,
+                },
+                ModeArg::Mip => RenderMode::Mip,
+                ModeArg::Mida => RenderMode::Mida { gamma: self.gamma },
+            },
+            shading: self.shading.then(Shading::default),
+            gradient_opacity: self.gradient_opacity,
+            sampling_model: if self.extinction {
+                SamplingModel::Extinction
+            } else {
+                SamplingModel::Opacity
+            },
+            preintegrated: self.preintegrated,
+            reconstruction: if self.tricubic {
+                Reconstruction::TricubicBSpline
+            } else {
+                Reconstruction::Trilinear
+            },
+            ..settings
+        }
+    }
 }
 
 fn parse_floats<const N: usize>(s: &str) -> std::result::Result<[f32; N], String> {
@@ -403,12 +476,12 @@ fn render(args: &RenderArgs) -> Result<()> {
         projection,
         ..Camera::perspective(args.eye, args.target, args.fov)
     };
-    let settings = RenderSettings {
+    let settings = args.optics.apply(RenderSettings {
         samples_per_voxel: args.samples_per_voxel,
         early_termination: args.early_termination,
         value_window,
         ..RenderSettings::default()
-    };
+    });
     // Warm-up: llvmpipe compiles shaders at the first draw.
     let mut frame = renderer.render(&camera, &settings, args.width, args.height)?;
     let mut gpu = Vec::new();
@@ -445,13 +518,14 @@ fn render(args: &RenderArgs) -> Result<()> {
     if args.compare {
         let params = renderer.params(&camera, &settings, args.width, args.height)?;
         let reference = match &reference_cache {
-            Some(cache) => reference::render_mixed(
+            Some(cache) => reference::render_mixed_scene(
                 &cache.view(),
                 transition_of(args.mixed.transition),
                 &tf,
+                &settings,
                 &params,
-            ),
-            None => reference::render(&volume, &tf, &params),
+            )?,
+            None => reference::render_scene(&volume, &tf, &settings, &params)?,
         };
         let max_diff = reference
             .iter()
@@ -498,7 +572,7 @@ fn level_pattern(grid: &BrickGrid, pattern: LevelsArg) -> Vec<Level> {
             let hi = match pattern {
                 LevelsArg::AllHi => true,
                 LevelsArg::AllLo => false,
-                LevelsArg::Checker => (b.x + b.y + b.z) % 2 == 0,
+                LevelsArg::Checker => (b.x + b.y + b.z).is_multiple_of(2),
                 LevelsArg::Half => b.x >= half,
             };
             if hi {
@@ -667,11 +741,11 @@ fn bench(args: &BenchArgs) -> Result<()> {
         },
         ..Camera::perspective(r.eye, r.target, r.fov)
     };
-    let settings = RenderSettings {
+    let settings = r.optics.apply(RenderSettings {
         samples_per_voxel: r.samples_per_voxel,
         early_termination: r.early_termination,
         ..RenderSettings::default()
-    };
+    });
     renderer.render(&camera, &settings, r.width, r.height)?; // warm-up
     let (mut upload, mut fixup, mut raycast, mut cpu) = (vec![], vec![], vec![], vec![]);
     let mut variant = None;

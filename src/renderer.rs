@@ -168,6 +168,12 @@ impl Renderer {
         self.flush()
     }
 
+    /// Renders the pre-classified `volume` from now on (see [`VolumePass::set_rgba_volume`]).
+    pub fn set_rgba_volume(&mut self, volume: Arc<crate::volume::RgbaVolume>) -> Result<()> {
+        self.probe = None;
+        self.pass.set_rgba_volume(volume)
+    }
+
     /// Renders `volume` through a brick cache from now on (see [`VolumePass::set_mixed_volume`]);
     /// call [`Renderer::set_levels`] to make bricks resident.
     pub fn set_mixed_volume(&mut self, volume: Arc<Volume>, config: MixedConfig) -> Result<()> {
@@ -249,9 +255,15 @@ impl Renderer {
         Ok(crate::reference::dequantize(&bytes, state.source.scalar()))
     }
 
-    /// The pipeline variant the current source draws with: only the effects it uses.
-    pub fn current_variant(&self) -> RaycastVariant {
-        self.pass.current_variant(false)
+    /// The pipeline variants built so far (each compiled once, then reused).
+    pub fn built_variants(&self) -> Vec<RaycastVariant> {
+        self.pass.built_variants()
+    }
+
+    /// The pipeline variant the current source draws with under `settings`: only the effects
+    /// they use.
+    pub fn current_variant(&self, settings: &RenderSettings) -> RaycastVariant {
+        self.pass.current_variant(false, settings.features())
     }
 
     /// The parameter block a render with these arguments uses (also what the CPU reference

@@ -5,6 +5,7 @@
 //! side (dims * spacing) is 1. Anisotropic spacing therefore renders with the right aspect.
 
 use crate::error::{Error, Result};
+use crate::optics::SamplingModel;
 use crate::volume::Volume;
 use glam::{Mat4, UVec3, Vec3, Vec4};
 
@@ -78,6 +79,112 @@ impl Camera {
     }
 }
 
+/// What a ray computes.
+#[derive(Copy, Clone, Debug, Default, PartialEq)]
+pub enum RenderMode {
+    /// Direct volume rendering: front-to-back emission-absorption through the transfer function.
+    #[default]
+    Dvr,
+    /// The first crossing of the iso-surface at sample value `value` (the units of
+    /// [`RenderSettings::value_window`]: normalised for integer volumes), refined by bisection to
+    /// a small fraction of a voxel and drawn opaque in `colour` (Blinn-Phong lit when
+    /// [`RenderSettings::shading`] is set).
+    Iso {
+        /// Iso value.
+        value: f32,
+        /// Surface colour, components in [0, 1].
+        colour: Vec3,
+    },
+    /// Maximum intensity projection: the transfer function at the largest TF position along the
+    /// ray, with the opacity of one reference length.
+    Mip,
+    /// Bruckner and Groeller's maximum intensity difference accumulation with their single
+    /// parameter `gamma` in [-1, 1]: -1 is DVR, 0 is MIDA, 1 is MIP, continuous in between
+    /// (`beta = 1 - delta (1 + gamma)` below 0, an image-space blend of MIDA and MIP above).
+    Mida {
+        /// The DVR (-1) -> MIDA (0) -> MIP (1) parameter.
+        gamma: f32,
+    },
+}
+
+/// Blinn-Phong shading with a headlight (light and viewer along the ray), two-sided, with
+/// normals from central differences of the reconstructed field (through the same warped
+/// reconstruction as the samples, so shading is continuous across resolution changes). Lit
+/// colour = `colour * (ambient + diffuse * |n.l|) + specular * |n.l|^shininess`; where the
+/// gradient vanishes the sample counts as facing the light.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct Shading {
+    /// Ambient coefficient.
+    pub ambient: f32,
+    /// Diffuse coefficient.
+    pub diffuse: f32,
+    /// Specular coefficient (white highlights).
+    pub specular: f32,
+    /// Specular exponent, at least 1.
+    pub shininess: f32,
+}
+
+impl Default for Shading {
+    fn default() -> Self {
+        Self {
+            ambient: 0.3,
+            diffuse: 0.7,
+            specular: 0.3,
+            shininess: 24.0,
+        }
+    }
+}
+
+/// How the scalar field is reconstructed between voxel centres.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Reconstruction {
+    /// Hardware trilinear filtering (one fetch).
+    #[default]
+    Trilinear,
+    /// Cubic B-spline from eight trilinear fetches (Sigg and Hadwiger): smoother, C2, slightly
+    /// blurring (it approximates, not interpolates). Exact where the fetched field is trilinear
+    /// on one grid: single-resolution volumes, and brick caches whose resident bricks are all
+    /// hi-res. While a low-res brick is resident the renderer keeps trilinear reconstruction
+    /// (and the frame's variant says so): across a level change the fetched field is the warped
+    /// C0 blend, which is not linear between texel centres, and the 8-fetch B-spline of it would
+    /// jump at every texel boundary.
+    TricubicBSpline,
+}
+
+/// Which render mode a pipeline variant is compiled for (the parameters live in the per-frame
+/// block).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]
+pub enum ModeKind {
+    /// [`RenderMode::Dvr`].
+    #[default]
+    Dvr,
+    /// [`RenderMode::Iso`].
+    Iso,
+    /// [`RenderMode::Mip`].
+    Mip,
+    /// [`RenderMode::Mida`].
+    Mida,
+}
+
+/// The effects a scene calls for: what a ray-cast pipeline variant compiles in (and what the CPU
+/// reference evaluates). Derived from [`RenderSettings::features`], which drops effects that do
+/// not apply to the mode.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]
+pub struct RayFeatures {
+    /// The render mode.
+    pub mode: ModeKind,
+    /// Blinn-Phong shading from field gradients (DVR, MIDA, iso-surfaces).
+    pub shading: bool,
+    /// Opacity modulated by the gradient magnitude (DVR, MIDA).
+    pub gradient_opacity: bool,
+    /// How samples turn into opacities.
+    pub sampling_model: SamplingModel,
+    /// Pre-integrated classification from a 2D table (DVR, MIDA).
+    pub preintegrated: bool,
+    /// Tricubic B-spline reconstruction ([`Reconstruction::TricubicBSpline`]).
+    pub tricubic: bool,
+}
+
 /// Settings for one render.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct RenderSettings {
@@ -93,6 +200,91 @@ pub struct RenderSettings {
     pub value_window: Option<(f32, f32)>,
     /// Upper bound on samples along one ray.
     pub max_steps: u32,
+    /// What a ray computes.
+    pub mode: RenderMode,
+    /// Blinn-Phong shading (`None`: unlit; the shading code is then compiled out).
+    pub shading: Option<Shading>,
+    /// Gradient-magnitude opacity modulation: a sample's opacity of one reference length is
+    /// scaled by `min(1, k |grad s|)`, s being the TF position and the gradient per world unit
+    /// (the volume's longest side is 1). `None` compiles it out.
+    pub gradient_opacity: Option<f32>,
+    /// Opacity-based or extinction-based sampling (Kraus et al.).
+    pub sampling_model: SamplingModel,
+    /// Pre-integrated classification (DVR and MIDA): each step looks up the segment between the
+    /// previous and the current sample in a 2D table built for the step length.
+    pub preintegrated: bool,
+    /// Central-difference distance for gradients, in voxels of the finest level.
+    pub gradient_step: f32,
+    /// Reconstruction filter.
+    pub reconstruction: Reconstruction,
+}
+
+impl RenderSettings {
+    /// The effects this scene calls for (what the pipeline variant compiles in).
+    pub fn features(&self) -> RayFeatures {
+        let mode = match self.mode {
+            RenderMode::Dvr => ModeKind::Dvr,
+            RenderMode::Iso { .. } => ModeKind::Iso,
+            RenderMode::Mip => ModeKind::Mip,
+            RenderMode::Mida { .. } => ModeKind::Mida,
+        };
+        let classifies_samples = matches!(mode, ModeKind::Dvr | ModeKind::Mida);
+        RayFeatures {
+            mode,
+            shading: self.shading.is_some() && mode != ModeKind::Mip,
+            gradient_opacity: self.gradient_opacity.is_some() && classifies_samples,
+            sampling_model: self.sampling_model,
+            preintegrated: self.preintegrated && classifies_samples,
+            tricubic: self.reconstruction == Reconstruction::TricubicBSpline,
+        }
+    }
+
+    /// Checks the mode and optics settings (ranges, finiteness).
+    fn validate_optics(&self) -> Result<()> {
+        let bad = |what: String| Err(Error::InvalidInput(what));
+        match self.mode {
+            RenderMode::Iso { value, colour } => {
+                if !value.is_finite() {
+                    return bad(format!("iso value {value} must be finite"));
+                }
+                if !(colour.is_finite()
+                    && colour.min_element() >= 0.0
+                    && colour.max_element() <= 1.0)
+                {
+                    return bad(format!("iso colour {colour} must lie in [0, 1]"));
+                }
+            }
+            RenderMode::Mida { gamma } if !(-1.0..=1.0).contains(&gamma) => {
+                return bad(format!("MIDA gamma {gamma} must lie in [-1, 1]"));
+            }
+            _ => {}
+        }
+        if let Some(sh) = self.shading {
+            let coefficients = [sh.ambient, sh.diffuse, sh.specular];
+            if coefficients.iter().any(|c| !(c.is_finite() && *c >= 0.0)) {
+                return bad(format!(
+                    "shading coefficients {coefficients:?} must be finite and non-negative"
+                ));
+            }
+            if !(sh.shininess >= 1.0 && sh.shininess.is_finite()) {
+                return bad(format!("shininess {} must be at least 1", sh.shininess));
+            }
+        }
+        if let Some(k) = self.gradient_opacity {
+            if !(k >= 0.0 && k.is_finite()) {
+                return bad(format!(
+                    "gradient opacity scale {k} must be finite and >= 0"
+                ));
+            }
+        }
+        if !(self.gradient_step > 0.0 && self.gradient_step.is_finite()) {
+            return bad(format!(
+                "gradient step {} voxels must be positive",
+                self.gradient_step
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl Default for RenderSettings {
@@ -102,11 +294,18 @@ impl Default for RenderSettings {
             early_termination: DEFAULT_EARLY_TERMINATION,
             value_window: None,
             max_steps: 16384,
+            mode: RenderMode::Dvr,
+            shading: None,
+            gradient_opacity: None,
+            sampling_model: SamplingModel::Opacity,
+            preintegrated: false,
+            gradient_step: 1.0,
+            reconstruction: Reconstruction::Trilinear,
         }
     }
 }
 
-/// The per-frame parameter block, std140-compatible: vec4 fields and one mat4 (224 bytes). Mirrors `RaycastParams`
+/// The per-frame parameter block, std140-compatible: vec4 fields and one mat4 (272 bytes). Mirrors `RaycastParams`
 /// in `glsl/include/params.glsl`.
 #[repr(C)]
 #[derive(Copy, Clone, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
@@ -131,11 +330,17 @@ pub struct RaycastParams {
     pub volume_dims: Vec4,
     /// xyz: 1 / cache extent in texels (mixed resolution); w: unused.
     pub cache_extent_inv: Vec4,
+    /// x: iso value; y: MIDA gamma; z: gradient opacity scale; w: gradient step (voxels).
+    pub mode: Vec4,
+    /// x: ambient, y: diffuse, z: specular, w: shininess (Blinn-Phong).
+    pub shading: Vec4,
+    /// rgb: iso-surface colour; w: unused.
+    pub iso_colour: Vec4,
     /// Inverse of the host's `clip_from_world` (used only when rays stop at a host depth buffer).
     pub world_from_clip: Mat4,
 }
 
-const _: () = assert!(std::mem::size_of::<RaycastParams>() == 224);
+const _: () = assert!(std::mem::size_of::<RaycastParams>() == 272);
 
 /// The world-space box of a volume: centred, longest physical side 1.
 pub fn volume_box(dims: UVec3, spacing: Vec3) -> (Vec3, Vec3) {
@@ -223,6 +428,7 @@ impl RaycastParams {
                 (0.5 * height, 1.0)
             }
         };
+        settings.validate_optics()?;
         if !(settings.samples_per_voxel > 0.0 && settings.samples_per_voxel.is_finite()) {
             return Err(Error::InvalidInput(format!(
                 "samples per voxel {} must be positive",
@@ -269,6 +475,17 @@ impl RaycastParams {
                 value_range.0, value_range.1
             )));
         }
+        let (iso_value, iso_colour, gamma) = match settings.mode {
+            RenderMode::Iso { value, colour } => (value, colour, 0.0),
+            RenderMode::Mida { gamma } => (0.0, Vec3::ZERO, gamma),
+            _ => (0.0, Vec3::ZERO, 0.0),
+        };
+        let sh = settings.shading.unwrap_or(Shading {
+            ambient: 1.0,
+            diffuse: 0.0,
+            specular: 0.0,
+            shininess: 1.0,
+        });
         let (box_min, box_max) = volume_box(dims, spacing);
         let voxel = ((box_max - box_min) / dims.as_vec3()).min_element();
         let step = voxel / settings.samples_per_voxel;
@@ -288,6 +505,14 @@ impl RaycastParams {
             viewport: Vec4::new(width as f32, height as f32, 0.0, 0.0),
             volume_dims: dims.as_vec3().extend(0.0),
             cache_extent_inv: Vec4::ZERO,
+            mode: Vec4::new(
+                iso_value,
+                gamma,
+                settings.gradient_opacity.unwrap_or(0.0),
+                settings.gradient_step,
+            ),
+            shading: Vec4::new(sh.ambient, sh.diffuse, sh.specular, sh.shininess),
+            iso_colour: iso_colour.extend(1.0),
             world_from_clip: Mat4::IDENTITY,
         })
     }

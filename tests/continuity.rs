@@ -162,7 +162,7 @@ fn every_neighbour_class_is_continuous_in_smooth_mode() {
         ("all-but-centre", Box::new(move |b: UVec3| b != centre)),
         (
             "checkerboard",
-            Box::new(|b: UVec3| (b.x + b.y + b.z) % 2 == 0),
+            Box::new(|b: UVec3| (b.x + b.y + b.z).is_multiple_of(2)),
         ),
     ];
     for (name, is_low) in classes {

@@ -40,7 +40,7 @@ fn streamed_bricks_render_like_in_core_bricks_and_missing_ones_fall_back() {
         let count = 6 * 6 * 6;
         let checker: Vec<Level> = (0..count)
             .map(|i: usize| {
-                if (i % 6 + (i / 6) % 6 + i / 36) % 2 == 0 {
+                if (i % 6 + (i / 6) % 6 + i / 36).is_multiple_of(2) {
                     Level::Hi
                 } else {
                     Level::Lo

@@ -185,7 +185,7 @@ fn singular_plans(rng: &mut Rng, bricks: UVec3) -> Vec<(String, Vec<Level>)> {
                 (i as u32 / bricks.x) % bricks.y,
                 i as u32 / (bricks.x * bricks.y),
             );
-            if (b.x + b.y + b.z) % 2 == 0 {
+            if (b.x + b.y + b.z).is_multiple_of(2) {
                 Level::Hi
             } else {
                 Level::Lo

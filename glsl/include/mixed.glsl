@@ -93,21 +93,11 @@ float sample_hi_res_transition(vec3 q, vec3 texel_of_local, uint bits, float n) 
 // half-voxel band on a side that touches a low-res neighbour (face, edge or corner) and needs the
 // transition blend; every other sample of the brick is a plain fetch. Computed once per brick.
 void band_bounds(uint bits, float n, out vec3 lo, out vec3 hi) {
-    lo = vec3(-1.0);
-    hi = vec3(n + 1.0);
-    for (int k = 0; k < 27; ++k) {
-        ivec3 d = ivec3(k % 3, (k / 3) % 3, k / 9) - 1;
-        if (k == 13 || (bits & neighbour_bit(d)) == 0u) {
-            continue;
-        }
-        for (int a = 0; a < 3; ++a) {
-            if (d[a] < 0) {
-                lo[a] = 0.5;
-            } else if (d[a] > 0) {
-                hi[a] = n - 0.5;
-            }
-        }
-    }
+    // Neighbour bits of the 9 bricks on the low / high side of each axis (SIDE_MASKS in Rust).
+    const uvec3 low_side = uvec3(0x925249u, 0xe0e07u, 0x1ffu);
+    const uvec3 high_side = uvec3(0x2492924u, 0x381c1c0u, 0x3fe0000u);
+    lo = mix(vec3(-1.0), vec3(0.5), notEqual(uvec3(bits) & low_side, uvec3(0u)));
+    hi = mix(vec3(n + 1.0), vec3(n - 0.5), notEqual(uvec3(bits) & high_side, uvec3(0u)));
 }
 
 // The field at volume point x inside brick b with layout entry `entry` (t_w > 0), neighbour bits

@@ -2,11 +2,20 @@
 #ifndef OPTICS_GLSL
 #define OPTICS_GLSL
 
-// Maps a normalised sample value through the window onto the 1D RGBA transfer function texture
-// (TF_SIZE entries, linear filtering between entry centres).
-vec4 classify(sampler1D tf, vec4 tf_window, float value) {
-    float s = clamp((value - tf_window.x) * tf_window.y, 0.0, 1.0);
+// The transfer-function position of a sample value: through the window, clamped to [0, 1].
+float tf_position(vec4 tf_window, float value) {
+    return clamp((value - tf_window.x) * tf_window.y, 0.0, 1.0);
+}
+
+// The classification table (a 1D texture of TF_SIZE weighted entries: colour * coefficient,
+// coefficient) at TF position s, linearly filtered between entry centres. `ClassificationTable::lookup`.
+vec4 lookup_tf(sampler1D tf, float s) {
     return texture(tf, (s * float(TF_SIZE - 1) + 0.5) / float(TF_SIZE));
+}
+
+// The emitted colour of an interpolated weighted entry (black where the coefficient is 0).
+vec3 sample_colour(vec4 weighted) {
+    return weighted.a > 0.0 ? weighted.rgb / weighted.a : vec3(0.0);
 }
 
 // 1 - exp(y) for y <= 0, with a third-order series near 0 (keeps tiny results' relative accuracy).
@@ -34,6 +43,25 @@ float correct_opacity(float alpha, float ratio) {
 float extinction_opacity(float tau, float len) {
     float depth = tau * len;
     return depth > 0.0 ? one_minus_exp(-depth) : 0.0;
+}
+
+// Opacity of a segment `ratio` reference lengths long with coefficient `coefficient` (opacity of
+// one reference length, or EXTINCTION_MODEL: extinction per reference length).
+float sample_opacity(float coefficient, float ratio) {
+#ifdef EXTINCTION_MODEL
+    return extinction_opacity(coefficient, ratio);
+#else
+    return correct_opacity(coefficient, ratio);
+#endif
+}
+
+// Opacity of one reference length.
+float reference_opacity(float coefficient) {
+#ifdef EXTINCTION_MODEL
+    return extinction_opacity(coefficient, 1.0);
+#else
+    return min(coefficient, 1.0);
+#endif
 }
 
 // Front-to-back "under" operator on premultiplied colour: emission `rgb` with opacity `alpha`

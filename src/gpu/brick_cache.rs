@@ -220,7 +220,7 @@ impl GpuBrickCache {
             }
             // Regions are 4-byte aligned in the staging buffer (the copy offset rule for any
             // texel size we use).
-            while pending.bytes.len() % 4 != 0 {
+            while !pending.bytes.len().is_multiple_of(4) {
                 pending.bytes.push(0);
             }
             pending.copies.push(

@@ -170,6 +170,13 @@ pub(crate) struct DeviceShared {
     _entry: ash::Entry,
 }
 
+impl DeviceShared {
+    /// The instance the device was created from.
+    pub(crate) fn instance(&self) -> &ash::Instance {
+        &self.instance
+    }
+}
+
 // SAFETY: the raw pointer `log_user_data` is an `Arc<MessageLog>` reference count owned by this
 // struct (MessageLog is Sync); every other field is Send + Sync.
 unsafe impl Send for DeviceShared {}

@@ -9,6 +9,7 @@ mod compute;
 mod context;
 mod descriptors;
 mod memory;
+mod pipeline_cache;
 mod raycast;
 pub mod shaders;
 
@@ -20,5 +21,6 @@ pub use shaders::ShaderStage;
 pub(crate) use brick_cache::{CacheRegion, CacheTables, FieldProbe, GpuBrickCache};
 pub(crate) use commands::{image_barrier, memory_barrier, Access, Submitter, TimestampPool};
 pub(crate) use memory::{Buffer, Image, ImageDesc, COLOR_LAYERS};
+pub(crate) use pipeline_cache::PipelineCache;
 pub(crate) use raycast::RaycastPipeline;
 pub use raycast::RaycastVariant;

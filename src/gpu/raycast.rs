@@ -5,8 +5,8 @@ use super::context::DeviceShared;
 use super::descriptors::{DescriptorBundle, Sampler};
 use super::shaders::{compile, ShaderStage};
 use crate::error::{Result, VkResultExt};
-use crate::optics::TF_SIZE;
-use crate::scene::RAY_DIR_EPSILON;
+use crate::optics::{SamplingModel, TF_SIZE};
+use crate::scene::{ModeKind, RayFeatures, RAY_DIR_EPSILON};
 use ash::vk;
 use std::sync::Arc;
 
@@ -19,6 +19,10 @@ pub struct RaycastVariant {
     pub smooth_transitions: bool,
     /// Stop rays at a host depth buffer (embedding).
     pub host_depth: bool,
+    /// What each sample does: mode, shading, gradient opacity, sampling model, pre-integration.
+    pub features: RayFeatures,
+    /// The volume is pre-classified RGBA (single resolution, DVR).
+    pub rgba_volume: bool,
 }
 
 impl RaycastVariant {
@@ -37,6 +41,31 @@ impl RaycastVariant {
         if self.host_depth {
             defines.push(("HOST_DEPTH", "1".into()));
         }
+        if self.rgba_volume {
+            defines.push(("RGBA_VOLUME", "1".into()));
+        }
+        let f = self.features;
+        let mode = match f.mode {
+            ModeKind::Dvr => "MODE_DVR",
+            ModeKind::Iso => "MODE_ISO",
+            ModeKind::Mip => "MODE_MIP",
+            ModeKind::Mida => "MODE_MIDA",
+        };
+        defines.push((mode, "1".into()));
+        for (on, name) in [
+            (f.shading, "SHADING"),
+            (f.gradient_opacity, "GRADIENT_OPACITY"),
+            (
+                f.sampling_model == SamplingModel::Extinction,
+                "EXTINCTION_MODEL",
+            ),
+            (f.preintegrated, "PREINTEGRATED"),
+            (f.tricubic && !self.smooth_transitions, "TRICUBIC"),
+        ] {
+            if on {
+                defines.push((name, "1".into()));
+            }
+        }
         defines
     }
 }
@@ -54,12 +83,14 @@ pub(crate) struct RaycastPipeline {
 
 impl RaycastPipeline {
     /// Builds the variant for `color_format` targets with `sets` descriptor sets (one per frame
-    /// slot). The pipeline blends premultiplied colour *over* what the target holds.
+    /// slot) through `cache`. The pipeline blends premultiplied colour *over* what the target
+    /// holds.
     pub(crate) fn new(
         shared: &Arc<DeviceShared>,
         color_format: vk::Format,
         variant: RaycastVariant,
         sets: u32,
+        cache: vk::PipelineCache,
     ) -> Result<Self> {
         let defines = variant.defines();
         let vert = compile("raycast.vert", ShaderStage::Vertex, &defines)?;
@@ -76,6 +107,9 @@ impl RaycastPipeline {
         }
         if variant.host_depth {
             bindings.push((5, vk::DescriptorType::COMBINED_IMAGE_SAMPLER));
+        }
+        if variant.features.preintegrated {
+            bindings.push((6, vk::DescriptorType::COMBINED_IMAGE_SAMPLER));
         }
         let descriptors =
             DescriptorBundle::new(shared, &bindings, vk::ShaderStageFlags::FRAGMENT, sets)?;
@@ -99,20 +133,24 @@ impl RaycastPipeline {
             variant,
             shared: shared.clone(),
         };
-        // SAFETY: `this.layout` is a live pipeline layout of `device`.
-        this.pipeline =
-            unsafe { Self::create_pipeline(device, this.layout, color_format, &vert, &frag) }?;
+        // SAFETY: `this.layout` is a live pipeline layout of `device`; `cache` is null or a live
+        // pipeline cache of `device`.
+        this.pipeline = unsafe {
+            Self::create_pipeline(device, this.layout, color_format, &vert, &frag, cache)
+        }?;
         Ok(this)
     }
 
     /// # Safety
-    /// `layout` must be a live pipeline layout of `device`.
+    /// `layout` must be a live pipeline layout of `device`, `cache` null or a live pipeline
+    /// cache of `device` not used by another thread meanwhile.
     unsafe fn create_pipeline(
         device: &ash::Device,
         layout: vk::PipelineLayout,
         color_format: vk::Format,
         vert: &[u32],
         frag: &[u32],
+        cache: vk::PipelineCache,
     ) -> Result<vk::Pipeline> {
         // SAFETY: SPIR-V words from shaderc; modules are destroyed before returning.
         unsafe {
@@ -181,7 +219,7 @@ impl RaycastPipeline {
                 .dynamic_state(&dynamic)
                 .layout(layout)
                 .push_next(&mut rendering);
-            let result = device.create_graphics_pipelines(vk::PipelineCache::null(), &[info], None);
+            let result = device.create_graphics_pipelines(cache, &[info], None);
             device.destroy_shader_module(vert_module, None);
             device.destroy_shader_module(frag_module, None);
             result
@@ -194,8 +232,9 @@ impl RaycastPipeline {
     }
 
     /// Points descriptor set `set` at the parameter buffer, the volume (or brick cache), the
-    /// transfer function, for mixed resolution the layout and neighbour tables, and for host
-    /// depth the depth view (in `depth_layout`). The set must not be in use by pending GPU work.
+    /// transfer function, for mixed resolution the layout and neighbour tables, for host depth
+    /// the depth view (in `depth_layout`) and for pre-integration the 2D table. The set must not
+    /// be in use by pending GPU work.
     #[allow(clippy::too_many_arguments)] // reason: one argument per binding.
     pub(crate) fn write_descriptors(
         &self,
@@ -205,6 +244,7 @@ impl RaycastPipeline {
         tf_view: vk::ImageView,
         tables: Option<(vk::Buffer, vk::Buffer)>,
         depth: Option<(vk::ImageView, vk::ImageLayout)>,
+        preintegration: Option<vk::ImageView>,
     ) {
         let buffer_info = [vk::DescriptorBufferInfo {
             buffer: params,
@@ -220,6 +260,8 @@ impl RaycastPipeline {
         };
         let volume_info = image_info(volume_view, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL);
         let tf_info = image_info(tf_view, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL);
+        let preint_info =
+            preintegration.map(|view| image_info(view, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL));
         let depth_info = depth.map(|(view, image_layout)| {
             [vk::DescriptorImageInfo {
                 sampler: self.depth_sampler.raw,
@@ -274,6 +316,15 @@ impl RaycastPipeline {
                 vk::WriteDescriptorSet::default()
                     .dst_set(self.descriptors.sets[set])
                     .dst_binding(5)
+                    .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
+                    .image_info(info),
+            );
+        }
+        if let (true, Some(info)) = (self.variant.features.preintegrated, &preint_info) {
+            writes.push(
+                vk::WriteDescriptorSet::default()
+                    .dst_set(self.descriptors.sets[set])
+                    .dst_binding(6)
                     .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
                     .image_info(info),
             );

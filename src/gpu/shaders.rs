@@ -30,6 +30,7 @@ static SOURCES: &[Source] = glsl_sources!(
     "include/camera.glsl",
     "include/optics.glsl",
     "include/sampling.glsl",
+    "include/modes.glsl",
 );
 
 /// The pipeline stage a source is for.

@@ -1,6 +1,8 @@
 //! Transfer functions, opacity correction and compositing. `glsl/include/optics.glsl` mirrors the
 //! functions here one by one.
 
+pub mod preintegration;
+
 use crate::error::{Error, Result};
 use glam::{Vec3, Vec4};
 
@@ -167,9 +169,131 @@ impl TransferFunction {
 }
 
 /// Maps a normalised sample value through the window `(lo, 1 / (hi - lo))` onto the transfer
-/// function. Mirrors `classify` in optics.glsl.
+/// function (unweighted colour and opacity; the ray-caster classifies through a
+/// [`ClassificationTable`] instead).
 pub fn classify(tf: &TransferFunction, window_lo: f32, window_inv_range: f32, value: f32) -> Vec4 {
-    tf.lookup(((value - window_lo) * window_inv_range).clamp(0.0, 1.0))
+    tf.lookup(tf_position(window_lo, window_inv_range, value))
+}
+
+/// The transfer-function position of a sample value: `(value - lo) / (hi - lo)` clamped to
+/// [0, 1]. Mirrors `tf_position` in optics.glsl.
+pub fn tf_position(window_lo: f32, window_inv_range: f32, value: f32) -> f32 {
+    ((value - window_lo) * window_inv_range).clamp(0.0, 1.0)
+}
+
+/// How a sample's opacity follows from the classified data (Kraus et al., "Interpolating and
+/// downsampling RGBA volume data"): what is interpolated, and how a segment length enters.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]
+pub enum SamplingModel {
+    /// Interpolate opacity-weighted colour and the opacity of one reference length d0, then
+    /// correct the opacity for the segment length: `1 - (1 - alpha)^(d / d0)`.
+    #[default]
+    Opacity,
+    /// Interpolate extinction (per d0) and extinction-weighted colour; a segment of length d has
+    /// opacity `1 - exp(-tau d / d0)`. A transfer-function opacity `a` converts to
+    /// `tau = -ln(1 - a)`, capped at [`MAX_EXTINCTION`].
+    Extinction,
+}
+
+/// Largest extinction per reference length a classification table holds (opacity 1 entries map
+/// here): `exp(-64)` is 1.6e-28, opaque for every practical purpose.
+pub const MAX_EXTINCTION: f32 = 64.0;
+
+/// A transfer function in the form the ray-caster interpolates: per entry `(weighted colour,
+/// coefficient)`, the coefficient being the opacity of one reference length
+/// ([`SamplingModel::Opacity`]) or the extinction per reference length
+/// ([`SamplingModel::Extinction`]) and the colour premultiplied by it. The GPU's 1D texture
+/// holds exactly these entries.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClassificationTable {
+    model: SamplingModel,
+    entries: Vec<Vec4>,
+}
+
+impl ClassificationTable {
+    /// Converts `tf` for `model`.
+    pub fn new(tf: &TransferFunction, model: SamplingModel) -> Self {
+        let entries = tf
+            .entries()
+            .iter()
+            .map(|e| {
+                let coefficient = match model {
+                    SamplingModel::Opacity => e.w,
+                    SamplingModel::Extinction => opacity_to_extinction(e.w),
+                };
+                (e.truncate() * coefficient).extend(coefficient)
+            })
+            .collect();
+        Self { model, entries }
+    }
+
+    /// The sampling model the entries are for.
+    pub fn model(&self) -> SamplingModel {
+        self.model
+    }
+
+    /// The weighted entries, [`TF_SIZE`] of them.
+    pub fn entries(&self) -> &[Vec4] {
+        &self.entries
+    }
+
+    /// Linear lookup at TF position `s` (clamped) between entry centres, as the GPU's linearly
+    /// filtered 1D texture does. Mirrors `lookup_tf` in optics.glsl.
+    pub fn lookup(&self, s: f32) -> Vec4 {
+        let x = s.clamp(0.0, 1.0) * (TF_SIZE - 1) as f32;
+        let i0 = (x.floor() as usize).min(TF_SIZE - 1);
+        let i1 = (i0 + 1).min(TF_SIZE - 1);
+        let f = x - i0 as f32;
+        self.entries[i0].lerp(self.entries[i1], f)
+    }
+
+    /// Opacity of a segment `ratio` reference lengths long with coefficient `coefficient` (an
+    /// interpolated entry's w). Mirrors `sample_opacity` in optics.glsl.
+    pub fn sample_opacity(&self, coefficient: f32, ratio: f32) -> f32 {
+        match self.model {
+            SamplingModel::Opacity => correct_opacity(coefficient, ratio),
+            SamplingModel::Extinction => extinction_opacity(coefficient, ratio),
+        }
+    }
+
+    /// Opacity of one reference length (the opacity a transfer function shows). Mirrors
+    /// `reference_opacity` in optics.glsl.
+    pub fn reference_opacity(&self, coefficient: f32) -> f32 {
+        match self.model {
+            SamplingModel::Opacity => coefficient.min(1.0),
+            SamplingModel::Extinction => extinction_opacity(coefficient, 1.0),
+        }
+    }
+
+    /// Extinction per reference length of an interpolated coefficient (for pre-integration).
+    pub fn extinction(&self, coefficient: f32) -> f32 {
+        match self.model {
+            SamplingModel::Opacity => opacity_to_extinction(coefficient),
+            SamplingModel::Extinction => coefficient,
+        }
+    }
+}
+
+/// Extinction per reference length of opacity `alpha` over that length: `-ln(1 - alpha)`,
+/// capped at [`MAX_EXTINCTION`].
+pub fn opacity_to_extinction(alpha: f32) -> f32 {
+    if alpha <= 0.0 {
+        0.0
+    } else if alpha >= 1.0 {
+        MAX_EXTINCTION
+    } else {
+        (-(-f64::from(alpha)).ln_1p()).min(f64::from(MAX_EXTINCTION)) as f32
+    }
+}
+
+/// The emitted colour of an interpolated weighted entry: weighted colour / coefficient (black
+/// where the coefficient is 0). Mirrors `sample_colour` in optics.glsl.
+pub fn sample_colour(weighted: Vec4) -> Vec3 {
+    if weighted.w > 0.0 {
+        weighted.truncate() / weighted.w
+    } else {
+        Vec3::ZERO
+    }
 }
 
 /// Opacity of a segment `ratio` reference lengths long from the opacity `alpha` of one reference

@@ -236,21 +236,24 @@ pub fn sample_mixed(mv: &MixedVolume, x: Vec3, transition: Transition) -> Option
 pub fn band_bounds(bits: u32, n: f32) -> (Vec3, Vec3) {
     let mut lo = Vec3::splat(-1.0);
     let mut hi = Vec3::splat(n + 1.0);
-    for k in 0..27 {
-        let d = IVec3::new(k % 3, (k / 3) % 3, k / 9) - IVec3::ONE;
-        if k == 13 || bits & neighbour_bit(d) == 0 {
-            continue;
+    for a in 0..3 {
+        if bits & SIDE_MASKS[a][0] != 0 {
+            lo[a] = 0.5;
         }
-        for a in 0..3 {
-            if d[a] < 0 {
-                lo[a] = 0.5;
-            } else if d[a] > 0 {
-                hi[a] = n - 0.5;
-            }
+        if bits & SIDE_MASKS[a][1] != 0 {
+            hi[a] = n - 0.5;
         }
     }
     (lo, hi)
 }
+
+/// Per axis, the neighbour bits of the nine bricks on its low and its high side (the constants
+/// `low_side` and `high_side` in `band_bounds` in mixed.glsl).
+pub const SIDE_MASKS: [[u32; 2]; 3] = [
+    [0x0092_5249, 0x0249_2924],
+    [0x000e_0e07, 0x0381_c1c0],
+    [0x0000_01ff, 0x03fe_0000],
+];
 
 /// The field at volume point `x` inside brick `b` with layout entry `entry` (`t_w > 0`),
 /// neighbour bits `bits` and band bounds `(lo, hi)` from [`band_bounds`]. Mirrors
@@ -531,5 +534,26 @@ pub fn dequantize(bytes: &[u8], storage: crate::volume::ScalarType) -> Vec<f32> 
             .map(|c| f32::from(u16::from_ne_bytes([c[0], c[1]])) / 65535.0)
             .collect(),
         ScalarType::F32 => bytemuck::pod_collect_to_vec(bytes),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn side_masks_collect_the_neighbours_on_each_side() {
+        for a in 0..3 {
+            for (side, sign) in [(0, -1), (1, 1)] {
+                let mut mask = 0;
+                for k in 0..27 {
+                    let d = IVec3::new(k % 3, (k / 3) % 3, k / 9) - IVec3::ONE;
+                    if k != 13 && d[a] == sign {
+                        mask |= neighbour_bit(d);
+                    }
+                }
+                assert_eq!(SIDE_MASKS[a][side], mask, "axis {a} side {sign}");
+            }
+        }
     }
 }

@@ -3,6 +3,7 @@
 
 mod camera;
 mod mixed;
+mod modes;
 mod sampling;
 
 pub use camera::{depth_limit, generate_ray, intersect_box, safe_inverse, Ray};
@@ -11,22 +12,24 @@ pub use mixed::{
     fixup_value, low_res_border_coord, neighbour_bit, sample_hi_res_transition, sample_in_brick,
     sample_mixed, CacheImage, MixedVolume, ReferenceCache, Transition, FIXUP_PRECEDENCE,
 };
-pub use sampling::sample_volume;
+pub use modes::{RayProgram, RayState, ISO_BISECTIONS};
+pub use sampling::{sample_rgba_volume, sample_tricubic, sample_volume, tricubic_taps};
 
-use crate::optics::{classify, composite, correct_opacity, TransferFunction};
-use crate::scene::RaycastParams;
-use crate::volume::Volume;
-use glam::{Vec2, Vec4};
+use crate::error::Result;
+use crate::optics::preintegration::PreintegrationTable;
+use crate::optics::{ClassificationTable, SamplingModel, TransferFunction};
+use crate::scene::{RayFeatures, RaycastParams, RenderSettings};
+use crate::volume::{RgbaVolume, Volume};
+use glam::{Vec2, Vec3, Vec4};
 
-/// Casts one ray. Mirrors `cast_ray` in `glsl/raycast.frag` step by step; returns premultiplied
-/// RGB and opacity.
+/// Casts one ray with the default program (DVR, opacity-based sampling, unlit). Mirrors
+/// `cast_ray` in `glsl/raycast.frag` step by step; returns premultiplied RGB and opacity.
 pub fn cast_ray(volume: &Volume, tf: &TransferFunction, p: &RaycastParams, ray: &Ray) -> Vec4 {
     cast_ray_until(volume, tf, p, ray, f32::INFINITY)
 }
 
 /// [`cast_ray`] with the ray also ending at `t_limit` (e.g. a host depth, see [`depth_limit`]):
 /// `ray_end` in raycast.frag.
-#[allow(clippy::neg_cmp_op_on_partial_ord)] // reason: `!(t0 < t1)` mirrors the GLSL and also rejects NaN.
 pub fn cast_ray_until(
     volume: &Volume,
     tf: &TransferFunction,
@@ -34,36 +37,74 @@ pub fn cast_ray_until(
     ray: &Ray,
     t_limit: f32,
 ) -> Vec4 {
+    let table = ClassificationTable::new(tf, SamplingModel::Opacity);
+    let field = volume_field(volume, p);
+    let program = RayProgram {
+        features: RayFeatures::default(),
+        table: &table,
+        preintegration: None,
+        params: p,
+        field: &field,
+    };
+    cast_ray_program(volume, &program, ray, t_limit)
+}
+
+/// The single-resolution field at a voxel position: `field_at` in raycast.frag.
+pub fn volume_field<'a>(
+    volume: &'a Volume,
+    p: &RaycastParams,
+) -> impl Fn(Vec3) -> Option<f32> + 'a {
+    let dims = p.volume_dims.truncate();
+    move |x| Some(sample_volume(volume, x / dims))
+}
+
+/// The mixed-resolution field at a voxel position (clamped into the volume; `None` in an absent
+/// brick): `field_at` in raycast.frag (MIXED_RESOLUTION).
+pub fn mixed_field<'a>(
+    mv: &'a MixedVolume<'a>,
+    transition: Transition,
+    p: &RaycastParams,
+) -> impl Fn(Vec3) -> Option<f32> + 'a {
+    let dims = p.volume_dims.truncate();
+    move |x| sample_mixed(mv, x.clamp(Vec3::ZERO, dims), transition)
+}
+
+/// Casts one ray through a single-resolution volume with `program` (whose field must be
+/// [`volume_field`] of `volume`), ending at `t_limit` too. Mirrors `cast_ray` in raycast.frag.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // reason: `!(t0 < t1)` mirrors the GLSL and also rejects NaN.
+pub fn cast_ray_program(volume: &Volume, program: &RayProgram, ray: &Ray, t_limit: f32) -> Vec4 {
+    let p = program.params;
     let (enter, exit) = intersect_box(ray, p.box_min.truncate(), p.box_max.truncate());
     let t0 = enter.max(p.forward.w);
     let t1 = exit.min(p.right.w).min(t_limit);
-    let mut acc = Vec4::ZERO;
+    let mut s = RayState::default();
     if !(t0 < t1) {
-        return acc;
+        return s.acc;
     }
     let step_len = p.box_min.w;
-    let inv_d0 = 1.0 / p.box_max.w;
     let box_size = p.box_max.truncate() - p.box_min.truncate();
+    let to_voxel = p.volume_dims.truncate() / box_size;
     let steps = ((t1 - t0) / step_len).ceil().min(p.tf_window.w) as i32;
     for i in 0..steps {
         let t_start = t0 + i as f32 * step_len;
         let len = step_len.min(t1 - t_start).max(0.0);
         let pos = ray.origin + ray.dir * (t_start + 0.5 * len);
-        let value = sample_volume(volume, (pos - p.box_min.truncate()) / box_size);
-        let rgba = classify(tf, p.tf_window.x, p.tf_window.y, value);
-        let alpha = correct_opacity(rgba.w, len * inv_d0);
-        acc = composite(acc, rgba.truncate(), alpha);
-        if acc.w >= p.tf_window.z {
+        let x = (pos - p.box_min.truncate()) * to_voxel;
+        let value = if program.features.tricubic {
+            sample_tricubic(program.field, x)
+        } else {
+            sample_volume(volume, (pos - p.box_min.truncate()) / box_size)
+        };
+        if program.integrate_sample(&mut s, value, len, x, ray.dir) {
             break;
         }
     }
-    acc
+    program.finish_ray(&s, ray.dir)
 }
 
-/// Casts one ray through a mixed-resolution brick cache. Mirrors the MIXED_RESOLUTION
-/// `cast_ray` in `glsl/raycast.frag`: the same samples as [`cast_ray`]; samples in absent bricks
-/// are skipped. `p` must come from [`RaycastParams::with_cache`].
-#[allow(clippy::neg_cmp_op_on_partial_ord)] // reason: `!(t0 < t1)` mirrors the GLSL and also rejects NaN.
+/// Casts one ray through a mixed-resolution brick cache with the default program. Mirrors the
+/// MIXED_RESOLUTION `cast_ray` in `glsl/raycast.frag`: the same samples as [`cast_ray`]; samples
+/// in absent bricks are skipped. `p` must come from [`RaycastParams::with_cache`].
 pub fn cast_ray_mixed(
     mv: &MixedVolume,
     transition: Transition,
@@ -71,15 +112,35 @@ pub fn cast_ray_mixed(
     p: &RaycastParams,
     ray: &Ray,
 ) -> Vec4 {
+    let table = ClassificationTable::new(tf, SamplingModel::Opacity);
+    let field = mixed_field(mv, transition, p);
+    let program = RayProgram {
+        features: RayFeatures::default(),
+        table: &table,
+        preintegration: None,
+        params: p,
+        field: &field,
+    };
+    cast_ray_mixed_program(mv, transition, &program, ray)
+}
+
+/// [`cast_ray_mixed`] with `program` (whose field must be [`mixed_field`] of `mv`).
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // reason: `!(t0 < t1)` mirrors the GLSL and also rejects NaN.
+pub fn cast_ray_mixed_program(
+    mv: &MixedVolume,
+    transition: Transition,
+    program: &RayProgram,
+    ray: &Ray,
+) -> Vec4 {
+    let p = program.params;
     let (enter, exit) = intersect_box(ray, p.box_min.truncate(), p.box_max.truncate());
     let t0 = enter.max(p.forward.w);
     let t1 = exit.min(p.right.w);
-    let mut acc = Vec4::ZERO;
+    let mut s = RayState::default();
     if !(t0 < t1) {
-        return acc;
+        return s.acc;
     }
     let step_len = p.box_min.w;
-    let inv_d0 = 1.0 / p.box_max.w;
     let box_size = p.box_max.truncate() - p.box_min.truncate();
     let to_voxel = p.volume_dims.truncate() / box_size;
     let voxel_origin = (ray.origin - p.box_min.truncate()) * to_voxel;
@@ -90,16 +151,149 @@ pub fn cast_ray_mixed(
         let len = step_len.min(t1 - t_start).max(0.0);
         let x = voxel_origin + voxel_dir * (t_start + 0.5 * len);
         let Some(value) = sample_mixed(mv, x, transition) else {
+            program.break_ray(&mut s);
             continue;
         };
-        let rgba = classify(tf, p.tf_window.x, p.tf_window.y, value);
-        let alpha = correct_opacity(rgba.w, len * inv_d0);
-        acc = composite(acc, rgba.truncate(), alpha);
-        if acc.w >= p.tf_window.z {
+        let value = if program.features.tricubic {
+            sample_tricubic(program.field, x)
+        } else {
+            value
+        };
+        if program.integrate_sample(&mut s, value, len, x, ray.dir) {
             break;
         }
     }
-    acc
+    program.finish_ray(&s, ray.dir)
+}
+
+/// Casts one ray through a pre-classified RGBA volume whose weighted voxels (for the program's
+/// sampling model, see [`RgbaVolume::weighted`]) are `weighted`. Mirrors `cast_ray` in
+/// raycast.frag with RGBA_VOLUME.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // reason: `!(t0 < t1)` mirrors the GLSL and also rejects NaN.
+pub fn cast_ray_rgba(
+    dims: glam::UVec3,
+    weighted: &[Vec4],
+    program: &RayProgram,
+    ray: &Ray,
+) -> Vec4 {
+    let p = program.params;
+    let (enter, exit) = intersect_box(ray, p.box_min.truncate(), p.box_max.truncate());
+    let t0 = enter.max(p.forward.w);
+    let t1 = exit.min(p.right.w);
+    let mut s = RayState::default();
+    if !(t0 < t1) {
+        return s.acc;
+    }
+    let step_len = p.box_min.w;
+    let box_size = p.box_max.truncate() - p.box_min.truncate();
+    let steps = ((t1 - t0) / step_len).ceil().min(p.tf_window.w) as i32;
+    for i in 0..steps {
+        let t_start = t0 + i as f32 * step_len;
+        let len = step_len.min(t1 - t_start).max(0.0);
+        let pos = ray.origin + ray.dir * (t_start + 0.5 * len);
+        let w = sample_rgba_volume(dims, weighted, (pos - p.box_min.truncate()) / box_size);
+        if program.integrate_weighted(&mut s, w, len) {
+            break;
+        }
+    }
+    s.acc
+}
+
+/// Renders a whole image of a pre-classified RGBA volume with the sampling model of `settings`.
+pub fn render_rgba(
+    volume: &RgbaVolume,
+    settings: &RenderSettings,
+    p: &RaycastParams,
+) -> Vec<Vec4> {
+    let model = settings.sampling_model;
+    let weighted = volume.weighted(model);
+    // Only the model matters to `integrate_weighted`; the table's entries are unused.
+    let table = ClassificationTable::new(
+        &TransferFunction::preset(crate::optics::TfPreset::ConstantWhite),
+        model,
+    );
+    let field = |_: Vec3| None;
+    let program = RayProgram {
+        features: settings.features(),
+        table: &table,
+        preintegration: None,
+        params: p,
+        field: &field,
+    };
+    render_with(p, |ray| cast_ray_rgba(volume.dims(), &weighted, &program, ray))
+}
+
+/// The tables a scene's settings call for: the classification table for its sampling model and,
+/// with pre-integration, the 2D table for its step.
+pub fn scene_tables(
+    tf: &TransferFunction,
+    settings: &RenderSettings,
+    p: &RaycastParams,
+) -> Result<(ClassificationTable, Option<PreintegrationTable>)> {
+    let features = settings.features();
+    let table = ClassificationTable::new(tf, features.sampling_model);
+    let preintegration = if features.preintegrated {
+        Some(PreintegrationTable::build(
+            &table,
+            p.box_min.w / p.box_max.w,
+        )?)
+    } else {
+        None
+    };
+    Ok((table, preintegration))
+}
+
+/// Renders a whole single-resolution image with every effect `settings` calls for.
+pub fn render_scene(
+    volume: &Volume,
+    tf: &TransferFunction,
+    settings: &RenderSettings,
+    p: &RaycastParams,
+) -> Result<Vec<Vec4>> {
+    let (table, preintegration) = scene_tables(tf, settings, p)?;
+    let field = volume_field(volume, p);
+    let program = RayProgram {
+        features: settings.features(),
+        table: &table,
+        preintegration: preintegration.as_ref(),
+        params: p,
+        field: &field,
+    };
+    Ok(render_with(p, |ray| {
+        cast_ray_program(volume, &program, ray, f32::INFINITY)
+    }))
+}
+
+/// The features a mixed-resolution frame runs with: those of `settings`, without tricubic
+/// reconstruction while a low-res brick is resident (as the GPU pass decides).
+pub fn mixed_features(mv: &MixedVolume, settings: &RenderSettings) -> RayFeatures {
+    let features = settings.features();
+    RayFeatures {
+        tricubic: features.tricubic && !mv.layout.iter().any(|e| e[3] == 0.5),
+        ..features
+    }
+}
+
+/// Renders a whole mixed-resolution image with every effect `settings` calls for.
+pub fn render_mixed_scene(
+    mv: &MixedVolume,
+    transition: Transition,
+    tf: &TransferFunction,
+    settings: &RenderSettings,
+    p: &RaycastParams,
+) -> Result<Vec<Vec4>> {
+    let (table, preintegration) = scene_tables(tf, settings, p)?;
+    let field = mixed_field(mv, transition, p);
+    let program = RayProgram {
+        features: mixed_features(mv, settings),
+        table: &table,
+        preintegration: preintegration.as_ref(),
+        params: p,
+        field: &field,
+    };
+    Ok(render_with(p, |ray| {
+        cast_ray_mixed_program(mv, transition, &program, ray)
+    }))
 }
 
 /// Renders a whole image, row-major from the top-left pixel, premultiplied RGBA per pixel.

@@ -6,6 +6,7 @@
 
 pub mod formats;
 mod loader;
+mod rgba;
 mod synthetic;
 
 pub use formats::{
@@ -13,6 +14,7 @@ pub use formats::{
     LoadedVolume, StoredType, VolumeMeta,
 };
 pub use loader::{load_raw, save_raw, RawDescriptor};
+pub use rgba::RgbaVolume;
 pub use synthetic::{
     marschner_lobb, marschner_lobb_value, sphere, wall, SyntheticField,
     DEFAULT_SPHERE_RADIUS_FRACTION,

@@ -68,6 +68,13 @@ fn settings() -> Vec<(&'static str, RenderSettings)> {
             },
         ),
         (
+            "DVR, low-res bricks at double step (LaMar; mixed only)",
+            RenderSettings {
+                coarse_low_res_steps: true,
+                ..base
+            },
+        ),
+        (
             "DVR in the MIDA variant (gamma -1)",
             RenderSettings {
                 mode: RenderMode::Mida { gamma: -1.0 },

@@ -155,6 +155,29 @@ int first_sample_after(float t, float t0, float step_len) {
     return int(ceil((t - t0) / step_len - 0.5));
 }
 
+#ifdef COARSE_LOW_RES
+// LaMar's coarse sampling: in a low-res brick, sample i and sample i + 1 (if it lies in the same
+// brick) merge into one sample at their common boundary standing for both segments. Updates
+// `len` and `x` and returns the index of the last sample consumed. Mirrors the
+// `coarse_low_res` step of `cast_ray_mixed_program`.
+int merge_low_res_pair(int i, int steps, float t0, float t1, float step_len, Ray voxel_ray,
+                       ivec3 b, float n, ivec3 bricks, inout float len, inout vec3 x) {
+    if (i + 1 >= steps) {
+        return i;
+    }
+    float t_start = t0 + float(i) * step_len;
+    float t_next = t0 + float(i + 1) * step_len;
+    float len_next = max(min(step_len, t1 - t_next), 0.0);
+    vec3 x_next = voxel_ray.origin + voxel_ray.dir * (t_next + 0.5 * len_next);
+    if (any(notEqual(brick_of(x_next, n, bricks), b))) {
+        return i;
+    }
+    len = max(min(2.0 * step_len, t1 - t_start), 0.0);
+    x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
+    return i + 1;
+}
+#endif
+
 #ifndef SMOOTH_TRANSITIONS
 // Without transitions every sample is one fetch: a single loop over the samples that reloads the
 // layout entry only when a sample lands in a new brick (cheaper on SIMD CPUs than nested loops).
@@ -194,6 +217,11 @@ vec4 cast_ray(Ray ray) {
         if (entry.w == 0.0) {
             continue;
         }
+#ifdef COARSE_LOW_RES
+        if (entry.w == 0.5) {
+            i = merge_low_res_pair(i, steps, t0, t1, step_len, voxel_ray, b, n, bricks, len, x);
+        }
+#endif
 #ifdef TRICUBIC
         float value = sample_tricubic(x);
 #else
@@ -275,6 +303,11 @@ vec4 cast_ray(Ray ray) {
             t_start = t0 + float(i) * step_len;
             len = max(min(step_len, t1 - t_start), 0.0);
             x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
+#ifdef COARSE_LOW_RES
+            if (entry.w == 0.5) {
+                i = merge_low_res_pair(i, steps, t0, t1, step_len, voxel_ray, b, n, bricks, len, x);
+            }
+#endif
             if (integrate_sample(s, cache_fetch(x * entry.w + entry.xyz), len, x, ray.dir)) {
                 return finish_ray(s, ray.dir);
             }

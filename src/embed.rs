@@ -689,7 +689,10 @@ impl VolumePass {
             },
             Source::Single(v) => RaycastVariant {
                 host_depth,
-                features,
+                features: RayFeatures {
+                    coarse_low_res: false,
+                    ..features
+                },
                 rgba_volume: v.rgba.is_some(),
                 ..RaycastVariant::default()
             },
@@ -885,6 +888,7 @@ impl VolumePass {
             if features
                 != (RayFeatures {
                     sampling_model: features.sampling_model,
+                    coarse_low_res: features.coarse_low_res,
                     ..RayFeatures::default()
                 })
             {
@@ -895,9 +899,8 @@ impl VolumePass {
                 )));
             }
             if *model != Some(features.sampling_model) {
-                *pending = Some(
-                    bytemuck::cast_slice(&volume.weighted(features.sampling_model)).to_vec(),
-                );
+                *pending =
+                    Some(bytemuck::cast_slice(&volume.weighted(features.sampling_model)).to_vec());
                 *model = Some(features.sampling_model);
             }
         }

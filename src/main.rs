@@ -253,6 +253,9 @@ struct OpticsArgs {
     /// Tricubic B-spline reconstruction (single resolution, or every resident brick hi-res).
     #[arg(long)]
     tricubic: bool,
+    /// LaMar's coarse sampling: low-res bricks at twice the step (mixed resolution).
+    #[arg(long)]
+    coarse_low_res: bool,
 }
 
 #[derive(Copy, Clone, Debug, ValueEnum)]
@@ -289,6 +292,7 @@ impl OpticsArgs {
             } else {
                 Reconstruction::Trilinear
             },
+            coarse_low_res_steps: self.coarse_low_res,
             ..settings
         }
     }

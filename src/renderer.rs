@@ -132,17 +132,29 @@ pub struct Renderer {
 impl Renderer {
     /// Creates the pass and per-renderer resources; checks the formats it needs.
     pub fn new(ctx: &GpuContext, format: TargetFormat) -> Result<Self> {
+        Self::with_pipeline_cache(ctx, format, &[])
+    }
+
+    /// [`Renderer::new`] with pipeline variants built through a `VkPipelineCache` seeded with
+    /// `cache_data` from [`Renderer::pipeline_cache_data`] of an earlier run (see
+    /// [`VolumePass::with_pipeline_cache`]).
+    pub fn with_pipeline_cache(
+        ctx: &GpuContext,
+        format: TargetFormat,
+        cache_data: &[u8],
+    ) -> Result<Self> {
         ctx.shared.require_format(
             format.vk(),
             vk::FormatFeatureFlags::COLOR_ATTACHMENT | vk::FormatFeatureFlags::TRANSFER_SRC,
             "render target",
         )?;
-        let pass = VolumePass::new(
+        let pass = VolumePass::with_pipeline_cache(
             ctx,
             PassDesc {
                 color_format: format.vk(),
                 frames_in_flight: 1,
             },
+            cache_data,
         )?;
         let submitter = Submitter::new(&ctx.shared)?;
         Ok(Self {
@@ -258,6 +270,17 @@ impl Renderer {
     /// The pipeline variants built so far (each compiled once, then reused).
     pub fn built_variants(&self) -> Vec<RaycastVariant> {
         self.pass.built_variants()
+    }
+
+    /// The contents of the pipeline cache (every variant built so far), to save for the next
+    /// run.
+    pub fn pipeline_cache_data(&self) -> Result<Vec<u8>> {
+        self.pass.pipeline_cache_data()
+    }
+
+    /// Whether the pipeline cache was seeded with the data given at creation.
+    pub fn pipeline_cache_seeded(&self) -> bool {
+        self.pass.pipeline_cache_seeded()
     }
 
     /// The pipeline variant the current source draws with under `settings`: only the effects

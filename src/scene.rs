@@ -183,6 +183,8 @@ pub struct RayFeatures {
     pub preintegrated: bool,
     /// Tricubic B-spline reconstruction ([`Reconstruction::TricubicBSpline`]).
     pub tricubic: bool,
+    /// Low-res bricks sampled at twice the step ([`RenderSettings::coarse_low_res_steps`]).
+    pub coarse_low_res: bool,
 }
 
 /// Settings for one render.
@@ -217,6 +219,11 @@ pub struct RenderSettings {
     pub gradient_step: f32,
     /// Reconstruction filter.
     pub reconstruction: Reconstruction,
+    /// LaMar et al.'s coarse sampling of low-res data (mixed resolution only): two consecutive
+    /// samples in one low-res brick merge into one at their common boundary standing for both
+    /// segments, with the opacity corrected for the doubled length. Fewer samples where the data
+    /// has half the resolution; exact for homogeneous regions, an approximation elsewhere.
+    pub coarse_low_res_steps: bool,
 }
 
 impl RenderSettings {
@@ -236,6 +243,7 @@ impl RenderSettings {
             sampling_model: self.sampling_model,
             preintegrated: self.preintegrated && classifies_samples,
             tricubic: self.reconstruction == Reconstruction::TricubicBSpline,
+            coarse_low_res: self.coarse_low_res_steps,
         }
     }
 
@@ -301,6 +309,7 @@ impl Default for RenderSettings {
             preintegrated: false,
             gradient_step: 1.0,
             reconstruction: Reconstruction::Trilinear,
+            coarse_low_res_steps: false,
         }
     }
 }

@@ -17,7 +17,7 @@ use mixvol::cache::Level;
 use mixvol::optics::{ClassificationTable, SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::{self, RayProgram, ReferenceCache, Transition};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
-use mixvol::scene::{Camera, Reconstruction, RenderMode, RenderSettings, Shading};
+use mixvol::scene::{Camera, RayFeatures, Reconstruction, RenderMode, RenderSettings, Shading};
 use mixvol::volume::{ScalarType, SyntheticField, Volume, VoxelData};
 use std::sync::Arc;
 
@@ -88,6 +88,14 @@ fn scenes() -> Vec<(&'static str, RenderSettings)> {
                     value: 0.5,
                     colour: Vec3::new(0.9, 0.7, 0.4),
                 },
+                shading: Some(shading()),
+                ..base
+            },
+        ),
+        (
+            "dvr-coarse-low-res",
+            RenderSettings {
+                coarse_low_res_steps: true,
                 shading: Some(shading()),
                 ..base
             },
@@ -213,7 +221,11 @@ fn every_mode_and_option_matches_the_reference_single_and_mixed() {
         for (name, settings) in scenes() {
             let iso = matches!(settings.mode, RenderMode::Iso { .. });
             let frame = single.render(&camera, &settings, SIZE, SIZE).unwrap();
-            assert_eq!(frame.variant.features, settings.features(), "{name}");
+            let single_features = RayFeatures {
+                coarse_low_res: false,
+                ..settings.features()
+            };
+            assert_eq!(frame.variant.features, single_features, "{name}");
             let params = single.params(&camera, &settings, SIZE, SIZE).unwrap();
             let expected = reference::render_scene(&volume, &tf, &settings, &params).unwrap();
             let visible = expected.iter().filter(|p| p.w > 0.05).count();
@@ -683,6 +695,149 @@ fn tricubic_b_spline_is_exact_and_consistent_across_bricks() {
         assert!(
             d.mean < 1e-4 && d.max < 2.0 / 255.0,
             "all-hi cache vs texture: {d:?}"
+        );
+    }
+    common::finish(ctx);
+}
+
+/// Variants go through a VkPipelineCache whose data can be saved and handed to the next
+/// renderer: the data carries this device's header, a renderer seeded with it accepts it and
+/// draws the same image, and data for another device (a corrupted header) is ignored, not
+/// passed to the driver.
+#[test]
+fn pipeline_cache_data_round_trips_and_foreign_data_is_ignored() {
+    let ctx = common::validated_context();
+    {
+        let volume = f32_volume(UVec3::splat(16), |p| p.x / 16.0);
+        let tf = TransferFunction::preset(TfPreset::Bands);
+        let camera = Camera::perspective(Vec3::new(1.0, 0.8, 1.5), Vec3::ZERO, 40.0);
+        let settings = RenderSettings {
+            shading: Some(shading()),
+            ..RenderSettings::default()
+        };
+        let mut first = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
+        assert!(!first.pipeline_cache_seeded());
+        first.set_transfer_function(&tf).unwrap();
+        first.set_volume(&volume).unwrap();
+        let image = first.render(&camera, &settings, SIZE, SIZE).unwrap().pixels;
+        let data = first.pipeline_cache_data().unwrap();
+        assert!(data.len() >= 32, "{} bytes", data.len());
+        let header_len = u32::from_le_bytes(data[0..4].try_into().unwrap());
+        let version = u32::from_le_bytes(data[4..8].try_into().unwrap());
+        assert!(
+            header_len >= 32 && version == 1,
+            "header {header_len} v{version}"
+        );
+
+        let mut second =
+            Renderer::with_pipeline_cache(&ctx, TargetFormat::Rgba32Float, &data).unwrap();
+        assert!(second.pipeline_cache_seeded());
+        second.set_transfer_function(&tf).unwrap();
+        second.set_volume(&volume).unwrap();
+        let again = second
+            .render(&camera, &settings, SIZE, SIZE)
+            .unwrap()
+            .pixels;
+        assert_eq!(image, again);
+
+        let mut foreign = data.clone();
+        foreign[16] ^= 0xff; // another pipeline-cache UUID
+        let third =
+            Renderer::with_pipeline_cache(&ctx, TargetFormat::Rgba32Float, &foreign).unwrap();
+        assert!(!third.pipeline_cache_seeded());
+        let short =
+            Renderer::with_pipeline_cache(&ctx, TargetFormat::Rgba32Float, &data[..7]).unwrap();
+        assert!(!short.pipeline_cache_seeded());
+    }
+    common::finish(ctx);
+}
+
+/// LaMar's coarse sampling of low-res bricks: on a homogeneous volume held entirely in low-res
+/// bricks the merged samples still composite to 1 - (1 - alpha)^L (opacity correction is exact
+/// there), and it changes the image of structured data (fewer samples).
+#[test]
+fn coarse_low_res_steps_are_exact_on_homogeneous_data() {
+    let ctx = common::validated_context();
+    {
+        let dims = UVec3::new(16, 16, 32);
+        let constant = Arc::new(f32_volume(dims, |_| 0.5));
+        let tf = TransferFunction::preset(TfPreset::ConstantWhite); // 0.1 per voxel
+        let camera = Camera::orthographic(Vec3::new(0.0, 0.0, 2.0), Vec3::ZERO, 0.3);
+        let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
+        renderer.set_transfer_function(&tf).unwrap();
+        renderer
+            .set_mixed_volume(
+                constant.clone(),
+                MixedConfig {
+                    brick_size: N,
+                    filter: DownsampleFilter::Mean2,
+                    cache_budget_bytes: 64 << 20,
+                    transition: Transition::Smooth,
+                },
+            )
+            .unwrap();
+        let count = BrickGrid::new(dims, N).unwrap().brick_count();
+        renderer.set_levels(&vec![Level::Lo; count]).unwrap();
+        let expected = 1.0 - 0.9f64.powf(32.0);
+        for spv in [0.7f32, 1.0, 2.0, 3.3] {
+            for coarse in [false, true] {
+                let settings = RenderSettings {
+                    samples_per_voxel: spv,
+                    coarse_low_res_steps: coarse,
+                    early_termination: 1.0,
+                    value_window: Some((0.0, 1.0)),
+                    ..RenderSettings::default()
+                };
+                let frame = renderer.render(&camera, &settings, SIZE, SIZE).unwrap();
+                assert_eq!(frame.variant.features.coarse_low_res, coarse);
+                let centre = frame.pixels[(SIZE / 2 * SIZE + SIZE / 2) as usize];
+                assert!(
+                    (f64::from(centre.w) - expected).abs() < 3e-5,
+                    "spv {spv} coarse {coarse}: {} vs {expected}",
+                    centre.w
+                );
+            }
+        }
+
+        // Structured data: the merged samples change the image.
+        let ml = Arc::new(
+            SyntheticField::MarschnerLobb
+                .generate(UVec3::splat(4 * N), ScalarType::F32)
+                .unwrap(),
+        );
+        renderer
+            .set_mixed_volume(
+                ml,
+                MixedConfig {
+                    brick_size: N,
+                    filter: DownsampleFilter::Mean2,
+                    cache_budget_bytes: 64 << 20,
+                    transition: Transition::Smooth,
+                },
+            )
+            .unwrap();
+        renderer.set_levels(&[Level::Lo; 64]).unwrap();
+        renderer
+            .set_transfer_function(&TransferFunction::preset(TfPreset::Bands))
+            .unwrap();
+        let view = Camera::perspective(Vec3::new(1.0, 0.8, 1.5), Vec3::ZERO, 40.0);
+        let images: Vec<Vec<Vec4>> = [false, true]
+            .iter()
+            .map(|&coarse| {
+                let settings = RenderSettings {
+                    coarse_low_res_steps: coarse,
+                    ..RenderSettings::default()
+                };
+                renderer
+                    .render(&view, &settings, SIZE, SIZE)
+                    .unwrap()
+                    .pixels
+            })
+            .collect();
+        let change = max_diff(&images[0], &images[1]);
+        assert!(
+            change > 1e-3,
+            "coarse steps must change structured data ({change})"
         );
     }
     common::finish(ctx);

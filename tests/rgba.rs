@@ -45,7 +45,12 @@ fn rgba_volumes_match_the_reference_in_both_models() {
             let q = p / dims.as_vec3();
             let v = marschner_lobb_value(q * 2.0 - Vec3::ONE);
             // Colour varies with position, opacity with the field: interpolation matters.
-            Vec4::new(q.x, 1.0 - q.y, 0.5 + 0.5 * q.z, (v * v * 0.6).clamp(0.0, 1.0))
+            Vec4::new(
+                q.x,
+                1.0 - q.y,
+                0.5 + 0.5 * q.z,
+                (v * v * 0.6).clamp(0.0, 1.0),
+            )
         });
         let camera = Camera::perspective(Vec3::new(1.0, 0.8, 1.4), Vec3::ZERO, 40.0);
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
@@ -76,8 +81,14 @@ fn rgba_volumes_match_the_reference_in_both_models() {
             .zip(&images[1])
             .map(|(a, b)| (*a - *b).abs().max_element())
             .fold(0.0f32, f32::max);
-        assert!(change > 3e-3, "the models must differ on this volume ({change}, measured 9e-3)");
-        assert_eq!(images[0], images[2], "switching back reproduces the first image");
+        assert!(
+            change > 3e-3,
+            "the models must differ on this volume ({change}, measured 9e-3)"
+        );
+        assert_eq!(
+            images[0], images[2],
+            "switching back reproduces the first image"
+        );
 
         // Scalar-only effects are refused with an error, not drawn wrongly.
         let iso = RenderSettings {
@@ -166,7 +177,10 @@ fn the_opaque_wall_stays_opaque_only_with_extinction_based_sampling() {
                 }
             }
         }
-        eprintln!("wall: minimum alpha extinction {} opacity {}", worst[0], worst[1]);
+        eprintln!(
+            "wall: minimum alpha extinction {} opacity {}",
+            worst[0], worst[1]
+        );
         assert!(worst[0] > 0.999, "extinction-based: {}", worst[0]);
         assert!(worst[1] < 0.8, "opacity-based: {}", worst[1]);
     }

@@ -61,6 +61,7 @@ impl RaycastVariant {
             ),
             (f.preintegrated, "PREINTEGRATED"),
             (f.tricubic && !self.smooth_transitions, "TRICUBIC"),
+            (f.coarse_low_res && self.mixed_resolution, "COARSE_LOW_RES"),
         ] {
             if on {
                 defines.push((name, "1".into()));

@@ -146,10 +146,27 @@ pub fn cast_ray_mixed_program(
     let voxel_origin = (ray.origin - p.box_min.truncate()) * to_voxel;
     let voxel_dir = ray.dir * to_voxel;
     let steps = ((t1 - t0) / step_len).ceil().min(p.tf_window.w) as i32;
-    for i in 0..steps {
+    let mut i = -1;
+    while i + 1 < steps {
+        i += 1;
         let t_start = t0 + i as f32 * step_len;
-        let len = step_len.min(t1 - t_start).max(0.0);
-        let x = voxel_origin + voxel_dir * (t_start + 0.5 * len);
+        let mut len = step_len.min(t1 - t_start).max(0.0);
+        let mut x = voxel_origin + voxel_dir * (t_start + 0.5 * len);
+        if program.features.coarse_low_res && i + 1 < steps {
+            // `merge_low_res_pair` in raycast.frag.
+            let b = brick_of(x, mv.brick_size, mv.bricks);
+            let bi = (b.x as u32 + mv.bricks.x * (b.y as u32 + mv.bricks.y * b.z as u32)) as usize;
+            if mv.layout[bi][3] == 0.5 {
+                let t_next = t0 + (i + 1) as f32 * step_len;
+                let len_next = step_len.min(t1 - t_next).max(0.0);
+                let x_next = voxel_origin + voxel_dir * (t_next + 0.5 * len_next);
+                if brick_of(x_next, mv.brick_size, mv.bricks) == b {
+                    len = (2.0 * step_len).min(t1 - t_start).max(0.0);
+                    x = voxel_origin + voxel_dir * (t_start + 0.5 * len);
+                    i += 1;
+                }
+            }
+        }
         let Some(value) = sample_mixed(mv, x, transition) else {
             program.break_ray(&mut s);
             continue;
@@ -200,11 +217,7 @@ pub fn cast_ray_rgba(
 }
 
 /// Renders a whole image of a pre-classified RGBA volume with the sampling model of `settings`.
-pub fn render_rgba(
-    volume: &RgbaVolume,
-    settings: &RenderSettings,
-    p: &RaycastParams,
-) -> Vec<Vec4> {
+pub fn render_rgba(volume: &RgbaVolume, settings: &RenderSettings, p: &RaycastParams) -> Vec<Vec4> {
     let model = settings.sampling_model;
     let weighted = volume.weighted(model);
     // Only the model matters to `integrate_weighted`; the table's entries are unused.
@@ -220,7 +233,9 @@ pub fn render_rgba(
         params: p,
         field: &field,
     };
-    render_with(p, |ray| cast_ray_rgba(volume.dims(), &weighted, &program, ray))
+    render_with(p, |ray| {
+        cast_ray_rgba(volume.dims(), &weighted, &program, ray)
+    })
 }
 
 /// The tables a scene's settings call for: the classification table for its sampling model and,

@@ -32,7 +32,11 @@ pub fn sample_rgba_volume(dims: glam::UVec3, voxels: &[glam::Vec4], tex: Vec3) -
     let f = (x - base).as_dvec3();
     let at = |dx: i64, dy: i64, dz: i64| {
         let c = |b: f32, d: i64, n: u32| (b as i64 + d).clamp(0, i64::from(n) - 1) as usize;
-        let (ix, iy, iz) = (c(base.x, dx, dims.x), c(base.y, dy, dims.y), c(base.z, dz, dims.z));
+        let (ix, iy, iz) = (
+            c(base.x, dx, dims.x),
+            c(base.y, dy, dims.y),
+            c(base.z, dz, dims.z),
+        );
         voxels[ix + dims.x as usize * (iy + dims.y as usize * iz)].as_dvec4()
     };
     let lerp = |a: glam::DVec4, b: glam::DVec4, t: f64| a + (b - a) * t;

@@ -340,7 +340,10 @@ fn parse_tf(s: &str) -> std::result::Result<TfPreset, String> {
 /// .raw file with a sidecar next to it).
 fn has_header(path: &std::path::Path) -> bool {
     let name = path.to_string_lossy().to_ascii_lowercase();
-    let headed = [".nii", ".nii.gz", ".nrrd", ".nhdr", ".json", ".den"];
+    let name = name.trim_end_matches('/');
+    let headed = [
+        ".nii", ".nii.gz", ".nrrd", ".nhdr", ".json", ".den", ".zarr",
+    ];
     if headed.iter().any(|e| name.ends_with(e)) {
         return true;
     }

@@ -10,8 +10,8 @@ mod rgba;
 mod synthetic;
 
 pub use formats::{
-    load_den, load_nifti, load_nrrd, load_sidecar, load_volume, load_volume_with_meta, FileFormat,
-    LoadedVolume, StoredType, VolumeMeta,
+    load_den, load_nifti, load_nrrd, load_sidecar, load_volume, load_volume_with_meta, load_zarr,
+    FileFormat, LoadedVolume, StoredType, VolumeMeta,
 };
 pub use loader::{load_raw, save_raw, RawDescriptor};
 pub use rgba::RgbaVolume;

@@ -1,6 +1,7 @@
 //! Volume file formats: NIfTI-1 (`.nii`, `.nii.gz`), NRRD (`.nrrd`, detached `.nhdr`; raw or gzip
 //! encoding), raw data described by a JSON sidecar (`.json`, or `.raw` beside one) and VolPack /
-//! Levoy density files (`.den`).
+//! Levoy density files (`.den`), and OME-Zarr images (`.zarr` folders, Zarr v2 and v3, through
+//! the `zarrs` crate; see [`zarr`]).
 //!
 //! [`load_volume`] picks the format from the file name; the per-format loaders
 //! ([`load_nifti`], [`load_nrrd`], [`load_sidecar`], [`load_den`]) return the volume together
@@ -55,11 +56,13 @@ mod nii;
 mod nrrd;
 mod read;
 mod sidecar;
+pub mod zarr;
 
 pub use den::{load_den, parse_den_header, DenHeader, DEN_HEADER_BYTES};
 pub use nii::{load_nifti, parse_nifti_header, NiftiInfo, NIFTI1_HEADER_BYTES};
 pub use nrrd::{load_nrrd, parse_nrrd_header, NrrdHeader};
 pub use sidecar::{load_sidecar, parse_sidecar, Sidecar};
+pub use zarr::{load_zarr, load_zarr_level, parse_zarr_root, ZarrRoot, ZarrVersion};
 
 use super::{ScalarType, Volume, VolumeError};
 use read::format_err;
@@ -181,6 +184,8 @@ pub enum FileFormat {
     Sidecar,
     /// VolPack / Levoy density file, `.den`.
     Den,
+    /// OME-Zarr image or plain Zarr array (v2 or v3): a folder, usually `.zarr` / `.ome.zarr`.
+    Zarr,
 }
 
 impl FileFormat {
@@ -197,6 +202,8 @@ impl FileFormat {
             Some(FileFormat::Sidecar)
         } else if ends(".den") {
             Some(FileFormat::Den)
+        } else if ends(".zarr") {
+            Some(FileFormat::Zarr)
         } else {
             None
         }
@@ -273,7 +280,8 @@ pub struct LoadedVolume {
 
 /// Loads a volume file, choosing the format from its name: `.nii` / `.nii.gz` (NIfTI-1),
 /// `.nrrd` / `.nhdr` (NRRD), `.json` (raw data + JSON sidecar), `.raw` (with a sibling
-/// `NAME.raw.json` or `NAME.json` sidecar), `.den` (VolPack). Other names give a
+/// `NAME.raw.json` or `NAME.json` sidecar), `.den` (VolPack), `.zarr` (OME-Zarr folder; any
+/// folder holding `zarr.json`, `.zattrs` or `.zarray` too). Other names give a
 /// [`VolumeError::Format`] error on the field `extension`. See the module docs for the value
 /// mapping and the orientation policy.
 pub fn load_volume(path: &Path) -> Result<Volume, VolumeError> {
@@ -290,6 +298,7 @@ pub fn load_volume_with_meta(path: &Path) -> Result<LoadedVolume, VolumeError> {
         Some(FileFormat::Nifti) => load_nifti(path),
         Some(FileFormat::Nrrd) => load_nrrd(path),
         Some(FileFormat::Den) => load_den(path),
+        Some(FileFormat::Zarr) => load_zarr(path),
         Some(FileFormat::Sidecar) if lower.ends_with(".json") => load_sidecar(path),
         Some(FileFormat::Sidecar) => {
             let candidates = raw_sidecar_candidates(path);
@@ -320,11 +329,17 @@ pub fn load_volume_with_meta(path: &Path) -> Result<LoadedVolume, VolumeError> {
             }
             sidecar::load_parsed(json, &sidecar)
         }
+        None if ["zarr.json", ".zattrs", ".zarray"]
+            .iter()
+            .any(|m| path.join(m).is_file()) =>
+        {
+            load_zarr(path)
+        }
         None => Err(format_err(
             path,
             "extension",
             "unknown volume file type; expected .nii, .nii.gz, .nrrd, .nhdr, .json, \
-             .raw (with a .json sidecar) or .den",
+             .raw (with a .json sidecar), .den or a .zarr folder",
         )),
     }
 }

@@ -534,15 +534,20 @@ fn render(args: &RenderArgs) -> Result<()> {
             )?,
             None => reference::render_scene(&volume, &tf, &settings, &params)?,
         };
-        let max_diff = reference
+        let diffs: Vec<f32> = reference
             .iter()
             .zip(&frame.pixels)
-            .map(|(a, b)| (*a - *b).abs().max_element())
-            .fold(0.0f32, f32::max);
+            .flat_map(|(a, b)| (*a - *b).abs().to_array())
+            .collect();
+        let max_diff = diffs.iter().copied().fold(0.0f32, f32::max);
+        let mean_diff = diffs.iter().map(|d| f64::from(*d)).sum::<f64>() / diffs.len() as f64;
+        let large = diffs.iter().filter(|d| **d > 1.0 / 255.0).count() as f64 / diffs.len() as f64;
         println!(
-            "cpu reference: max per-channel difference {:.4} ({:.1}/255)",
+            "cpu reference: max per-channel difference {:.4} ({:.1}/255), mean {:.2e}, {:.3} % of channels above 1/255",
             max_diff,
-            max_diff * 255.0
+            max_diff * 255.0,
+            mean_diff,
+            100.0 * large
         );
     }
     drop(renderer);

@@ -38,8 +38,25 @@ layout(set = 0, binding = 1) uniform sampler3D cache_tex;
 layout(std430, set = 0, binding = 3) readonly buffer LayoutTable { vec4 layout_entries[]; };
 layout(std430, set = 0, binding = 4) readonly buffer NeighbourTable { uint neighbour_bits[]; };
 
-float cache_fetch(vec3 texel) {
+#ifdef RGBA_VOLUME
+#define FIELD vec4
+// The field's value to the scalar-only code (gradients, iso): the coefficient channel.
+float field_scalar(vec4 v) {
+    return v.a;
+}
+#else
+#define FIELD float
+float field_scalar(float v) {
+    return v;
+}
+#endif
+
+FIELD cache_fetch(vec3 texel) {
+#ifdef RGBA_VOLUME
+    return textureLod(cache_tex, texel * params.cache_extent_inv.xyz, 0.0);
+#else
     return textureLod(cache_tex, texel * params.cache_extent_inv.xyz, 0.0).r;
+#endif
 }
 #include "include/mixed.glsl"
 
@@ -63,9 +80,9 @@ float field_at(vec3 x, out bool present) {
     if (entry.w == 1.0 && bits != 0u) {
         band_bounds(bits, n, band_lo, band_hi);
     }
-    return sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
+    return field_scalar(sample_in_brick(x, b, entry, bits, band_lo, band_hi, n));
 #else
-    return cache_fetch(x * entry.w + entry.xyz);
+    return field_scalar(cache_fetch(x * entry.w + entry.xyz));
 #endif
 }
 #else
@@ -113,6 +130,14 @@ float field_value(vec3 x, out bool present) {
 #endif
 }
 #include "include/modes.glsl"
+
+// One sample of the mixed-resolution loops: scalar samples go through the render mode,
+// pre-classified RGBA samples are composited directly.
+#if defined(MIXED_RESOLUTION) && defined(RGBA_VOLUME)
+#define INTEGRATE(s, value, len, x, dir) integrate_weighted(s, value, len)
+#else
+#define INTEGRATE(s, value, len, x, dir) integrate_sample(s, value, len, x, dir)
+#endif
 
 #ifndef MIXED_RESOLUTION
 vec4 cast_ray(Ray ray) {
@@ -225,9 +250,9 @@ vec4 cast_ray(Ray ray) {
 #ifdef TRICUBIC
         float value = sample_tricubic(x);
 #else
-        float value = cache_fetch(x * entry.w + entry.xyz);
+        FIELD value = cache_fetch(x * entry.w + entry.xyz);
 #endif
-        if (integrate_sample(s, value, len, x, ray.dir)) {
+        if (INTEGRATE(s, value, len, x, ray.dir)) {
             break;
         }
     }
@@ -292,8 +317,8 @@ vec4 cast_ray(Ray ray) {
             t_start = t0 + float(i) * step_len;
             len = max(min(step_len, t1 - t_start), 0.0);
             x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
-            float value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
-            if (integrate_sample(s, value, len, x, ray.dir)) {
+            FIELD value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
+            if (INTEGRATE(s, value, len, x, ray.dir)) {
                 return finish_ray(s, ray.dir);
             }
         }
@@ -308,7 +333,7 @@ vec4 cast_ray(Ray ray) {
                 i = merge_low_res_pair(i, steps, t0, t1, step_len, voxel_ray, b, n, bricks, len, x);
             }
 #endif
-            if (integrate_sample(s, cache_fetch(x * entry.w + entry.xyz), len, x, ray.dir)) {
+            if (INTEGRATE(s, cache_fetch(x * entry.w + entry.xyz), len, x, ray.dir)) {
                 return finish_ray(s, ray.dir);
             }
         }
@@ -318,8 +343,8 @@ vec4 cast_ray(Ray ray) {
             t_start = t0 + float(i) * step_len;
             len = max(min(step_len, t1 - t_start), 0.0);
             x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
-            float value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
-            if (integrate_sample(s, value, len, x, ray.dir)) {
+            FIELD value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
+            if (INTEGRATE(s, value, len, x, ray.dir)) {
                 return finish_ray(s, ray.dir);
             }
         }

@@ -43,7 +43,7 @@ use crate::optics::preintegration::PreintegrationTable;
 use crate::optics::{ClassificationTable, SamplingModel, TfPreset, TransferFunction, TF_SIZE};
 use crate::reference::Transition;
 use crate::scene::{Camera, RayFeatures, RaycastParams, RenderSettings};
-use crate::store::{fallback_levels, BrickSource, VolumeBrickSource};
+use crate::store::{fallback_levels, BrickSource, RgbaBrickSource, VolumeBrickSource};
 use crate::volume::{RgbaVolume, ScalarType, Volume};
 use ash::vk;
 use glam::{Mat4, UVec3};
@@ -187,6 +187,8 @@ pub(crate) struct MixedState {
     any_transition: bool,
     /// Some resident brick is low-res (tricubic reconstruction then stays off).
     any_low_res: bool,
+    /// The sampling model of a pre-classified RGBA source (`None`: scalar data).
+    rgba_model: Option<SamplingModel>,
     value_range: (f32, f32),
 }
 
@@ -554,9 +556,10 @@ impl VolumePass {
             )));
         }
         let scalar = source.scalar();
+        let channels = source.channels();
         let geometry = CacheGeometry::choose(
             config.brick_size,
-            scalar.size_bytes() as u32,
+            scalar.size_bytes() as u32 * channels,
             config.cache_budget_bytes,
             shared.info.limits.max_image_dimension3_d,
             u32::try_from(grid.brick_count()).unwrap_or(u32::MAX),
@@ -568,6 +571,7 @@ impl VolumePass {
         let gpu = GpuBrickCache::new(
             shared,
             scalar,
+            channels,
             cache.geometry().extent(),
             cache.grid().brick_count(),
             cache.geometry().slot_count() as usize,
@@ -583,7 +587,27 @@ impl VolumePass {
             any_transition: false,
             any_low_res: false,
             value_range: (range.min, range.max),
+            rgba_model: None,
         }));
+        Ok(())
+    }
+
+    /// Renders the pre-classified `volume` through a brick cache from now on, its bricks holding
+    /// the weighted channels for `model` (an RGBA32F cache image; the fixup and the smooth
+    /// transition blend work on all four channels alike). Frames must ask for the same sampling
+    /// model (call again to change it) and DVR without scalar-only effects, as
+    /// [`VolumePass::set_rgba_volume`]. Make bricks resident with [`VolumePass::set_levels`].
+    pub fn set_rgba_mixed_volume(
+        &mut self,
+        volume: &RgbaVolume,
+        model: SamplingModel,
+        config: MixedConfig,
+    ) -> Result<()> {
+        let source = RgbaBrickSource::new(volume, model, config.brick_size, config.filter)?;
+        self.set_brick_source(Arc::new(source), config)?;
+        if let Source::Mixed(m) = &mut self.source {
+            m.rgba_model = Some(model);
+        }
         Ok(())
     }
 
@@ -680,7 +704,7 @@ impl VolumePass {
                 mixed_resolution: true,
                 smooth_transitions: m.config.transition == Transition::Smooth && m.any_transition,
                 host_depth,
-                rgba_volume: false,
+                rgba_volume: m.rgba_model.is_some(),
                 features: RayFeatures {
                     // The 8-fetch B-spline assumes a field trilinear on one grid.
                     tricubic: features.tricubic && !m.any_low_res,
@@ -879,19 +903,29 @@ impl VolumePass {
             params.world_from_clip = inverse;
         }
         let features = settings.features();
+        let rgba_only = RayFeatures {
+            sampling_model: features.sampling_model,
+            coarse_low_res: features.coarse_low_res,
+            ..RayFeatures::default()
+        };
+        if let Source::Mixed(m) = &self.source {
+            if let Some(model) = m.rgba_model {
+                if features != rgba_only || model != features.sampling_model {
+                    return Err(Error::InvalidInput(format!(
+                        "the RGBA brick cache holds {model:?}-model data and renders in DVR mode \
+                         without shading, gradient opacity, pre-integration or tricubic \
+                         reconstruction; the settings ask for {features:?}"
+                    )));
+                }
+            }
+        }
         if let Source::Single(SingleVolume {
             rgba: Some((volume, model)),
             pending,
             ..
         }) = &mut self.source
         {
-            if features
-                != (RayFeatures {
-                    sampling_model: features.sampling_model,
-                    coarse_low_res: features.coarse_low_res,
-                    ..RayFeatures::default()
-                })
-            {
+            if features != rgba_only {
                 return Err(Error::InvalidInput(format!(
                     "pre-classified RGBA volumes render in DVR mode without shading, gradient \
                      opacity, pre-integration or tricubic reconstruction; the settings ask for \

@@ -186,6 +186,18 @@ impl Renderer {
         self.pass.set_rgba_volume(volume)
     }
 
+    /// Renders the pre-classified `volume` through a brick cache holding `model`-weighted data
+    /// from now on (see [`VolumePass::set_rgba_mixed_volume`]); call [`Renderer::set_levels`].
+    pub fn set_rgba_mixed_volume(
+        &mut self,
+        volume: &crate::volume::RgbaVolume,
+        model: crate::optics::SamplingModel,
+        config: MixedConfig,
+    ) -> Result<()> {
+        self.probe = None;
+        self.pass.set_rgba_mixed_volume(volume, model, config)
+    }
+
     /// Renders `volume` through a brick cache from now on (see [`VolumePass::set_mixed_volume`]);
     /// call [`Renderer::set_levels`] to make bricks resident.
     pub fn set_mixed_volume(&mut self, volume: Arc<Volume>, config: MixedConfig) -> Result<()> {

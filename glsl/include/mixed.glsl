@@ -1,10 +1,16 @@
 // Mixed-resolution field: address translation and the smooth (C0) transition blend. Mirrors
 // src/reference/mixed.rs function by function; see its module docs for the construction.
-// The includer defines `float cache_fetch(vec3 texel)`: a trilinear fetch of the brick cache at
+// The includer defines `FIELD cache_fetch(vec3 texel)`: a trilinear fetch of the brick cache at
 // an unnormalised texel coordinate (texel centres at i + 0.5).
 #ifndef MIXED_GLSL
 #define MIXED_GLSL
 #include "neighbours.glsl"
+
+// The field's type: float, or vec4 for pre-classified RGBA caches (every channel is blended
+// alike; the construction is linear in the texel values).
+#ifndef FIELD
+#define FIELD float
+#endif
 
 // Brick containing volume point x (hi-res voxel units), clamped to the grid.
 ivec3 brick_of(vec3 x, float brick_size, ivec3 bricks) {
@@ -48,7 +54,7 @@ vec3 low_res_border_coord(vec3 p, uint face_mask, ivec3 side, float n) {
 
 // The smooth reconstruction inside a hi-res brick (q brick-local, texel_of_local the texel
 // coordinate of local 0, bits its neighbour bits).
-float sample_hi_res_transition(vec3 q, vec3 texel_of_local, uint bits, float n) {
+FIELD sample_hi_res_transition(vec3 q, vec3 texel_of_local, uint bits, float n) {
     ivec3 side;
     vec3 beta;
     uint band_mask = band(q, n, side, beta);
@@ -58,7 +64,7 @@ float sample_hi_res_transition(vec3 q, vec3 texel_of_local, uint bits, float n) 
     }
     vec3 face = mix(vec3(n), vec3(0.0), lessThan(side, ivec3(0)));
     vec3 plane = mix(vec3(n - 0.5), vec3(0.5), lessThan(side, ivec3(0)));
-    float sum = 0.0;
+    FIELD sum = FIELD(0.0);
     uint s = active_mask;
     for (;;) {
         float weight = 1.0;
@@ -102,7 +108,7 @@ void band_bounds(uint bits, float n, out vec3 lo, out vec3 hi) {
 
 // The field at volume point x inside brick b with layout entry `entry` (t_w > 0), neighbour bits
 // `bits` and band bounds `lo`, `hi`. Mirrors `sample_in_brick` in src/reference/mixed.rs.
-float sample_in_brick(vec3 x, ivec3 b, vec4 entry, uint bits, vec3 lo, vec3 hi, float n) {
+FIELD sample_in_brick(vec3 x, ivec3 b, vec4 entry, uint bits, vec3 lo, vec3 hi, float n) {
 #ifdef SMOOTH_TRANSITIONS
     if (entry.w == 1.0 && bits != 0u) {
         vec3 origin = vec3(b) * n;

@@ -15,13 +15,23 @@ use glam::UVec3;
 use gpu_allocator::MemoryLocation;
 use std::sync::Arc;
 
-/// The storage format of a cache for `scalar` volumes, and its GLSL image format qualifier.
-pub(crate) fn cache_format(scalar: ScalarType) -> (vk::Format, &'static str) {
-    match scalar {
-        ScalarType::U8 => (vk::Format::R8_UNORM, "r8"),
-        ScalarType::U16 => (vk::Format::R16_UNORM, "r16"),
-        ScalarType::F32 => (vk::Format::R32_SFLOAT, "r32f"),
-    }
+/// The storage format of a cache for `scalar` volumes with `channels` channels (1, or 4 for
+/// RGBA f32), and its GLSL image format qualifier.
+pub(crate) fn cache_format(
+    scalar: ScalarType,
+    channels: u32,
+) -> Result<(vk::Format, &'static str)> {
+    Ok(match (scalar, channels) {
+        (ScalarType::U8, 1) => (vk::Format::R8_UNORM, "r8"),
+        (ScalarType::U16, 1) => (vk::Format::R16_UNORM, "r16"),
+        (ScalarType::F32, 1) => (vk::Format::R32_SFLOAT, "r32f"),
+        (ScalarType::F32, 4) => (vk::Format::R32G32B32A32_SFLOAT, "rgba32f"),
+        _ => {
+            return Err(Error::Unsupported(format!(
+                "brick caches hold 1-channel u8/u16/f32 or 4-channel f32 texels, not {channels} x {scalar:?}"
+            )))
+        }
+    })
 }
 
 /// One brick's worth of texels to copy into the cache.
@@ -123,16 +133,18 @@ pub(crate) struct GpuBrickCache {
 impl GpuBrickCache {
     /// Creates the cache image (`extent` texels) for `scalar` data, per-frame tables for
     /// `brick_count` bricks and `slot_count` cache slots, and the fixup pipeline.
+    #[allow(clippy::too_many_arguments)] // reason: one argument per property of the cache.
     pub(crate) fn new(
         shared: &Arc<DeviceShared>,
         scalar: ScalarType,
+        channels: u32,
         extent: UVec3,
         brick_count: usize,
         slot_count: usize,
         frames: u32,
         smooth: bool,
     ) -> Result<Self> {
-        let (format, glsl_format) = cache_format(scalar);
+        let (format, glsl_format) = cache_format(scalar, channels)?;
         if scalar != ScalarType::F32 && !shared.info.storage_image_extended_formats {
             return Err(Error::Unsupported(format!(
                 "the fixup pass writes {format:?} as a storage image, which needs \
@@ -188,7 +200,7 @@ impl GpuBrickCache {
         Ok(Self {
             image,
             extent,
-            bytes_per_texel: scalar.size_bytes(),
+            bytes_per_texel: scalar.size_bytes() * channels as usize,
             slots,
             tables: OwnedTables::default(),
             version: 0,

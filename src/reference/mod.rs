@@ -238,6 +238,96 @@ pub fn render_rgba(volume: &RgbaVolume, settings: &RenderSettings, p: &RaycastPa
     })
 }
 
+/// Casts one ray through a pre-classified RGBA brick cache given as one scalar
+/// [`MixedVolume`] per weighted channel (r, g, b, coefficient; all with the same layout): the
+/// cache construction, fixup and transition blend are linear in the texel values, so the RGBA
+/// field is exactly the four scalar fields side by side. Mirrors the MIXED_RESOLUTION +
+/// RGBA_VOLUME `cast_ray` in raycast.frag (including LaMar's coarse steps).
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // reason: `!(t0 < t1)` mirrors the GLSL and also rejects NaN.
+pub fn cast_ray_rgba_mixed(
+    channels: &[MixedVolume; 4],
+    transition: Transition,
+    program: &RayProgram,
+    ray: &Ray,
+) -> Vec4 {
+    let p = program.params;
+    let mv = &channels[3];
+    let (enter, exit) = intersect_box(ray, p.box_min.truncate(), p.box_max.truncate());
+    let t0 = enter.max(p.forward.w);
+    let t1 = exit.min(p.right.w);
+    let mut s = RayState::default();
+    if !(t0 < t1) {
+        return s.acc;
+    }
+    let step_len = p.box_min.w;
+    let box_size = p.box_max.truncate() - p.box_min.truncate();
+    let to_voxel = p.volume_dims.truncate() / box_size;
+    let voxel_origin = (ray.origin - p.box_min.truncate()) * to_voxel;
+    let voxel_dir = ray.dir * to_voxel;
+    let steps = ((t1 - t0) / step_len).ceil().min(p.tf_window.w) as i32;
+    let mut i = -1;
+    while i + 1 < steps {
+        i += 1;
+        let t_start = t0 + i as f32 * step_len;
+        let mut len = step_len.min(t1 - t_start).max(0.0);
+        let mut x = voxel_origin + voxel_dir * (t_start + 0.5 * len);
+        if program.features.coarse_low_res && i + 1 < steps {
+            let b = brick_of(x, mv.brick_size, mv.bricks);
+            let bi = (b.x as u32 + mv.bricks.x * (b.y as u32 + mv.bricks.y * b.z as u32)) as usize;
+            if mv.layout[bi][3] == 0.5 {
+                let t_next = t0 + (i + 1) as f32 * step_len;
+                let len_next = step_len.min(t1 - t_next).max(0.0);
+                let x_next = voxel_origin + voxel_dir * (t_next + 0.5 * len_next);
+                if brick_of(x_next, mv.brick_size, mv.bricks) == b {
+                    len = (2.0 * step_len).min(t1 - t_start).max(0.0);
+                    x = voxel_origin + voxel_dir * (t_start + 0.5 * len);
+                    i += 1;
+                }
+            }
+        }
+        let mut weighted = Vec4::ZERO;
+        let mut present = true;
+        for (c, channel) in channels.iter().enumerate() {
+            match sample_mixed(channel, x, transition) {
+                Some(v) => weighted[c] = v,
+                None => present = false,
+            }
+        }
+        if !present {
+            program.break_ray(&mut s);
+            continue;
+        }
+        if program.integrate_weighted(&mut s, weighted, len) {
+            break;
+        }
+    }
+    s.acc
+}
+
+/// Renders a whole image of a pre-classified RGBA brick cache (see [`cast_ray_rgba_mixed`]).
+pub fn render_rgba_mixed(
+    channels: &[MixedVolume; 4],
+    transition: Transition,
+    settings: &RenderSettings,
+    p: &RaycastParams,
+) -> Vec<Vec4> {
+    let table = ClassificationTable::new(
+        &TransferFunction::preset(crate::optics::TfPreset::ConstantWhite),
+        settings.sampling_model,
+    );
+    let field = |_: Vec3| None;
+    let program = RayProgram {
+        features: settings.features(),
+        table: &table,
+        preintegration: None,
+        params: p,
+        field: &field,
+    };
+    render_with(p, |ray| {
+        cast_ray_rgba_mixed(channels, transition, &program, ray)
+    })
+}
+
 /// The tables a scene's settings call for: the classification table for its sampling model and,
 /// with pre-integration, the 2D table for its step.
 pub fn scene_tables(

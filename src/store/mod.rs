@@ -30,7 +30,7 @@ pub mod writer;
 
 pub use format::{StoreHeader, FORMAT_VERSION, HEADER_SIZE, MAGIC};
 pub use reader::BrickStore;
-pub use source::{fallback_levels, request_plan, BrickSource, VolumeBrickSource};
+pub use source::{fallback_levels, request_plan, BrickSource, RgbaBrickSource, VolumeBrickSource};
 pub use streamer::{BrickStreamer, StreamStats, StreamerConfig};
 pub use writer::{
     write_store, write_store_from_volume, write_store_from_volume_with_progress,

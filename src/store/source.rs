@@ -6,7 +6,8 @@ use crate::bricks::{
     DownsampleFilter, ValueRange,
 };
 use crate::cache::Level;
-use crate::volume::{ScalarType, Volume};
+use crate::optics::SamplingModel;
+use crate::volume::{RgbaVolume, ScalarType, Volume, VoxelData};
 use glam::Vec3;
 use std::sync::Arc;
 
@@ -20,8 +21,14 @@ pub trait BrickSource: Send + Sync {
     /// The brick grid.
     fn grid(&self) -> BrickGrid;
 
-    /// Storage scalar type of the texels.
+    /// Storage scalar type of the texels' channels.
     fn scalar(&self) -> ScalarType;
+
+    /// Channels per texel: 1 (scalar volumes) or 4 (pre-classified RGBA, f32 channels
+    /// interleaved).
+    fn channels(&self) -> u32 {
+        1
+    }
 
     /// Filter that built the low-res bricks.
     fn filter(&self) -> DownsampleFilter;
@@ -121,6 +128,106 @@ pub fn request_plan(wanted: &[Level], priority: &[f32]) -> Vec<(u32, Level, f32)
         .enumerate()
         .map(|(pos, (i, level))| (i as u32, level, (total - pos) as f32))
         .collect()
+}
+
+/// A pre-classified RGBA volume as a [`BrickSource`] of RGBA32F texels, in the weighted form of
+/// one [`SamplingModel`] (see [`RgbaVolume::weighted`]): each channel is bricked and filtered as
+/// its own f32 volume, so the low-res level averages opacity- or extinction-weighted colour and
+/// the coefficient channel, as Kraus et al. recommend for downsampling. Value ranges (for
+/// culling) are those of the coefficient channel.
+#[derive(Clone, Debug)]
+pub struct RgbaBrickSource {
+    channels: [VolumeBrickSource; 4],
+    model: SamplingModel,
+}
+
+impl RgbaBrickSource {
+    /// Bricks `volume` for `model` into `brick_size`^3 bricks with low-res level `filter`.
+    pub fn new(
+        volume: &RgbaVolume,
+        model: SamplingModel,
+        brick_size: u32,
+        filter: DownsampleFilter,
+    ) -> Result<Self> {
+        let channels = Self::channel_volumes(volume, model)?;
+        let [r, g, b, a] =
+            channels.map(|v| VolumeBrickSource::new(Arc::new(v), brick_size, filter));
+        Ok(Self {
+            channels: [r?, g?, b?, a?],
+            model,
+        })
+    }
+
+    /// The four weighted channels of `volume` for `model` as f32 volumes (what the CPU reference
+    /// builds its per-channel caches from).
+    pub fn channel_volumes(volume: &RgbaVolume, model: SamplingModel) -> Result<[Volume; 4]> {
+        let weighted = volume.weighted(model);
+        let channel = |c: usize| {
+            Volume::new(
+                volume.dims(),
+                volume.spacing(),
+                VoxelData::F32(weighted.iter().map(|v| v[c]).collect()),
+            )
+            .map_err(|e| StoreError::InvalidDesc {
+                field: "rgba volume",
+                message: e.to_string(),
+            })
+        };
+        Ok([channel(0)?, channel(1)?, channel(2)?, channel(3)?])
+    }
+
+    /// The sampling model the bricks hold.
+    pub fn model(&self) -> SamplingModel {
+        self.model
+    }
+}
+
+impl BrickSource for RgbaBrickSource {
+    fn grid(&self) -> BrickGrid {
+        self.channels[3].grid()
+    }
+
+    fn scalar(&self) -> ScalarType {
+        ScalarType::F32
+    }
+
+    fn channels(&self) -> u32 {
+        4
+    }
+
+    fn filter(&self) -> DownsampleFilter {
+        self.channels[3].filter()
+    }
+
+    fn spacing(&self) -> Vec3 {
+        self.channels[3].spacing()
+    }
+
+    fn value_ranges(&self) -> &[ValueRange] {
+        self.channels[3].value_ranges()
+    }
+
+    fn value_range(&self) -> ValueRange {
+        self.channels[3].value_range()
+    }
+
+    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>> {
+        let mut parts = Vec::with_capacity(4);
+        for c in &self.channels {
+            match c.brick_bytes(brick, level)? {
+                Some(bytes) => parts.push(bytes),
+                None => return Ok(None),
+            }
+        }
+        let texels = parts[0].len() / 4;
+        let mut out = Vec::with_capacity(texels * 16);
+        for t in 0..texels {
+            for part in &parts {
+                out.extend_from_slice(&part[4 * t..4 * t + 4]);
+            }
+        }
+        Ok(Some(out.into()))
+    }
 }
 
 /// An in-memory volume as a [`BrickSource`]: every brick is always available, packed on demand

@@ -13,6 +13,7 @@ use glam::{UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
 use mixvol::cache::Level;
 use mixvol::gpu::{ContextDesc, GpuContext};
+use mixvol::lod::{ClipPlane, ClipPlanes};
 use mixvol::optics::{SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::Transition;
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
@@ -71,6 +72,17 @@ fn settings() -> Vec<(&'static str, RenderSettings)> {
             "DVR, low-res bricks at double step (LaMar; mixed only)",
             RenderSettings {
                 coarse_low_res_steps: true,
+                ..base
+            },
+        ),
+        (
+            "DVR, two clip planes",
+            RenderSettings {
+                clip_planes: ClipPlanes::new(&[
+                    ClipPlane::new(Vec3::new(1.0, 0.0, 0.0), 0.3),
+                    ClipPlane::new(Vec3::new(0.0, 0.0, -1.0), 0.3),
+                ])
+                .expect("valid planes"),
                 ..base
             },
         ),

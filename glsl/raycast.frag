@@ -144,6 +144,11 @@ vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
     float t1 = ray_end(ray, hit.y);
+#ifdef CLIP_PLANES
+    vec2 kept = clip_ray(ray, t0, t1, params.clip_planes, int(params.iso_colour.w));
+    t0 = kept.x;
+    t1 = kept.y;
+#endif
     RayState s = begin_ray();
     if (!(t0 < t1)) {
         return s.acc;
@@ -210,6 +215,11 @@ vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
     float t1 = ray_end(ray, hit.y);
+#ifdef CLIP_PLANES
+    vec2 kept = clip_ray(ray, t0, t1, params.clip_planes, int(params.iso_colour.w));
+    t0 = kept.x;
+    t1 = kept.y;
+#endif
     RayState s = begin_ray();
     if (!(t0 < t1)) {
         return s.acc;
@@ -268,6 +278,11 @@ vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
     float t1 = ray_end(ray, hit.y);
+#ifdef CLIP_PLANES
+    vec2 kept = clip_ray(ray, t0, t1, params.clip_planes, int(params.iso_colour.w));
+    t0 = kept.x;
+    t1 = kept.y;
+#endif
     RayState s = begin_ray();
     if (!(t0 < t1)) {
         return s.acc;

@@ -906,6 +906,7 @@ impl VolumePass {
         let rgba_only = RayFeatures {
             sampling_model: features.sampling_model,
             coarse_low_res: features.coarse_low_res,
+            clip_planes: features.clip_planes,
             ..RayFeatures::default()
         };
         if let Source::Mixed(m) = &self.source {

@@ -5,6 +5,7 @@ use glam::{UVec3, Vec3};
 use mixvol::bricks::BrickGrid;
 use mixvol::cache::Level;
 use mixvol::gpu::{ContextDesc, GpuContext};
+use mixvol::lod::{ClipPlane, ClipPlanes};
 use mixvol::optics::{SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::{ReferenceCache, Transition};
 use mixvol::renderer::MixedConfig;
@@ -256,6 +257,9 @@ struct OpticsArgs {
     /// LaMar's coarse sampling: low-res bricks at twice the step (mixed resolution).
     #[arg(long)]
     coarse_low_res: bool,
+    /// A world-space clip plane `nx,ny,nz,d` keeping `n . p + d >= 0` (repeat for up to 6).
+    #[arg(long, value_parser = parse_floats::<4>, allow_hyphen_values = true)]
+    clip: Vec<[f32; 4]>,
 }
 
 #[derive(Copy, Clone, Debug, ValueEnum)]
@@ -268,8 +272,16 @@ enum ModeArg {
 
 impl OpticsArgs {
     /// Fills the mode and optics fields of `settings`.
-    fn apply(&self, settings: RenderSettings) -> RenderSettings {
-        RenderSettings {
+    fn apply(&self, settings: RenderSettings) -> Result<RenderSettings> {
+        let planes: Vec<ClipPlane> = self
+            .clip
+            .iter()
+            .map(|c| ClipPlane::new(Vec3::new(c[0], c[1], c[2]), c[3]))
+            .collect();
+        let clip_planes =
+            ClipPlanes::new(&planes).map_err(|e| Error::InvalidInput(format!("--clip: {e}")))?;
+        Ok(RenderSettings {
+            clip_planes,
             mode: match self.mode {
                 ModeArg::Dvr => RenderMode::Dvr,
                 ModeArg::Iso => RenderMode::Iso {
@@ -294,7 +306,7 @@ impl OpticsArgs {
             },
             coarse_low_res_steps: self.coarse_low_res,
             ..settings
-        }
+        })
     }
 }
 
@@ -488,7 +500,7 @@ fn render(args: &RenderArgs) -> Result<()> {
         early_termination: args.early_termination,
         value_window,
         ..RenderSettings::default()
-    });
+    })?;
     // Warm-up: llvmpipe compiles shaders at the first draw.
     let mut frame = renderer.render(&camera, &settings, args.width, args.height)?;
     let mut gpu = Vec::new();
@@ -757,7 +769,7 @@ fn bench(args: &BenchArgs) -> Result<()> {
         samples_per_voxel: r.samples_per_voxel,
         early_termination: r.early_termination,
         ..RenderSettings::default()
-    });
+    })?;
     renderer.render(&camera, &settings, r.width, r.height)?; // warm-up
     let (mut upload, mut fixup, mut raycast, mut cpu) = (vec![], vec![], vec![], vec![]);
     let mut variant = None;

@@ -5,6 +5,7 @@
 //! side (dims * spacing) is 1. Anisotropic spacing therefore renders with the right aspect.
 
 use crate::error::{Error, Result};
+use crate::lod::{ClipPlanes, MAX_CLIP_PLANES};
 use crate::optics::SamplingModel;
 use crate::volume::Volume;
 use glam::{Mat4, UVec3, Vec3, Vec4};
@@ -185,6 +186,8 @@ pub struct RayFeatures {
     pub tricubic: bool,
     /// Low-res bricks sampled at twice the step ([`RenderSettings::coarse_low_res_steps`]).
     pub coarse_low_res: bool,
+    /// Rays are cut to the kept side of clip planes ([`RenderSettings::clip_planes`]).
+    pub clip_planes: bool,
 }
 
 /// Settings for one render.
@@ -224,6 +227,10 @@ pub struct RenderSettings {
     /// segments, with the opacity corrected for the doubled length. Fewer samples where the data
     /// has half the resolution; exact for homogeneous regions, an approximation elsewhere.
     pub coarse_low_res_steps: bool,
+    /// World-space clip planes (up to [`MAX_CLIP_PLANES`]): each ray is cut to the part on the
+    /// kept side (`normal . p + offset >= 0`) of every plane, once per ray; no per-sample cost.
+    /// The same planes passed to [`crate::lod::cull_bricks`] also drop clipped bricks.
+    pub clip_planes: ClipPlanes,
 }
 
 impl RenderSettings {
@@ -244,6 +251,7 @@ impl RenderSettings {
             preintegrated: self.preintegrated && classifies_samples,
             tricubic: self.reconstruction == Reconstruction::TricubicBSpline,
             coarse_low_res: self.coarse_low_res_steps,
+            clip_planes: !self.clip_planes.planes().is_empty(),
         }
     }
 
@@ -310,11 +318,12 @@ impl Default for RenderSettings {
             gradient_step: 1.0,
             reconstruction: Reconstruction::Trilinear,
             coarse_low_res_steps: false,
+            clip_planes: ClipPlanes::NONE,
         }
     }
 }
 
-/// The per-frame parameter block, std140-compatible: vec4 fields and one mat4 (272 bytes). Mirrors `RaycastParams`
+/// The per-frame parameter block, std140-compatible: vec4 fields and one mat4 (368 bytes). Mirrors `RaycastParams`
 /// in `glsl/include/params.glsl`.
 #[repr(C)]
 #[derive(Copy, Clone, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
@@ -343,13 +352,15 @@ pub struct RaycastParams {
     pub mode: Vec4,
     /// x: ambient, y: diffuse, z: specular, w: shininess (Blinn-Phong).
     pub shading: Vec4,
-    /// rgb: iso-surface colour; w: unused.
+    /// rgb: iso-surface colour; w: number of clip planes.
     pub iso_colour: Vec4,
+    /// Clip planes: xyz normal (towards the kept side), w offset; the first `iso_colour.w` count.
+    pub clip_planes: [Vec4; MAX_CLIP_PLANES],
     /// Inverse of the host's `clip_from_world` (used only when rays stop at a host depth buffer).
     pub world_from_clip: Mat4,
 }
 
-const _: () = assert!(std::mem::size_of::<RaycastParams>() == 272);
+const _: () = assert!(std::mem::size_of::<RaycastParams>() == 368);
 
 /// The world-space box of a volume: centred, longest physical side 1.
 pub fn volume_box(dims: UVec3, spacing: Vec3) -> (Vec3, Vec3) {
@@ -521,7 +532,14 @@ impl RaycastParams {
                 settings.gradient_step,
             ),
             shading: Vec4::new(sh.ambient, sh.diffuse, sh.specular, sh.shininess),
-            iso_colour: iso_colour.extend(1.0),
+            iso_colour: iso_colour.extend(settings.clip_planes.planes().len() as f32),
+            clip_planes: {
+                let mut planes = [Vec4::ZERO; MAX_CLIP_PLANES];
+                for (out, plane) in planes.iter_mut().zip(settings.clip_planes.planes()) {
+                    *out = plane.normal.extend(plane.offset);
+                }
+                planes
+            },
             world_from_clip: Mat4::IDENTITY,
         })
     }

@@ -14,6 +14,7 @@ use common::Rng;
 use glam::{UVec3, Vec3, Vec4};
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
 use mixvol::cache::Level;
+use mixvol::lod::{ClipPlane, ClipPlanes};
 use mixvol::optics::{ClassificationTable, SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::{self, RayProgram, ReferenceCache, Transition};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
@@ -97,6 +98,17 @@ fn scenes() -> Vec<(&'static str, RenderSettings)> {
             RenderSettings {
                 coarse_low_res_steps: true,
                 shading: Some(shading()),
+                ..base
+            },
+        ),
+        (
+            "dvr-clipped",
+            RenderSettings {
+                clip_planes: ClipPlanes::new(&[
+                    ClipPlane::new(Vec3::new(1.0, 0.3, 0.0), 0.05),
+                    ClipPlane::new(Vec3::new(0.0, -1.0, 0.2), 0.3),
+                ])
+                .unwrap(),
                 ..base
             },
         ),
@@ -358,6 +370,25 @@ fn homogeneous_slab_is_one_minus_exp_for_any_step() {
             let images = render_all(&ctx, &volume, &tf, &camera, &settings);
             // The box is 40 voxels deep (the longest side is 1 world unit = 40 voxels).
             let expected = 1.0 - (-tau * 40.0).exp();
+            // A clip plane keeping z <= 0.2 world units leaves 28 of the 40 voxels.
+            let clip = ClipPlanes::new(&[ClipPlane::new(Vec3::new(0.0, 0.0, -1.0), 0.2)]).unwrap();
+            let clipped_settings: Vec<RenderSettings> = settings
+                .iter()
+                .map(|s| RenderSettings {
+                    clip_planes: clip,
+                    ..*s
+                })
+                .collect();
+            let clipped = render_all(&ctx, &volume, &tf, &camera, &clipped_settings);
+            let expected_clipped = 1.0 - (-tau * 28.0).exp();
+            for (spv, image) in steps.iter().zip(&clipped) {
+                let centre = image[(SIZE / 2 * SIZE + SIZE / 2) as usize];
+                assert!(
+                    (f64::from(centre.w) - expected_clipped).abs() < 2e-5,
+                    "{model:?} clipped at {spv} samples/voxel: alpha {} vs {expected_clipped}",
+                    centre.w
+                );
+            }
             for (spv, image) in steps.iter().zip(&images) {
                 let centre = image[(SIZE / 2 * SIZE + SIZE / 2) as usize];
                 assert!(

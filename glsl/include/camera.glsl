@@ -23,6 +23,23 @@ Ray generate_ray(RaycastParams p, vec2 pixel) {
     return ray;
 }
 
+// Narrows the ray interval [t0, t1] to the kept side (n . p + d >= 0) of each of the
+// `count` planes (xyz: n, w: d); an empty result has t1 <= t0. Mirrors `clip_ray`.
+vec2 clip_ray(Ray ray, float t0, float t1, vec4 planes[6], int count) {
+    for (int k = 0; k < count; ++k) {
+        float start = dot(planes[k].xyz, ray.origin) + planes[k].w;
+        float rate = dot(planes[k].xyz, ray.dir);
+        if (rate > 0.0) {
+            t0 = max(t0, -start / rate);
+        } else if (rate < 0.0) {
+            t1 = min(t1, -start / rate);
+        } else if (start < 0.0) {
+            t1 = min(t1, t0);
+        }
+    }
+    return vec2(t0, t1);
+}
+
 // Replaces direction components smaller than RAY_DIR_EPSILON in magnitude by +-RAY_DIR_EPSILON so
 // the slab test never divides by zero (axis-parallel rays) and never forms 0 * inf.
 vec3 safe_inverse(vec3 dir) {

@@ -1,5 +1,5 @@
 // Per-frame ray-casting parameters. Mirrors `RaycastParams` in src/scene.rs field by field
-// (std140: vec4s and one mat4, 272 bytes).
+// (std140: vec4s and one mat4, 368 bytes).
 #ifndef PARAMS_GLSL
 #define PARAMS_GLSL
 
@@ -16,7 +16,8 @@ struct RaycastParams {
     vec4 cache_extent_inv; // xyz: 1 / cache extent in texels (mixed resolution); w: unused
     vec4 mode;             // x: iso value; y: MIDA gamma; z: gradient opacity scale; w: gradient step (voxels)
     vec4 shading;          // x: ambient, y: diffuse, z: specular, w: shininess (Blinn-Phong)
-    vec4 iso_colour;       // rgb: iso-surface colour; w: unused
+    vec4 iso_colour;       // rgb: iso-surface colour; w: number of clip planes
+    vec4 clip_planes[6];   // xyz: normal towards the kept side, w: offset (MAX_CLIP_PLANES)
     mat4 world_from_clip;  // inverse of the host's clip_from_world (HOST_DEPTH only)
 };
 

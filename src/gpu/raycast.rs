@@ -62,6 +62,7 @@ impl RaycastVariant {
             (f.preintegrated, "PREINTEGRATED"),
             (f.tricubic && !self.smooth_transitions, "TRICUBIC"),
             (f.coarse_low_res && self.mixed_resolution, "COARSE_LOW_RES"),
+            (f.clip_planes, "CLIP_PLANES"),
         ] {
             if on {
                 defines.push((name, "1".into()));

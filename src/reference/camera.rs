@@ -57,6 +57,23 @@ pub fn depth_limit(p: &RaycastParams, ray: &Ray, pixel: Vec2, depth: f32) -> f32
     (w.truncate() / w.w - ray.origin).dot(ray.dir)
 }
 
+/// Narrows the ray interval `[t0, t1]` to the kept side (`n . p + d >= 0`) of each plane
+/// (xyz: n, w: d); an empty result has `t1 <= t0`. Mirrors `clip_ray` in camera.glsl.
+pub fn clip_ray(ray: &Ray, mut t0: f32, mut t1: f32, planes: &[glam::Vec4]) -> (f32, f32) {
+    for plane in planes {
+        let start = plane.truncate().dot(ray.origin) + plane.w;
+        let rate = plane.truncate().dot(ray.dir);
+        if rate > 0.0 {
+            t0 = t0.max(-start / rate);
+        } else if rate < 0.0 {
+            t1 = t1.min(-start / rate);
+        } else if start < 0.0 {
+            t1 = t1.min(t0);
+        }
+    }
+    (t0, t1)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

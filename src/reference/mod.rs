@@ -6,7 +6,7 @@ mod mixed;
 mod modes;
 mod sampling;
 
-pub use camera::{depth_limit, generate_ray, intersect_box, safe_inverse, Ray};
+pub use camera::{clip_ray, depth_limit, generate_ray, intersect_box, safe_inverse, Ray};
 pub use mixed::{
     active_axes, band, band_bounds, brick_of, dequantize, feature_touches_low_res, fixup_brick,
     fixup_value, low_res_border_coord, neighbour_bit, sample_hi_res_transition, sample_in_brick,
@@ -77,6 +77,7 @@ pub fn cast_ray_program(volume: &Volume, program: &RayProgram, ray: &Ray, t_limi
     let (enter, exit) = intersect_box(ray, p.box_min.truncate(), p.box_max.truncate());
     let t0 = enter.max(p.forward.w);
     let t1 = exit.min(p.right.w).min(t_limit);
+    let (t0, t1) = program.clipped(ray, t0, t1);
     let mut s = RayState::default();
     if !(t0 < t1) {
         return s.acc;
@@ -136,6 +137,7 @@ pub fn cast_ray_mixed_program(
     let (enter, exit) = intersect_box(ray, p.box_min.truncate(), p.box_max.truncate());
     let t0 = enter.max(p.forward.w);
     let t1 = exit.min(p.right.w);
+    let (t0, t1) = program.clipped(ray, t0, t1);
     let mut s = RayState::default();
     if !(t0 < t1) {
         return s.acc;
@@ -197,6 +199,7 @@ pub fn cast_ray_rgba(
     let (enter, exit) = intersect_box(ray, p.box_min.truncate(), p.box_max.truncate());
     let t0 = enter.max(p.forward.w);
     let t1 = exit.min(p.right.w);
+    let (t0, t1) = program.clipped(ray, t0, t1);
     let mut s = RayState::default();
     if !(t0 < t1) {
         return s.acc;
@@ -255,6 +258,7 @@ pub fn cast_ray_rgba_mixed(
     let (enter, exit) = intersect_box(ray, p.box_min.truncate(), p.box_max.truncate());
     let t0 = enter.max(p.forward.w);
     let t1 = exit.min(p.right.w);
+    let (t0, t1) = program.clipped(ray, t0, t1);
     let mut s = RayState::default();
     if !(t0 < t1) {
         return s.acc;

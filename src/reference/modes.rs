@@ -75,6 +75,16 @@ impl RayProgram<'_> {
         }
     }
 
+    /// The ray interval cut by the clip planes when the program has them (`CLIP_PLANES`).
+    pub fn clipped(&self, ray: &super::Ray, t0: f32, t1: f32) -> (f32, f32) {
+        if self.features.clip_planes {
+            let count = self.params.iso_colour.w as usize;
+            super::clip_ray(ray, t0, t1, &self.params.clip_planes[..count])
+        } else {
+            (t0, t1)
+        }
+    }
+
     /// A gap in the samples (an absent brick). Mirrors `break_ray`.
     pub fn break_ray(&self, s: &mut RayState) {
         s.has_prev = false;

@@ -131,12 +131,32 @@ float field_value(vec3 x, out bool present) {
 }
 #include "include/modes.glsl"
 
+vec3 sample_gradient(vec3 x, float value, bool deep, vec4 entry) {
+#ifdef MIXED_RESOLUTION
+    if (deep) {
+        // The plain fetches field_at would make (same brick, no band), without its lookups.
+        float h = params.mode.w;
+        vec3 to_voxel = params.volume_dims.xyz / (params.box_max.xyz - params.box_min.xyz);
+        vec3 g;
+        for (int k = 0; k < 3; ++k) {
+            vec3 e = vec3(0.0);
+            e[k] = h;
+            float hi = field_scalar(cache_fetch((x + e) * entry.w + entry.xyz));
+            float lo = field_scalar(cache_fetch((x - e) * entry.w + entry.xyz));
+            g[k] = (hi - lo) / (h + h);
+        }
+        return g * to_voxel;
+    }
+#endif
+    return field_gradient(x, value);
+}
+
 // One sample of the mixed-resolution loops: scalar samples go through the render mode,
 // pre-classified RGBA samples are composited directly.
 #if defined(MIXED_RESOLUTION) && defined(RGBA_VOLUME)
-#define INTEGRATE(s, value, len, x, dir) integrate_weighted(s, value, len)
+#define INTEGRATE(s, value, len, x, dir, deep, entry) integrate_weighted(s, value, len)
 #else
-#define INTEGRATE(s, value, len, x, dir) integrate_sample(s, value, len, x, dir)
+#define INTEGRATE(s, value, len, x, dir, deep, entry) integrate_sample(s, value, len, x, dir, deep, entry)
 #endif
 
 #ifndef MIXED_RESOLUTION
@@ -172,7 +192,8 @@ vec4 cast_ray(Ray ray) {
 #else
         float value = sample_volume(volume_tex, (p - params.box_min.xyz) / box_size);
 #endif
-        if (integrate_sample(s, value, len, (p - params.box_min.xyz) * to_voxel, ray.dir)) {
+        if (integrate_sample(s, value, len, (p - params.box_min.xyz) * to_voxel, ray.dir, false,
+                             vec4(0.0))) {
             break;
         }
 #endif
@@ -180,6 +201,24 @@ vec4 cast_ray(Ray ray) {
     return finish_ray(s, ray.dir);
 }
 #else
+// One run of interior samples up to END; DEEP (a constant) picks the gradient path.
+#ifdef COARSE_LOW_RES
+#define COARSE_PAIR(i) if (entry.w == 0.5) { \
+    i = merge_low_res_pair(i, steps, t0, t1, step_len, voxel_ray, b, n, bricks, len, x); }
+#else
+#define COARSE_PAIR(i)
+#endif
+#define INTERIOR_RUN(END, DEEP) \
+        for (; i < END; ++i) { \
+            t_start = t0 + float(i) * step_len; \
+            len = max(min(step_len, t1 - t_start), 0.0); \
+            x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len); \
+            COARSE_PAIR(i) \
+            if (INTEGRATE(s, cache_fetch(x * entry.w + entry.xyz), len, x, ray.dir, DEEP, entry)) { \
+                return finish_ray(s, ray.dir); \
+            } \
+        }
+
 // Index of the first sample whose midpoint t0 + (i + 0.5) * step lies at or after t.
 int first_sample_after(float t, float t0, float step_len) {
     return int(ceil((t - t0) / step_len - 0.5));
@@ -262,7 +301,7 @@ vec4 cast_ray(Ray ray) {
 #else
         FIELD value = cache_fetch(x * entry.w + entry.xyz);
 #endif
-        if (INTEGRATE(s, value, len, x, ray.dir)) {
+        if (INTEGRATE(s, value, len, x, ray.dir, false, entry)) {
             break;
         }
     }
@@ -333,25 +372,30 @@ vec4 cast_ray(Ray ray) {
             len = max(min(step_len, t1 - t_start), 0.0);
             x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
             FIELD value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
-            if (INTEGRATE(s, value, len, x, ray.dir)) {
+            if (INTEGRATE(s, value, len, x, ray.dir, false, entry)) {
                 return finish_ray(s, ray.dir);
             }
         }
 #endif
-        // Interior run: plain fetches.
-        for (; i < i_out; ++i) {
-            t_start = t0 + float(i) * step_len;
-            len = max(min(step_len, t1 - t_start), 0.0);
-            x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
-#ifdef COARSE_LOW_RES
-            if (entry.w == 0.5) {
-                i = merge_low_res_pair(i, steps, t0, t1, step_len, voxel_ray, b, n, bricks, len, x);
-            }
-#endif
-            if (INTEGRATE(s, cache_fetch(x * entry.w + entry.xyz), len, x, ray.dir)) {
-                return finish_ray(s, ray.dir);
+        // Interior run: plain fetches. With gradients, the samples whose gradient points x +- h
+        // stay inside the brick's plain region (off its bands, inside its faces, with a small
+        // margin) form a deep run that reads them with the brick's own entry.
+        int i_deep = i_out;
+        int i_deep_end = i_out;
+#if defined(SHADING) || defined(GRADIENT_OPACITY)
+        vec3 plain_lo = max(band_lo, vec3(0.0)) + (params.mode.w + 1e-3);
+        vec3 plain_hi = min(band_hi, vec3(n)) - (params.mode.w + 1e-3);
+        if (all(lessThan(plain_lo, plain_hi))) {
+            vec2 deep = intersect_box(voxel_ray, origin + plain_lo, origin + plain_hi);
+            if (deep.x < deep.y) {
+                i_deep = clamp(first_sample_after(deep.x, t0, step_len), i, i_out);
+                i_deep_end = clamp(first_sample_after(deep.y, t0, step_len) - 1, i_deep, i_out);
             }
         }
+#endif
+        INTERIOR_RUN(i_deep, false)
+        INTERIOR_RUN(i_deep_end, true)
+        INTERIOR_RUN(i_out, false)
 #ifdef SMOOTH_TRANSITIONS
         // Band run after the interior.
         for (; i < i_end; ++i) {
@@ -359,7 +403,7 @@ vec4 cast_ray(Ray ray) {
             len = max(min(step_len, t1 - t_start), 0.0);
             x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
             FIELD value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
-            if (INTEGRATE(s, value, len, x, ray.dir)) {
+            if (INTEGRATE(s, value, len, x, ray.dir, false, entry)) {
                 return finish_ray(s, ray.dir);
             }
         }

@@ -123,9 +123,16 @@ vec4 classify_sample(inout RayState s, float value, float len) {
 #endif
 }
 
+// The world-space gradient at a sample, defined by the includer: `field_gradient`, or with
+// `deep` (a compile-time constant at every call) the same values read through the sample's own
+// brick `entry` (x +- h known to lie in the brick's plain region).
+vec3 sample_gradient(vec3 x, float value, bool deep, vec4 entry);
+
 // Adds the sample `value` at voxel position x, standing for a segment `len` world units long, to
-// the ray; true once nothing further along the ray can change the result.
-bool integrate_sample(inout RayState s, float value, float len, vec3 x, vec3 view_dir) {
+// the ray; true once nothing further along the ray can change the result. `deep` and `entry`
+// only choose how the gradient is read (`sample_gradient`), never its value.
+bool integrate_sample(inout RayState s, float value, float len, vec3 x, vec3 view_dir, bool deep,
+                      vec4 entry) {
 #if defined(MODE_ISO)
     // Only the bracket is kept here: refinement and shading run once, in finish_ray, outside
     // the sample loop (a heavy branch body in the loop costs every sample on SIMD CPUs).
@@ -148,7 +155,7 @@ bool integrate_sample(inout RayState s, float value, float len, vec3 x, vec3 vie
     vec3 rgb = sample_rgba.rgb;
     float alpha = sample_rgba.a;
 #if defined(SHADING) || defined(GRADIENT_OPACITY)
-    vec3 g = field_gradient(x, value);
+    vec3 g = sample_gradient(x, value, deep, entry);
 #endif
 #ifdef GRADIENT_OPACITY
     alpha *= gradient_opacity(g);

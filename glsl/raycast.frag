@@ -380,9 +380,9 @@ vec4 cast_ray(Ray ray) {
         // Interior run: plain fetches. With gradients, the samples whose gradient points x +- h
         // stay inside the brick's plain region (off its bands, inside its faces, with a small
         // margin) form a deep run that reads them with the brick's own entry.
+#if defined(SHADING) || defined(GRADIENT_OPACITY)
         int i_deep = i_out;
         int i_deep_end = i_out;
-#if defined(SHADING) || defined(GRADIENT_OPACITY)
         vec3 plain_lo = max(band_lo, vec3(0.0)) + (params.mode.w + 1e-3);
         vec3 plain_hi = min(band_hi, vec3(n)) - (params.mode.w + 1e-3);
         if (all(lessThan(plain_lo, plain_hi))) {
@@ -392,9 +392,9 @@ vec4 cast_ray(Ray ray) {
                 i_deep_end = clamp(first_sample_after(deep.y, t0, step_len) - 1, i_deep, i_out);
             }
         }
-#endif
         INTERIOR_RUN(i_deep, false)
         INTERIOR_RUN(i_deep_end, true)
+#endif
         INTERIOR_RUN(i_out, false)
 #ifdef SMOOTH_TRANSITIONS
         // Band run after the interior.

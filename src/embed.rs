@@ -243,6 +243,28 @@ fn volume_format(scalar: ScalarType) -> vk::Format {
     }
 }
 
+/// A sampled, linearly filtered 3D texture of `dims` texels in `format` for a single-resolution
+/// volume (checks the format's features first).
+fn volume_texture(ctx: &GpuContext, format: vk::Format, dims: UVec3, what: &str) -> Result<Image> {
+    let shared = &ctx.shared;
+    shared.require_format(
+        format,
+        vk::FormatFeatureFlags::SAMPLED_IMAGE
+            | vk::FormatFeatureFlags::SAMPLED_IMAGE_FILTER_LINEAR
+            | vk::FormatFeatureFlags::TRANSFER_DST,
+        what,
+    )?;
+    Image::new(
+        shared,
+        what,
+        ImageDesc::new_3d(
+            format,
+            dims.to_array(),
+            vk::ImageUsageFlags::SAMPLED | vk::ImageUsageFlags::TRANSFER_DST,
+        ),
+    )
+}
+
 /// Writes `bytes` into `staging` (growing it) and records a whole-image copy into `image`,
 /// leaving it ready for fragment sampling.
 fn record_image_upload(
@@ -458,23 +480,11 @@ impl VolumePass {
     /// Renders `volume` as one plain 3D texture from now on (uploaded by the next record).
     /// No command buffer recorded by this pass may still be executing.
     pub fn set_volume(&mut self, volume: &Volume) -> Result<()> {
-        let shared = &self.ctx.shared;
-        let format = volume_format(volume.scalar_type());
-        shared.require_format(
-            format,
-            vk::FormatFeatureFlags::SAMPLED_IMAGE
-                | vk::FormatFeatureFlags::SAMPLED_IMAGE_FILTER_LINEAR
-                | vk::FormatFeatureFlags::TRANSFER_DST,
-            "volume texture",
-        )?;
-        let image = Image::new(
-            shared,
+        let image = volume_texture(
+            &self.ctx,
+            volume_format(volume.scalar_type()),
+            volume.dims(),
             "volume",
-            ImageDesc::new_3d(
-                format,
-                volume.dims().to_array(),
-                vk::ImageUsageFlags::SAMPLED | vk::ImageUsageFlags::TRANSFER_DST,
-            ),
         )?;
         self.source = Source::Single(SingleVolume {
             image,
@@ -495,23 +505,11 @@ impl VolumePass {
     /// reconstruction (those need a scalar field); other settings are an `InvalidInput` error.
     /// No command buffer recorded by this pass may still be executing.
     pub fn set_rgba_volume(&mut self, volume: Arc<RgbaVolume>) -> Result<()> {
-        let shared = &self.ctx.shared;
-        let format = vk::Format::R32G32B32A32_SFLOAT;
-        shared.require_format(
-            format,
-            vk::FormatFeatureFlags::SAMPLED_IMAGE
-                | vk::FormatFeatureFlags::SAMPLED_IMAGE_FILTER_LINEAR
-                | vk::FormatFeatureFlags::TRANSFER_DST,
-            "RGBA volume texture",
-        )?;
-        let image = Image::new(
-            shared,
+        let image = volume_texture(
+            &self.ctx,
+            vk::Format::R32G32B32A32_SFLOAT,
+            volume.dims(),
             "RGBA volume",
-            ImageDesc::new_3d(
-                format,
-                volume.dims().to_array(),
-                vk::ImageUsageFlags::SAMPLED | vk::ImageUsageFlags::TRANSFER_DST,
-            ),
         )?;
         self.source = Source::Single(SingleVolume {
             image,

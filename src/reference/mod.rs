@@ -103,6 +103,38 @@ pub fn cast_ray_program(volume: &Volume, program: &RayProgram, ray: &Ray, t_limi
     program.finish_ray(&s, ray.dir)
 }
 
+/// LaMar's coarse sampling: in a low-res brick, sample `i` and sample `i + 1` (if it lies in the
+/// same brick) merge into one sample at their common boundary standing for both segments.
+/// Updates `len` and `x` and returns the index of the last sample consumed. Mirrors
+/// `merge_low_res_pair` in raycast.frag (which the GPU calls in low-res bricks only).
+#[allow(clippy::too_many_arguments)] // reason: mirrors the GLSL signature.
+fn merge_low_res_pair(
+    mv: &MixedVolume,
+    i: i32,
+    steps: i32,
+    (t0, t1): (f32, f32),
+    step_len: f32,
+    voxel_ray: &Ray,
+    len: &mut f32,
+    x: &mut Vec3,
+) -> i32 {
+    let b = brick_of(*x, mv.brick_size, mv.bricks);
+    let bi = (b.x as u32 + mv.bricks.x * (b.y as u32 + mv.bricks.y * b.z as u32)) as usize;
+    if mv.layout[bi][3] != 0.5 || i + 1 >= steps {
+        return i;
+    }
+    let t_start = t0 + i as f32 * step_len;
+    let t_next = t0 + (i + 1) as f32 * step_len;
+    let len_next = step_len.min(t1 - t_next).max(0.0);
+    let x_next = voxel_ray.origin + voxel_ray.dir * (t_next + 0.5 * len_next);
+    if brick_of(x_next, mv.brick_size, mv.bricks) != b {
+        return i;
+    }
+    *len = (2.0 * step_len).min(t1 - t_start).max(0.0);
+    *x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * *len);
+    i + 1
+}
+
 /// Casts one ray through a mixed-resolution brick cache with the default program. Mirrors the
 /// MIXED_RESOLUTION `cast_ray` in `glsl/raycast.frag`: the same samples as [`cast_ray`]; samples
 /// in absent bricks are skipped. `p` must come from [`RaycastParams::with_cache`].
@@ -154,20 +186,21 @@ pub fn cast_ray_mixed_program(
         let t_start = t0 + i as f32 * step_len;
         let mut len = step_len.min(t1 - t_start).max(0.0);
         let mut x = voxel_origin + voxel_dir * (t_start + 0.5 * len);
-        if program.features.coarse_low_res && i + 1 < steps {
-            // `merge_low_res_pair` in raycast.frag.
-            let b = brick_of(x, mv.brick_size, mv.bricks);
-            let bi = (b.x as u32 + mv.bricks.x * (b.y as u32 + mv.bricks.y * b.z as u32)) as usize;
-            if mv.layout[bi][3] == 0.5 {
-                let t_next = t0 + (i + 1) as f32 * step_len;
-                let len_next = step_len.min(t1 - t_next).max(0.0);
-                let x_next = voxel_origin + voxel_dir * (t_next + 0.5 * len_next);
-                if brick_of(x_next, mv.brick_size, mv.bricks) == b {
-                    len = (2.0 * step_len).min(t1 - t_start).max(0.0);
-                    x = voxel_origin + voxel_dir * (t_start + 0.5 * len);
-                    i += 1;
-                }
-            }
+        if program.features.coarse_low_res {
+            let voxel_ray = Ray {
+                origin: voxel_origin,
+                dir: voxel_dir,
+            };
+            i = merge_low_res_pair(
+                mv,
+                i,
+                steps,
+                (t0, t1),
+                step_len,
+                &voxel_ray,
+                &mut len,
+                &mut x,
+            );
         }
         let Some(value) = sample_mixed(mv, x, transition) else {
             program.break_ray(&mut s);
@@ -219,25 +252,34 @@ pub fn cast_ray_rgba(
     s.acc
 }
 
-/// Renders a whole image of a pre-classified RGBA volume with the sampling model of `settings`.
-pub fn render_rgba(volume: &RgbaVolume, settings: &RenderSettings, p: &RaycastParams) -> Vec<Vec4> {
-    let model = settings.sampling_model;
-    let weighted = volume.weighted(model);
-    // Only the model matters to `integrate_weighted`; the table's entries are unused.
+/// Runs `f` with the program of a pre-classified RGBA frame: only the sampling model matters to
+/// `integrate_weighted` (there is no transfer function and no scalar field).
+fn with_rgba_program<R>(
+    settings: &RenderSettings,
+    p: &RaycastParams,
+    f: impl FnOnce(&RayProgram) -> R,
+) -> R {
     let table = ClassificationTable::new(
         &TransferFunction::preset(crate::optics::TfPreset::ConstantWhite),
-        model,
+        settings.sampling_model,
     );
     let field = |_: Vec3| None;
-    let program = RayProgram {
+    f(&RayProgram {
         features: settings.features(),
         table: &table,
         preintegration: None,
         params: p,
         field: &field,
-    };
-    render_with(p, |ray| {
-        cast_ray_rgba(volume.dims(), &weighted, &program, ray)
+    })
+}
+
+/// Renders a whole image of a pre-classified RGBA volume with the sampling model of `settings`.
+pub fn render_rgba(volume: &RgbaVolume, settings: &RenderSettings, p: &RaycastParams) -> Vec<Vec4> {
+    let weighted = volume.weighted(settings.sampling_model);
+    with_rgba_program(settings, p, |program| {
+        render_with(p, |ray| {
+            cast_ray_rgba(volume.dims(), &weighted, program, ray)
+        })
     })
 }
 
@@ -275,19 +317,21 @@ pub fn cast_ray_rgba_mixed(
         let t_start = t0 + i as f32 * step_len;
         let mut len = step_len.min(t1 - t_start).max(0.0);
         let mut x = voxel_origin + voxel_dir * (t_start + 0.5 * len);
-        if program.features.coarse_low_res && i + 1 < steps {
-            let b = brick_of(x, mv.brick_size, mv.bricks);
-            let bi = (b.x as u32 + mv.bricks.x * (b.y as u32 + mv.bricks.y * b.z as u32)) as usize;
-            if mv.layout[bi][3] == 0.5 {
-                let t_next = t0 + (i + 1) as f32 * step_len;
-                let len_next = step_len.min(t1 - t_next).max(0.0);
-                let x_next = voxel_origin + voxel_dir * (t_next + 0.5 * len_next);
-                if brick_of(x_next, mv.brick_size, mv.bricks) == b {
-                    len = (2.0 * step_len).min(t1 - t_start).max(0.0);
-                    x = voxel_origin + voxel_dir * (t_start + 0.5 * len);
-                    i += 1;
-                }
-            }
+        if program.features.coarse_low_res {
+            let voxel_ray = Ray {
+                origin: voxel_origin,
+                dir: voxel_dir,
+            };
+            i = merge_low_res_pair(
+                mv,
+                i,
+                steps,
+                (t0, t1),
+                step_len,
+                &voxel_ray,
+                &mut len,
+                &mut x,
+            );
         }
         let mut weighted = Vec4::ZERO;
         let mut present = true;
@@ -315,20 +359,10 @@ pub fn render_rgba_mixed(
     settings: &RenderSettings,
     p: &RaycastParams,
 ) -> Vec<Vec4> {
-    let table = ClassificationTable::new(
-        &TransferFunction::preset(crate::optics::TfPreset::ConstantWhite),
-        settings.sampling_model,
-    );
-    let field = |_: Vec3| None;
-    let program = RayProgram {
-        features: settings.features(),
-        table: &table,
-        preintegration: None,
-        params: p,
-        field: &field,
-    };
-    render_with(p, |ray| {
-        cast_ray_rgba_mixed(channels, transition, &program, ray)
+    with_rgba_program(settings, p, |program| {
+        render_with(p, |ray| {
+            cast_ray_rgba_mixed(channels, transition, program, ray)
+        })
     })
 }
 

@@ -53,9 +53,9 @@ float field_scalar(float v) {
 
 FIELD cache_fetch(vec3 texel) {
 #ifdef RGBA_VOLUME
-    return textureLod(cache_tex, texel * params.cache_extent_inv.xyz, 0.0);
+    return texture(cache_tex, texel * params.cache_extent_inv.xyz);
 #else
-    return textureLod(cache_tex, texel * params.cache_extent_inv.xyz, 0.0).r;
+    return texture(cache_tex, texel * params.cache_extent_inv.xyz).r;
 #endif
 }
 #include "include/mixed.glsl"
@@ -309,10 +309,15 @@ vec4 cast_ray(Ray ray) {
 }
 #else
 // The same samples as the single-resolution loop (and as `cast_ray_mixed` in the CPU reference,
-// which tests each sample's brick), scheduled brick by brick: the layout entry and neighbour bits
-// are read once per brick, absent bricks are skipped whole, and in a hi-res brick with low-res
-// neighbours the ray's samples are split into band / interior / band runs, so the interior loop
-// carries no transition code (a branch in the loop costs even when not taken on SIMD CPUs).
+// which tests each sample's brick), scheduled in alternating runs so the plain samples carry no
+// transition code (SIMD CPUs such as llvmpipe execute every branch body and at least one pass of
+// every loop, taken or not):
+// - a band run: consecutive samples that lie in the half-voxel band of a hi-res brick next to a
+//   low-res brick (it may cross from one brick's exit band into the next brick's entry band),
+//   each looked up and blended; it ends at the first sample in a brick's plain region, or absent;
+// - then that brick's plain run up to where the ray leaves the plain region (one ray/box
+//   intersection; layout entry, neighbour bits and band bounds were read once for it), or the
+//   jump over an absent brick.
 vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
@@ -335,58 +340,56 @@ vec4 cast_ray(Ray ray) {
     int steps = int(min(ceil((t1 - t0) / step_len), params.tf_window.w));
     int i = 0;
     while (i < steps) {
-        float t_start = t0 + float(i) * step_len;
-        float len = max(min(step_len, t1 - t_start), 0.0);
-        vec3 x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
-        ivec3 b = brick_of(x, n, bricks);
-        vec3 origin = vec3(b) * n;
-        float t_exit = intersect_box(voxel_ray, origin, origin + n).y;
-        int i_end = clamp(first_sample_after(t_exit, t0, step_len), i + 1, steps);
-        int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
-        vec4 entry = layout_entries[bi];
-        if (entry.w == 0.0) {
-            i = i_end;
-            break_ray(s);
-            continue;
-        }
-        int i_in = i;
-        int i_out = i_end;
-#ifdef SMOOTH_TRANSITIONS
-        uint bits = neighbour_bits[bi];
-        vec3 band_lo = vec3(-1.0);
-        vec3 band_hi = vec3(n + 1.0);
-        if (entry.w == 1.0 && bits != 0u) {
-            band_bounds(bits, n, band_lo, band_hi);
-            vec2 inner = intersect_box(voxel_ray, origin + band_lo, origin + band_hi);
-            if (inner.x < inner.y) {
-                i_in = clamp(first_sample_after(inner.x, t0, step_len), i, i_end);
-                i_out = clamp(first_sample_after(inner.y, t0, step_len), i_in, i_end);
-            } else {
-                i_in = i_end;
-                i_out = i_end;
-            }
-        }
-        // Band run before the interior.
-        for (; i < i_in; ++i) {
+        // Band run; its last pass looks up the brick of the plain run that follows.
+        float t_start;
+        float len;
+        vec3 x;
+        ivec3 b;
+        vec4 entry;
+        uint bits;
+        vec3 band_lo;
+        vec3 band_hi;
+        for (; i < steps; ++i) {
             t_start = t0 + float(i) * step_len;
             len = max(min(step_len, t1 - t_start), 0.0);
             x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
-            FIELD value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
+            b = brick_of(x, n, bricks);
+            int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
+            entry = layout_entries[bi];
+            bits = entry.w == 1.0 ? neighbour_bits[bi] : 0u;
+            band_bounds(bits, n, band_lo, band_hi);
+            vec3 q = x - vec3(b) * n;
+            if (entry.w == 0.0 || (all(greaterThanEqual(q, band_lo)) && all(lessThanEqual(q, band_hi)))) {
+                break;
+            }
+            FIELD value = sample_hi_res_transition(q, vec3(b) * n + entry.xyz, bits, n);
             if (INTEGRATE(s, value, len, x, ray.dir, false, entry)) {
                 return finish_ray(s, ray.dir);
             }
         }
-#endif
-        // Interior run: plain fetches. With gradients, the samples whose gradient points x +- h
-        // stay inside the brick's plain region (off its bands, inside its faces, with a small
-        // margin) form a deep run that reads them with the brick's own entry.
+        if (i >= steps) {
+            break;
+        }
+        // Plain run (sample i lies in it, so it holds at least that sample), or the absent jump.
+        vec3 origin = vec3(b) * n;
+        vec3 plain_lo = max(band_lo, vec3(0.0));
+        vec3 plain_hi = min(band_hi, vec3(n));
+        float t_leave = intersect_box(voxel_ray, origin + plain_lo, origin + plain_hi).y;
+        int i_out = clamp(first_sample_after(t_leave, t0, step_len), i + 1, steps);
+        if (entry.w == 0.0) {
+            i = i_out;
+            break_ray(s);
+            continue;
+        }
+        // With gradients, the samples whose gradient points x +- h stay inside the plain region
+        // (with a small margin) form a deep run that reads them with the brick's own entry.
 #if defined(SHADING) || defined(GRADIENT_OPACITY)
         int i_deep = i_out;
         int i_deep_end = i_out;
-        vec3 plain_lo = max(band_lo, vec3(0.0)) + (params.mode.w + 1e-3);
-        vec3 plain_hi = min(band_hi, vec3(n)) - (params.mode.w + 1e-3);
-        if (all(lessThan(plain_lo, plain_hi))) {
-            vec2 deep = intersect_box(voxel_ray, origin + plain_lo, origin + plain_hi);
+        vec3 deep_lo = plain_lo + (params.mode.w + 1e-3);
+        vec3 deep_hi = plain_hi - (params.mode.w + 1e-3);
+        if (all(lessThan(deep_lo, deep_hi))) {
+            vec2 deep = intersect_box(voxel_ray, origin + deep_lo, origin + deep_hi);
             if (deep.x < deep.y) {
                 i_deep = clamp(first_sample_after(deep.x, t0, step_len), i, i_out);
                 i_deep_end = clamp(first_sample_after(deep.y, t0, step_len) - 1, i_deep, i_out);
@@ -396,18 +399,6 @@ vec4 cast_ray(Ray ray) {
         INTERIOR_RUN(i_deep_end, true)
 #endif
         INTERIOR_RUN(i_out, false)
-#ifdef SMOOTH_TRANSITIONS
-        // Band run after the interior.
-        for (; i < i_end; ++i) {
-            t_start = t0 + float(i) * step_len;
-            len = max(min(step_len, t1 - t_start), 0.0);
-            x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
-            FIELD value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
-            if (INTEGRATE(s, value, len, x, ray.dir, false, entry)) {
-                return finish_ray(s, ray.dir);
-            }
-        }
-#endif
     }
     return finish_ray(s, ray.dir);
 }

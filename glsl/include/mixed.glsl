@@ -59,38 +59,30 @@ FIELD sample_hi_res_transition(vec3 q, vec3 texel_of_local, uint bits, float n) 
     vec3 beta;
     uint band_mask = band(q, n, side, beta);
     uint active_mask = active_axes(bits, band_mask, side);
-    if (active_mask == 0u) {
-        return cache_fetch(q + texel_of_local);
-    }
     vec3 face = mix(vec3(n), vec3(0.0), lessThan(side, ivec3(0)));
     vec3 plane = mix(vec3(n - 0.5), vec3(0.5), lessThan(side, ivec3(0)));
     FIELD sum = FIELD(0.0);
-    uint s = active_mask;
-    for (;;) {
+    // Every subset S of the active axes (bit j of k says whether the j-th active axis is in S):
+    // S on the face, the other active axes on the hi-res plane. A counted loop, no early exit.
+    int subsets = 1 << bitCount(active_mask);
+    for (int k = 0; k < subsets; ++k) {
+        uint s = 0u;
+        int j = 0;
         float weight = 1.0;
         vec3 p = q;
         for (int a = 0; a < 3; ++a) {
-            uint bit = 1u << uint(a);
-            if ((active_mask & bit) != 0u) {
-                if ((s & bit) != 0u) {
-                    weight *= beta[a];
-                    p[a] = face[a];
-                } else {
-                    weight *= 1.0 - beta[a];
-                    p[a] = plane[a];
-                }
+            if ((active_mask & (1u << uint(a))) != 0u) {
+                bool on_face = ((k >> j) & 1) != 0;
+                j += 1;
+                s |= on_face ? 1u << uint(a) : 0u;
+                weight *= on_face ? beta[a] : 1.0 - beta[a];
+                p[a] = on_face ? face[a] : plane[a];
             }
         }
-        if (weight > 0.0) {
-            vec3 local = (s != 0u && feature_touches_low_res(bits, s, side))
-                ? low_res_border_coord(p, s, side, n)
-                : p;
-            sum += weight * cache_fetch(local + texel_of_local);
-        }
-        if (s == 0u) {
-            break;
-        }
-        s = (s - 1u) & active_mask;
+        vec3 local = (s != 0u && feature_touches_low_res(bits, s, side))
+            ? low_res_border_coord(p, s, side, n)
+            : p;
+        sum += weight * cache_fetch(local + texel_of_local);
     }
     return sum;
 }
@@ -99,11 +91,9 @@ FIELD sample_hi_res_transition(vec3 q, vec3 texel_of_local, uint bits, float n) 
 // half-voxel band on a side that touches a low-res neighbour (face, edge or corner) and needs the
 // transition blend; every other sample of the brick is a plain fetch. Computed once per brick.
 void band_bounds(uint bits, float n, out vec3 lo, out vec3 hi) {
-    // Neighbour bits of the 9 bricks on the low / high side of each axis (SIDE_MASKS in Rust).
-    const uvec3 low_side = uvec3(0x925249u, 0xe0e07u, 0x1ffu);
-    const uvec3 high_side = uvec3(0x2492924u, 0x381c1c0u, 0x3fe0000u);
-    lo = mix(vec3(-1.0), vec3(0.5), notEqual(uvec3(bits) & low_side, uvec3(0u)));
-    hi = mix(vec3(n + 1.0), vec3(n - 0.5), notEqual(uvec3(bits) & high_side, uvec3(0u)));
+    // Any low-res neighbour on the low / high side of an axis (LOW_SIDE, HIGH_SIDE) puts a band there.
+    lo = mix(vec3(-1.0), vec3(0.5), notEqual(uvec3(bits) & LOW_SIDE, uvec3(0u)));
+    hi = mix(vec3(n + 1.0), vec3(n - 0.5), notEqual(uvec3(bits) & HIGH_SIDE, uvec3(0u)));
 }
 
 // The field at volume point x inside brick b with layout entry `entry` (t_w > 0), neighbour bits

@@ -16,29 +16,36 @@ ivec3 offset_of(uint mask, ivec3 side) {
                  (mask & 4u) != 0u ? side.z : 0);
 }
 
+// Per axis, the neighbour bits of the nine bricks on its low side, on its high side, and level
+// with the brick (SIDE_MASKS and CENTRE_MASKS in Rust).
+const uvec3 LOW_SIDE = uvec3(0x925249u, 0xe0e07u, 0x1ffu);
+const uvec3 HIGH_SIDE = uvec3(0x2492924u, 0x381c1c0u, 0x3fe0000u);
+const uvec3 CENTRE = uvec3(0x1248492u, 0x703038u, 0x1fe00u);
+
+// Per axis, the neighbour bits of the bricks on side `side` (0 where side is 0).
+uvec3 toward(ivec3 side) {
+    return mix(uvec3(0u), mix(HIGH_SIDE, LOW_SIDE, lessThan(side, ivec3(0))),
+               notEqual(side, ivec3(0)));
+}
+
+// Neighbour bits of the bricks touching the feature of axes `mask` on sides `side`: offsets d != 0
+// with d_a in {0, side_a} on the axes of `mask` and d_a = 0 on the others.
+uint touching(uint mask, ivec3 side) {
+    bvec3 on = notEqual(uvec3(mask) & uvec3(1u, 2u, 4u), uvec3(0u));
+    uvec3 allowed = CENTRE | mix(uvec3(0u), toward(side), on);
+    return allowed.x & allowed.y & allowed.z;
+}
+
 // Whether any brick touching the feature of axes `mask` on sides `side` is low-res.
 bool feature_touches_low_res(uint bits, uint mask, ivec3 side) {
-    uint sub = mask;
-    while (sub != 0u) {
-        if ((bits & neighbour_bit(offset_of(sub, side))) != 0u) {
-            return true;
-        }
-        sub = (sub - 1u) & mask;
-    }
-    return false;
+    return (bits & touching(mask, side)) != 0u;
 }
 
 // Band axes whose transition is active: some touching low-res brick lies across that axis.
 uint active_axes(uint bits, uint band_mask, ivec3 side) {
-    uint active_mask = 0u;
-    uint sub = band_mask;
-    while (sub != 0u) {
-        if ((bits & neighbour_bit(offset_of(sub, side))) != 0u) {
-            active_mask |= sub;
-        }
-        sub = (sub - 1u) & band_mask;
-    }
-    return active_mask;
+    uint low = bits & touching(band_mask, side);
+    bvec3 across = notEqual(uvec3(low) & toward(side), uvec3(0u));
+    return (across.x ? 1u : 0u) | (across.y ? 2u : 0u) | (across.z ? 4u : 0u);
 }
 
 #endif

@@ -145,17 +145,29 @@ fn offset_of(mask: u32, side: IVec3) -> IVec3 {
     )
 }
 
-/// Whether any brick touching the feature of axes `mask` (face: one axis, edge: two, corner:
-/// three) on sides `side` is low-res: the offsets `d != 0` with `d_a in {0, side_a}` on `mask`.
+/// Per axis, the neighbour bits of the bricks on side `side` (the `SIDE_MASKS` entry; none where
+/// the side is 0). Mirrors `toward` in neighbours.glsl.
+fn toward(side: IVec3) -> [u32; 3] {
+    std::array::from_fn(|a| match side[a] {
+        s if s < 0 => SIDE_MASKS[a][0],
+        s if s > 0 => SIDE_MASKS[a][1],
+        _ => 0,
+    })
+}
+
+/// Neighbour bits of the bricks touching the feature of axes `mask` (face: one axis, edge: two,
+/// corner: three) on sides `side`: the offsets `d != 0` with `d_a in {0, side_a}` on the axes of
+/// `mask` and `d_a = 0` on the others. Mirrors `touching` in neighbours.glsl.
+pub fn touching(mask: u32, side: IVec3) -> u32 {
+    let toward = toward(side);
+    (0..3)
+        .map(|a| CENTRE_MASKS[a] | if mask & (1 << a) != 0 { toward[a] } else { 0 })
+        .fold(u32::MAX, |all, allowed| all & allowed)
+}
+
+/// Whether any brick touching the feature of axes `mask` on sides `side` is low-res.
 pub fn feature_touches_low_res(bits: u32, mask: u32, side: IVec3) -> bool {
-    let mut sub = mask;
-    while sub != 0 {
-        if bits & neighbour_bit(offset_of(sub, side)) != 0 {
-            return true;
-        }
-        sub = (sub - 1) & mask;
-    }
-    false
+    bits & touching(mask, side) != 0
 }
 
 /// Band axes of local point `q` in a brick of size `n`: returns (band mask, sides, betas).
@@ -179,15 +191,11 @@ pub fn band(q: Vec3, n: f32) -> (u32, IVec3, Vec3) {
 
 /// Band axes whose transition is active: some touching low-res brick lies across that axis.
 pub fn active_axes(bits: u32, band_mask: u32, side: IVec3) -> u32 {
-    let mut active_mask = 0;
-    let mut sub = band_mask;
-    while sub != 0 {
-        if bits & neighbour_bit(offset_of(sub, side)) != 0 {
-            active_mask |= sub;
-        }
-        sub = (sub - 1) & band_mask;
-    }
-    active_mask
+    let low = bits & touching(band_mask, side);
+    let toward = toward(side);
+    (0..3)
+        .filter(|&a| low & toward[a] != 0)
+        .fold(0, |mask, a| mask | 1 << a)
 }
 
 /// Brick-local coordinate at which a single trilinear fetch of the fixed-up border of the feature
@@ -247,13 +255,17 @@ pub fn band_bounds(bits: u32, n: f32) -> (Vec3, Vec3) {
     (lo, hi)
 }
 
-/// Per axis, the neighbour bits of the nine bricks on its low and its high side (the constants
-/// `low_side` and `high_side` in `band_bounds` in mixed.glsl).
+/// Per axis, the neighbour bits of the nine bricks on its low and its high side (`LOW_SIDE` and
+/// `HIGH_SIDE` in neighbours.glsl).
 pub const SIDE_MASKS: [[u32; 2]; 3] = [
     [0x0092_5249, 0x0249_2924],
     [0x000e_0e07, 0x0381_c1c0],
     [0x0000_01ff, 0x03fe_0000],
 ];
+
+/// Per axis, the neighbour bits of the eight bricks level with the brick on that axis (`d_a = 0`;
+/// `CENTRE` in neighbours.glsl).
+pub const CENTRE_MASKS: [u32; 3] = [0x0124_8492, 0x0070_3038, 0x0001_fe00];
 
 /// The field at volume point `x` inside brick `b` with layout entry `entry` (`t_w > 0`),
 /// neighbour bits `bits` and band bounds `(lo, hi)` from [`band_bounds`]. Mirrors
@@ -291,9 +303,6 @@ pub fn sample_hi_res_transition(
 ) -> f32 {
     let (band_mask, side, beta) = band(q, n);
     let active_mask = active_axes(bits, band_mask, side);
-    if active_mask == 0 {
-        return cache.fetch(q + texel_of_local);
-    }
     let face = Vec3::new(
         if side.x < 0 { 0.0 } else { n },
         if side.y < 0 { 0.0 } else { n },
@@ -305,34 +314,29 @@ pub fn sample_hi_res_transition(
         if side.z < 0 { 0.5 } else { n - 0.5 },
     );
     let mut sum = 0.0;
-    // Every subset S of the active_mask axes: S on the face, active_mask \ S on the hi-res plane.
-    let mut s = active_mask;
-    loop {
+    // Every subset S of the active axes (bit j of k says whether the j-th active axis is in S):
+    // S on the face, the other active axes on the hi-res plane. With no active axis, S = {} alone:
+    // weight 1 at q itself, a plain fetch.
+    for k in 0..1u32 << active_mask.count_ones() {
+        let mut s = 0;
+        let mut j = 0;
         let mut weight = 1.0;
         let mut p = q;
         for a in 0..3 {
             if active_mask & (1 << a) != 0 {
-                if s & (1 << a) != 0 {
-                    weight *= beta[a];
-                    p[a] = face[a];
-                } else {
-                    weight *= 1.0 - beta[a];
-                    p[a] = plane[a];
-                }
+                let on_face = (k >> j) & 1 != 0;
+                j += 1;
+                s |= if on_face { 1 << a } else { 0 };
+                weight *= if on_face { beta[a] } else { 1.0 - beta[a] };
+                p[a] = if on_face { face[a] } else { plane[a] };
             }
         }
-        if weight > 0.0 {
-            let local = if s != 0 && feature_touches_low_res(bits, s, side) {
-                low_res_border_coord(p, s, side, n)
-            } else {
-                p
-            };
-            sum += weight * cache.fetch(local + texel_of_local);
-        }
-        if s == 0 {
-            break;
-        }
-        s = (s - 1) & active_mask;
+        let local = if s != 0 && feature_touches_low_res(bits, s, side) {
+            low_res_border_coord(p, s, side, n)
+        } else {
+            p
+        };
+        sum += weight * cache.fetch(local + texel_of_local);
     }
     sum
 }
@@ -553,6 +557,57 @@ mod tests {
                     }
                 }
                 assert_eq!(SIDE_MASKS[a][side], mask, "axis {a} side {sign}");
+            }
+            let level: u32 = (0..27)
+                .map(|k| IVec3::new(k % 3, (k / 3) % 3, k / 9) - IVec3::ONE)
+                .filter(|d| *d != IVec3::ZERO && d[a] == 0)
+                .map(neighbour_bit)
+                .fold(0, |m, b| m | b);
+            assert_eq!(CENTRE_MASKS[a], level, "axis {a} level");
+        }
+    }
+
+    /// The subset walks the masks replace: every nonempty subset `sub` of `mask` names the
+    /// neighbour `offset_of(sub, side)`.
+    fn touching_by_subsets(bits: u32, mask: u32, side: IVec3) -> (bool, u32) {
+        let (mut touches, mut active) = (false, 0);
+        let mut sub = mask;
+        while sub != 0 {
+            if bits & neighbour_bit(offset_of(sub, side)) != 0 {
+                touches = true;
+                active |= sub;
+            }
+            sub = (sub - 1) & mask;
+        }
+        (touches, active)
+    }
+
+    #[test]
+    fn feature_and_active_masks_match_the_subset_walk() {
+        // Every side vector and mask, single neighbours, and pseudo-random neighbour sets.
+        let mut state = 0x9e37_79b9_u32;
+        let mut patterns: Vec<u32> = (0..26).map(|k| 1 << k).collect();
+        patterns.extend((0..400).map(|_| {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            state & ((1 << 26) - 1)
+        }));
+        patterns.extend([0, (1 << 26) - 1]);
+        for k in 0..27 {
+            let side = IVec3::new(k % 3, (k / 3) % 3, k / 9) - IVec3::ONE;
+            // Masks only name axes with a side (as band() produces them).
+            let allowed = (0..3).filter(|&a| side[a] != 0).fold(0, |m, a| m | 1 << a);
+            for mask in (0..8u32).filter(|m| m & !allowed == 0) {
+                for &bits in &patterns {
+                    let (touches, active) = touching_by_subsets(bits, mask, side);
+                    assert_eq!(feature_touches_low_res(bits, mask, side), touches);
+                    assert_eq!(
+                        active_axes(bits, mask, side),
+                        active,
+                        "{bits:#x} {mask} {side}"
+                    );
+                }
             }
         }
     }

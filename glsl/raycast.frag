@@ -356,7 +356,7 @@ vec4 cast_ray(Ray ray) {
             b = brick_of(x, n, bricks);
             int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
             entry = layout_entries[bi];
-            bits = entry.w == 1.0 ? neighbour_bits[bi] : 0u;
+            bits = neighbour_bits[bi];
             band_bounds(bits, n, band_lo, band_hi);
             vec3 q = x - vec3(b) * n;
             if (entry.w == 0.0 || (all(greaterThanEqual(q, band_lo)) && all(lessThanEqual(q, band_hi)))) {

@@ -61,28 +61,26 @@ FIELD sample_hi_res_transition(vec3 q, vec3 texel_of_local, uint bits, float n) 
     uint active_mask = active_axes(bits, band_mask, side);
     vec3 face = mix(vec3(n), vec3(0.0), lessThan(side, ivec3(0)));
     vec3 plane = mix(vec3(n - 0.5), vec3(0.5), lessThan(side, ivec3(0)));
-    FIELD sum = FIELD(0.0);
-    // Every subset S of the active axes (bit j of k says whether the j-th active axis is in S):
-    // S on the face, the other active axes on the hi-res plane. A counted loop, no early exit.
+    // What a term reads per axis: on the axes of S the face (hi-res read) or the border texel
+    // centre (low-res read through the fixed-up border); on the other active axes the hi-res
+    // plane, or its low-res warp; on inactive axes q, or its low-res warp.
+    bvec3 is_active = notEqual(uvec3(active_mask) & uvec3(1u, 2u, 4u), uvec3(0u));
+    vec3 hi_point = mix(q, plane, is_active);
+    vec3 lo_point = low_res_border_coord(hi_point, 0u, side, n);
+    vec3 border = mix(vec3(n + 0.5), vec3(-0.5), lessThan(side, ivec3(0)));
+    // Every subset S of the active axes: bit rank[a] of k says whether active axis a is in S. A
+    // counted loop without early exit (a for(;;) with break gave wrong sums on llvmpipe 22.3).
+    ivec3 rank = ivec3(0, int(is_active.x), int(is_active.x) + int(is_active.y));
     int subsets = 1 << bitCount(active_mask);
+    FIELD sum = FIELD(0.0);
     for (int k = 0; k < subsets; ++k) {
-        uint s = 0u;
-        int j = 0;
-        float weight = 1.0;
-        vec3 p = q;
-        for (int a = 0; a < 3; ++a) {
-            if ((active_mask & (1u << uint(a))) != 0u) {
-                bool on_face = ((k >> j) & 1) != 0;
-                j += 1;
-                s |= on_face ? 1u << uint(a) : 0u;
-                weight *= on_face ? beta[a] : 1.0 - beta[a];
-                p[a] = on_face ? face[a] : plane[a];
-            }
-        }
+        bvec3 on_face = bvec3(uvec3(is_active) & (uvec3(k) >> uvec3(rank)) & 1u);
+        uint s = (on_face.x ? 1u : 0u) | (on_face.y ? 2u : 0u) | (on_face.z ? 4u : 0u);
+        vec3 w = mix(vec3(1.0), mix(1.0 - beta, beta, on_face), is_active);
         vec3 local = (s != 0u && feature_touches_low_res(bits, s, side))
-            ? low_res_border_coord(p, s, side, n)
-            : p;
-        sum += weight * cache_fetch(local + texel_of_local);
+            ? mix(lo_point, border, on_face)
+            : mix(hi_point, face, on_face);
+        sum += (w.x * w.y * w.z) * cache_fetch(local + texel_of_local);
     }
     return sum;
 }

@@ -28,7 +28,7 @@
 //! trap). The warp survives as the low-res read of the border (`u' = (u + 1/2) / 2` on a trapezoid
 //! cell, any `u'` on a triangle cell, whose two border texels both hold the apex).
 
-use glam::{IVec3, UVec3, Vec3};
+use glam::{BVec3, IVec3, UVec3, Vec3};
 
 /// How transitions between resolution levels are reconstructed.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
@@ -313,30 +313,45 @@ pub fn sample_hi_res_transition(
         if side.y < 0 { 0.5 } else { n - 0.5 },
         if side.z < 0 { 0.5 } else { n - 0.5 },
     );
+    // What a term reads per axis: on the axes of S the face (hi-res read) or the border texel
+    // centre (low-res read through the fixed-up border); on the other active axes the hi-res
+    // plane, or its low-res warp; on inactive axes q, or its low-res warp.
+    let is_active = BVec3::new(
+        active_mask & 1 != 0,
+        active_mask & 2 != 0,
+        active_mask & 4 != 0,
+    );
+    let hi_point = Vec3::select(is_active, plane, q);
+    let lo_point = low_res_border_coord(hi_point, 0, side, n);
+    let border = Vec3::new(
+        if side.x < 0 { -0.5 } else { n + 0.5 },
+        if side.y < 0 { -0.5 } else { n + 0.5 },
+        if side.z < 0 { -0.5 } else { n + 0.5 },
+    );
+    // Every subset S of the active axes: bit rank[a] of k says whether active axis a is in S
+    // (with no active axis, S = {} alone: weight 1 at q itself, a plain fetch).
+    let rank = [
+        0,
+        u32::from(is_active.x),
+        u32::from(is_active.x) + u32::from(is_active.y),
+    ];
     let mut sum = 0.0;
-    // Every subset S of the active axes (bit j of k says whether the j-th active axis is in S):
-    // S on the face, the other active axes on the hi-res plane. With no active axis, S = {} alone:
-    // weight 1 at q itself, a plain fetch.
     for k in 0..1u32 << active_mask.count_ones() {
-        let mut s = 0;
-        let mut j = 0;
-        let mut weight = 1.0;
-        let mut p = q;
-        for a in 0..3 {
-            if active_mask & (1 << a) != 0 {
-                let on_face = (k >> j) & 1 != 0;
-                j += 1;
-                s |= if on_face { 1 << a } else { 0 };
-                weight *= if on_face { beta[a] } else { 1.0 - beta[a] };
-                p[a] = if on_face { face[a] } else { plane[a] };
-            }
-        }
+        let on_face = BVec3::from(std::array::from_fn(|a| {
+            is_active.test(a) && (k >> rank[a]) & 1 != 0
+        }));
+        let s = on_face.bitmask();
+        let w = Vec3::select(
+            is_active,
+            Vec3::select(on_face, beta, Vec3::ONE - beta),
+            Vec3::ONE,
+        );
         let local = if s != 0 && feature_touches_low_res(bits, s, side) {
-            low_res_border_coord(p, s, side, n)
+            Vec3::select(on_face, border, lo_point)
         } else {
-            p
+            Vec3::select(on_face, face, hi_point)
         };
-        sum += weight * cache.fetch(local + texel_of_local);
+        sum += (w.x * w.y * w.z) * cache.fetch(local + texel_of_local);
     }
     sum
 }

@@ -51,6 +51,10 @@ float field_scalar(float v) {
 }
 #endif
 
+// Implicit-LOD fetch, as for the plain volume texture: the cache has one mip level and equal
+// min/mag filters, so the (possibly undefined) derivatives cannot change the result, and
+// llvmpipe's explicit-LOD path (textureLod/textureGrad) costs 1.45x against 1.28x of the plain
+// ray-cast (docs/performance.md).
 FIELD cache_fetch(vec3 texel) {
 #ifdef RGBA_VOLUME
     return texture(cache_tex, texel * params.cache_extent_inv.xyz);

@@ -1,7 +1,8 @@
 //! Mixed-resolution costs, measured side by side in one run on one scene:
 //! - frame time of the brick cache with every brick hi-res against the plain single-texture
 //!   ray-caster (address translation + brick walking overhead; target <= 1.3x);
-//! - frame time smooth / discontinuous on a plan with many hi/lo transitions (target <= 1.15x);
+//! - frame time smooth / discontinuous on a plan with many hi/lo transitions (target <= 1.15x),
+//!   unshaded and shaded;
 //! - upload + fixup after a full residency change, as a fraction of one frame;
 //! - re-uploaded vs resident bricks after a small change of the plan.
 //!
@@ -20,7 +21,7 @@ use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::Transition;
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
-use mixvol::scene::{Camera, RenderSettings};
+use mixvol::scene::{Camera, RenderSettings, Shading};
 use mixvol::volume::{ScalarType, SyntheticField};
 use std::sync::Arc;
 
@@ -91,6 +92,23 @@ fn main() -> mixvol::Result<()> {
             times[i].push(f.timing.gpu_raycast_ms.unwrap_or(f.timing.cpu_frame_ms));
         }
     }
+    // The same pair shaded (Blinn-Phong from central differences through the reconstruction):
+    // the paper paid about 10x there.
+    let shaded = RenderSettings {
+        shading: Some(Shading::default()),
+        ..settings
+    };
+    let mut shaded_times = vec![Vec::new(); 2];
+    for (_, r) in configs[2..].iter_mut() {
+        r.render(&camera, &shaded, size, size)?;
+    }
+    for _ in 0..frames {
+        for (k, (_, r)) in configs[2..].iter_mut().enumerate() {
+            let f = r.render(&camera, &shaded, size, size)?;
+            shaded_times[k].push(f.timing.gpu_raycast_ms.unwrap_or(f.timing.cpu_frame_ms));
+        }
+    }
+    let shaded_medians: Vec<f64> = shaded_times.into_iter().map(median).collect();
     let medians: Vec<f64> = times.into_iter().map(median).collect();
     let info = ctx.info();
     println!(
@@ -114,6 +132,16 @@ fn main() -> mixvol::Result<()> {
         configs[3].0,
         medians[3],
         medians[3] / medians[2]
+    );
+    println!(
+        "| {}, shaded | {:.2} | 1.00 |",
+        configs[2].0, shaded_medians[0]
+    );
+    println!(
+        "| {}, shaded | {:.2} | {:.2} vs discontinuous shaded |",
+        configs[3].0,
+        shaded_medians[1],
+        shaded_medians[1] / shaded_medians[0]
     );
 
     // A full residency change and a small one, on the smooth checkerboard renderer.

@@ -315,13 +315,19 @@ vec4 cast_ray(Ray ray) {
 // The same samples as the single-resolution loop (and as `cast_ray_mixed` in the CPU reference,
 // which tests each sample's brick), scheduled in alternating runs so the plain samples carry no
 // transition code (SIMD CPUs such as llvmpipe execute every branch body and at least one pass of
-// every loop, taken or not):
-// - a band run: consecutive samples that lie in the half-voxel band of a hi-res brick next to a
-//   low-res brick (it may cross from one brick's exit band into the next brick's entry band),
-//   each looked up and blended; it ends at the first sample in a brick's plain region, or absent;
-// - then that brick's plain run up to where the ray leaves the plain region (one ray/box
-//   intersection; layout entry, neighbour bits and band bounds were read once for it), or the
-//   jump over an absent brick.
+// every loop, taken or not; docs/performance.md):
+// - a general run: consecutive samples that need the general path, each looked up on its own (it
+//   may cross from one brick into the next): samples in the half-voxel band of a hi-res brick next
+//   to a low-res brick, blended; with gradients also the samples whose gradient points x +- h
+//   leave their brick's plain region. It ends at the first sample inside a brick's run region;
+// - then that brick's run up to where the ray leaves the run region (one ray/box intersection;
+//   layout entry, neighbour bits and band bounds were read once for it): plain fetches, and
+//   gradients read through the brick's own entry; or the jump over an absent brick.
+#if defined(SHADING) || defined(GRADIENT_OPACITY)
+#define RUN_DEEP true
+#else
+#define RUN_DEEP false
+#endif
 vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);
@@ -342,9 +348,25 @@ vec4 cast_ray(Ray ray) {
     ivec3 bricks = ivec3(ceil(params.volume_dims.xyz / n));
     Ray voxel_ray = Ray((ray.origin - params.box_min.xyz) * to_voxel, ray.dir * to_voxel);
     int steps = int(min(ceil((t1 - t0) / step_len), params.tf_window.w));
+    // The run region of a brick is its plain region (off its bands), shrunk with gradients by the
+    // gradient's reach h (and a small margin) so that x +- h stays inside.
+#if defined(SHADING) || defined(GRADIENT_OPACITY)
+    float margin = params.mode.w + 1e-3;
+#else
+    float margin = 0.0;
+#endif
+    // With gradients and coarse low-res pairs, a pair merged at a run's last sample reaches one
+    // step further: a run starts a step inside the region and ends a sample early.
+#if defined(COARSE_LOW_RES) && (defined(SHADING) || defined(GRADIENT_OPACITY))
+    float guard = step_len * length(voxel_ray.dir);
+    int trim = 1;
+#else
+    float guard = 0.0;
+    int trim = 0;
+#endif
     int i = 0;
     while (i < steps) {
-        // Band run; its last pass looks up the brick of the plain run that follows.
+        // General run; its last pass looks up the brick of the run that follows.
         float t_start;
         float len;
         vec3 x;
@@ -363,10 +385,23 @@ vec4 cast_ray(Ray ray) {
             bits = neighbour_bits[bi];
             band_bounds(bits, n, band_lo, band_hi);
             vec3 q = x - vec3(b) * n;
-            if (entry.w == 0.0 || (all(greaterThanEqual(q, band_lo)) && all(lessThanEqual(q, band_hi)))) {
+#if defined(SHADING) || defined(GRADIENT_OPACITY)
+            vec3 start_lo = max(band_lo, vec3(0.0)) + (margin + guard);
+            vec3 start_hi = min(band_hi, vec3(n)) - (margin + guard);
+#else
+            // Only band samples take the blend; a low-res brick's samples never do.
+            vec3 start_lo = band_lo;
+            vec3 start_hi = band_hi;
+#endif
+            if (entry.w == 0.0 || (all(greaterThanEqual(q, start_lo)) && all(lessThanEqual(q, start_hi)))) {
                 break;
             }
+            COARSE_PAIR(i)
+#if defined(SHADING) || defined(GRADIENT_OPACITY)
+            FIELD value = sample_in_brick(x, b, entry, bits, band_lo, band_hi, n);
+#else
             FIELD value = sample_hi_res_transition(q, vec3(b) * n + entry.xyz, bits, n);
+#endif
             if (INTEGRATE(s, value, len, x, ray.dir, false, entry)) {
                 return finish_ray(s, ray.dir);
             }
@@ -374,35 +409,20 @@ vec4 cast_ray(Ray ray) {
         if (i >= steps) {
             break;
         }
-        // Plain run (sample i lies in it, so it holds at least that sample), or the absent jump.
+        // The brick's run (sample i lies in it, so it holds at least that sample), or the jump
+        // over an absent brick (its whole box).
         vec3 origin = vec3(b) * n;
-        vec3 plain_lo = max(band_lo, vec3(0.0));
-        vec3 plain_hi = min(band_hi, vec3(n));
-        float t_leave = intersect_box(voxel_ray, origin + plain_lo, origin + plain_hi).y;
-        int i_out = clamp(first_sample_after(t_leave, t0, step_len), i + 1, steps);
+        float m = entry.w == 0.0 ? 0.0 : margin;
+        vec3 run_lo = max(band_lo, vec3(0.0)) + m;
+        vec3 run_hi = min(band_hi, vec3(n)) - m;
+        float t_leave = intersect_box(voxel_ray, origin + run_lo, origin + run_hi).y;
+        int i_out = clamp(first_sample_after(t_leave, t0, step_len) - trim, i + 1, steps);
         if (entry.w == 0.0) {
-            i = i_out;
+            i = clamp(first_sample_after(t_leave, t0, step_len), i + 1, steps);
             break_ray(s);
             continue;
         }
-        // With gradients, the samples whose gradient points x +- h stay inside the plain region
-        // (with a small margin) form a deep run that reads them with the brick's own entry.
-#if defined(SHADING) || defined(GRADIENT_OPACITY)
-        int i_deep = i_out;
-        int i_deep_end = i_out;
-        vec3 deep_lo = plain_lo + (params.mode.w + 1e-3);
-        vec3 deep_hi = plain_hi - (params.mode.w + 1e-3);
-        if (all(lessThan(deep_lo, deep_hi))) {
-            vec2 deep = intersect_box(voxel_ray, origin + deep_lo, origin + deep_hi);
-            if (deep.x < deep.y) {
-                i_deep = clamp(first_sample_after(deep.x, t0, step_len), i, i_out);
-                i_deep_end = clamp(first_sample_after(deep.y, t0, step_len) - 1, i_deep, i_out);
-            }
-        }
-        INTERIOR_RUN(i_deep, false)
-        INTERIOR_RUN(i_deep_end, true)
-#endif
-        INTERIOR_RUN(i_out, false)
+        INTERIOR_RUN(i_out, RUN_DEEP)
     }
     return finish_ray(s, ray.dir);
 }

@@ -205,7 +205,9 @@ vec4 cast_ray(Ray ray) {
     return finish_ray(s, ray.dir);
 }
 #else
-// One run of interior samples up to END; DEEP (a constant) picks the gradient path.
+// One run of interior samples up to END; DEEP (a constant) picks the gradient path. A finished
+// ray sets i = steps and leaves: finish_ray runs once, after the loops (inlined in a loop body it
+// would run, masked, at every sample on SIMD CPUs).
 #ifdef COARSE_LOW_RES
 #define COARSE_PAIR(i) if (entry.w == 0.5) { \
     i = merge_low_res_pair(i, steps, t0, t1, step_len, voxel_ray, b, n, bricks, len, x); }
@@ -219,7 +221,8 @@ vec4 cast_ray(Ray ray) {
             x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len); \
             COARSE_PAIR(i) \
             if (INTEGRATE(s, cache_fetch(x * entry.w + entry.xyz), len, x, ray.dir, DEEP, entry)) { \
-                return finish_ray(s, ray.dir); \
+                i = steps; \
+                break; \
             } \
         }
 
@@ -403,7 +406,8 @@ vec4 cast_ray(Ray ray) {
             FIELD value = sample_hi_res_transition(q, vec3(b) * n + entry.xyz, bits, n);
 #endif
             if (INTEGRATE(s, value, len, x, ray.dir, false, entry)) {
-                return finish_ray(s, ray.dir);
+                i = steps;
+                break;
             }
         }
         if (i >= steps) {

@@ -396,7 +396,8 @@ vec4 cast_ray(Ray ray) {
             vec3 start_lo = band_lo;
             vec3 start_hi = band_hi;
 #endif
-            if (entry.w == 0.0 || (all(greaterThanEqual(q, start_lo)) && all(lessThanEqual(q, start_hi)))) {
+            bool starts_run = all(greaterThanEqual(q, start_lo)) && all(lessThanEqual(q, start_hi));
+            if (entry.w == 0.0 || starts_run) {
                 break;
             }
             COARSE_PAIR(i)
@@ -416,9 +417,9 @@ vec4 cast_ray(Ray ray) {
         // The brick's run (sample i lies in it, so it holds at least that sample), or the jump
         // over an absent brick (its whole box).
         vec3 origin = vec3(b) * n;
-        float m = entry.w == 0.0 ? 0.0 : margin;
-        vec3 run_lo = max(band_lo, vec3(0.0)) + m;
-        vec3 run_hi = min(band_hi, vec3(n)) - m;
+        float run_margin = entry.w == 0.0 ? 0.0 : margin;
+        vec3 run_lo = max(band_lo, vec3(0.0)) + run_margin;
+        vec3 run_hi = min(band_hi, vec3(n)) - run_margin;
         float t_leave = intersect_box(voxel_ray, origin + run_lo, origin + run_hi).y;
         int i_out = clamp(first_sample_after(t_leave, t0, step_len) - trim, i + 1, steps);
         if (entry.w == 0.0) {

@@ -89,7 +89,7 @@ FIELD sample_hi_res_transition(vec3 q, vec3 texel_of_local, uint bits, float n) 
 // half-voxel band on a side that touches a low-res neighbour (face, edge or corner) and needs the
 // transition blend; every other sample of the brick is a plain fetch. Computed once per brick.
 void band_bounds(uint bits, float n, out vec3 lo, out vec3 hi) {
-    // Any low-res neighbour on the low / high side of an axis (LOW_SIDE, HIGH_SIDE) puts a band there.
+    // A low-res neighbour on the low / high side of an axis (LOW_SIDE, HIGH_SIDE) puts a band there.
     lo = mix(vec3(-1.0), vec3(0.5), notEqual(uvec3(bits) & LOW_SIDE, uvec3(0u)));
     hi = mix(vec3(n + 1.0), vec3(n - 0.5), notEqual(uvec3(bits) & HIGH_SIDE, uvec3(0u)));
 }

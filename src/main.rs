@@ -11,6 +11,7 @@ use mixvol::reference::{ReferenceCache, Transition};
 use mixvol::renderer::MixedConfig;
 use mixvol::renderer::{Renderer, TargetFormat};
 use mixvol::scene::{Camera, Projection, Reconstruction, RenderMode, RenderSettings, Shading};
+use mixvol::volume::formats::{load_zarr_level, FileFormat};
 use mixvol::volume::{load_raw, RawDescriptor, ScalarType, SyntheticField, Volume};
 use mixvol::{reference, Error, Result};
 use std::path::PathBuf;
@@ -162,6 +163,9 @@ struct RenderArgs {
     /// The raw file's multi-byte values are big-endian.
     #[arg(long)]
     big_endian: bool,
+    /// Resolution level of an OME-Zarr image (index into its multiscales datasets, 0 = finest).
+    #[arg(long)]
+    zarr_level: Option<usize>,
     /// Transfer-function preset: grey, fire, bands, constant, ct, mri.
     #[arg(long, default_value = "fire", value_parser = parse_tf)]
     tf: TfPreset,
@@ -365,6 +369,19 @@ fn has_header(path: &std::path::Path) -> bool {
 
 fn load_volume(args: &RenderArgs) -> Result<Volume> {
     let path = std::path::Path::new(&args.volume);
+    if let Some(level) = args.zarr_level {
+        let is_zarr = FileFormat::from_path(path) == Some(FileFormat::Zarr)
+            || ["zarr.json", ".zattrs", ".zarray"]
+                .iter()
+                .any(|m| path.join(m).is_file());
+        if !is_zarr {
+            return Err(Error::InvalidInput(format!(
+                "--zarr-level applies to OME-Zarr images (a .zarr folder), not '{}'",
+                args.volume
+            )));
+        }
+        return Ok(load_zarr_level(path, level)?.volume);
+    }
     if SyntheticField::parse(&args.volume).is_none() && has_header(path) {
         return Ok(mixvol::volume::load_volume(path)?);
     }

@@ -1046,3 +1046,62 @@ fn v3_sharded_gzip_inner_chunks_with_crc32c_index() {
     let msg = expect_format(load_zarr(&root), &shard_file, "codecs");
     eprintln!("corrupt shard index: {msg}");
 }
+
+/// `mixvol render --zarr-level N` renders that level of a multiscale image; a level the image
+/// lacks is an error naming the metadata field, and the flag on a non-Zarr volume is refused.
+#[test]
+fn cli_renders_the_chosen_zarr_level() {
+    let dir = TempDir::new("cli-level");
+    let root = dir.join("two.zarr");
+    let ramp = |i: &[u64]| (i[0] * 40 + i[1] * 7 + i[2] * 3) as f64;
+    ArraySpec::new(&[8, 12, 16], &[4, 4, 4], Dtype::U8).write_v2(&root.join("s0"), &ramp);
+    ArraySpec::new(&[4, 6, 8], &[4, 4, 4], Dtype::U8).write_v2(&root.join("s1"), &ramp);
+    write_v2_group(
+        &root,
+        json!({
+            "version": "0.4",
+            "axes": axes(&["z", "y", "x"]),
+            "datasets": [dataset("s0", &[1.0, 1.0, 1.0]), dataset("s1", &[2.0, 2.0, 2.0])],
+        }),
+    );
+    let render = |extra: &[&str]| {
+        let png = dir.join("out.png");
+        let mut args = vec![
+            "render".to_string(),
+            "--volume".into(),
+            root.display().to_string(),
+            "--width".into(),
+            "16".into(),
+            "--height".into(),
+            "16".into(),
+            "--frames".into(),
+            "1".into(),
+            "--output".into(),
+            png.display().to_string(),
+        ];
+        args.extend(extra.iter().map(|s| s.to_string()));
+        std::process::Command::new(env!("CARGO_BIN_EXE_mixvol"))
+            .args(&args)
+            .output()
+            .unwrap()
+    };
+    let finest = render(&[]);
+    assert!(finest.status.success(), "{finest:?}");
+    assert!(String::from_utf8_lossy(&finest.stdout).contains("16x12x8"));
+    let coarse = render(&["--zarr-level", "1"]);
+    assert!(coarse.status.success(), "{coarse:?}");
+    assert!(String::from_utf8_lossy(&coarse.stdout).contains("8x6x4"));
+    let missing = render(&["--zarr-level", "2"]);
+    assert!(!missing.status.success());
+    let err = String::from_utf8_lossy(&missing.stderr);
+    assert!(
+        err.contains("datasets") && err.contains("2 levels"),
+        "{err}"
+    );
+    let not_zarr = std::process::Command::new(env!("CARGO_BIN_EXE_mixvol"))
+        .args(["render", "--volume", "ml", "--zarr-level", "1"])
+        .output()
+        .unwrap();
+    assert!(!not_zarr.status.success());
+    assert!(String::from_utf8_lossy(&not_zarr.stderr).contains("--zarr-level"));
+}

@@ -4,7 +4,7 @@
 //! - [`volume`]: voxel storage, synthetic fields, loaders.
 //! - [`optics`]: transfer functions, opacity correction, compositing.
 //! - [`scene`]: camera, render settings and the per-frame parameter block.
-//! - [`reference`]: the CPU reference ray-caster (the oracle for every GPU test).
+//! - [`reference`](mod@reference): the CPU reference ray-caster (the oracle for every GPU test).
 //! - [`gpu`]: the ash backend (context, memory, shaders, ray-cast pipeline).
 //! - [`embed`]: the volume pass recorded into a host engine's command buffers.
 //! - [`renderer`]: the offscreen façade that turns a volume + scene into an image.

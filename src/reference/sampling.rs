@@ -3,8 +3,8 @@
 use crate::volume::Volume;
 use glam::Vec3;
 
-/// Trilinear sample at normalised texture coordinate `tex` ([0,1]^3 spans the volume; voxel centres
-/// at (i + 0.5) / dims), clamp-to-edge outside: what `texture()` on a linearly filtered
+/// Trilinear sample at normalised texture coordinate `tex` (`[0,1]^3` spans the volume; voxel
+/// centres at (i + 0.5) / dims), clamp-to-edge outside: what `texture()` on a linearly filtered
 /// `sampler3D` with CLAMP_TO_EDGE computes (up to the GPU's sub-texel weight precision).
 pub fn sample_volume(volume: &Volume, tex: Vec3) -> f32 {
     let x = tex * volume.dims().as_vec3() - Vec3::splat(0.5);

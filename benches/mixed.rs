@@ -49,6 +49,10 @@ fn main() -> mixvol::Result<()> {
         })
         .collect();
     let all_hi = vec![Level::Hi; grid.brick_count()];
+    // The same plan with one brick culled (the far corner): both variants then carry the jump over
+    // absent bricks, as scenes with empty space do.
+    let mut checker_culled = checker.clone();
+    checker_culled[0] = Level::Absent;
     let mixed = |transition, levels: &[Level]| -> mixvol::Result<Renderer> {
         let mut r = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
         r.set_transfer_function(&tf)?;
@@ -81,6 +85,14 @@ fn main() -> mixvol::Result<()> {
             "checkerboard hi/lo, smooth (C0)",
             mixed(Transition::Smooth, &checker)?,
         ),
+        (
+            "checkerboard, one brick culled, discontinuous",
+            mixed(Transition::Discontinuous, &checker_culled)?,
+        ),
+        (
+            "checkerboard, one brick culled, smooth (C0)",
+            mixed(Transition::Smooth, &checker_culled)?,
+        ),
     ];
     let mut times = vec![Vec::new(); configs.len()];
     for (_, r) in configs.iter_mut() {
@@ -99,11 +111,11 @@ fn main() -> mixvol::Result<()> {
         ..settings
     };
     let mut shaded_times = vec![Vec::new(); 2];
-    for (_, r) in configs[2..].iter_mut() {
+    for (_, r) in configs[2..4].iter_mut() {
         r.render(&camera, &shaded, size, size)?;
     }
     for _ in 0..frames {
-        for (k, (_, r)) in configs[2..].iter_mut().enumerate() {
+        for (k, (_, r)) in configs[2..4].iter_mut().enumerate() {
             let f = r.render(&camera, &shaded, size, size)?;
             shaded_times[k].push(f.timing.gpu_raycast_ms.unwrap_or(f.timing.cpu_frame_ms));
         }
@@ -129,6 +141,7 @@ fn main() -> mixvol::Result<()> {
     let all_hi_ratio = medians[1] / medians[0];
     let smooth_ratio = medians[3] / medians[2];
     let shaded_ratio = shaded_medians[1] / shaded_medians[0];
+    let culled_ratio = medians[5] / medians[4];
     println!("| configuration | frame ms | ratio | target |");
     println!("|---|---|---|---|");
     println!("| {} | {:.2} | 1.00 | |", configs[0].0, medians[0]);
@@ -144,6 +157,13 @@ fn main() -> mixvol::Result<()> {
         configs[3].0,
         medians[3],
         verdict(smooth_ratio, 1.15)
+    );
+    println!("| {} | {:.2} | 1.00 | |", configs[4].0, medians[4]);
+    println!(
+        "| {} | {:.2} | {culled_ratio:.2} vs discontinuous | {} |",
+        configs[5].0,
+        medians[5],
+        verdict(culled_ratio, 1.15)
     );
     println!(
         "| {}, shaded | {:.2} | 1.00 | |",

@@ -2,7 +2,8 @@
 // One ray per pixel: emission-absorption, front to back. Mirrors `cast_ray` (single resolution)
 // and `cast_ray_mixed` (MIXED_RESOLUTION) in src/reference/mod.rs step by step.
 // Variants (macros): MIXED_RESOLUTION reads the brick cache through the layout table and walks the
-// ray brick by brick; SMOOTH_TRANSITIONS adds the C0 transition blend (mixed only); what each
+// ray brick by brick; SMOOTH_TRANSITIONS adds the C0 transition blend and ABSENT_BRICKS the jump
+// over absent bricks (mixed only; a cache with every brick resident leaves it out); what each
 // sample does (mode, shading, sampling model, ...) is include/modes.glsl's business.
 #include "include/params.glsl"
 #include "include/camera.glsl"
@@ -287,6 +288,7 @@ vec4 cast_ray(Ray ray) {
         if (any(notEqual(b, current))) {
             current = b;
             entry = layout_entries[b.x + bricks.x * (b.y + bricks.y * b.z)];
+#ifdef ABSENT_BRICKS
             if (entry.w == 0.0) {
                 // Absent brick: jump to just before its exit.
                 float t_exit = intersect_box(voxel_ray, vec3(b) * n, vec3(b + 1) * n).y;
@@ -294,10 +296,13 @@ vec4 cast_ray(Ray ray) {
                 break_ray(s);
                 continue;
             }
+#endif
         }
+#ifdef ABSENT_BRICKS
         if (entry.w == 0.0) {
             continue;
         }
+#endif
 #ifdef COARSE_LOW_RES
         if (entry.w == 0.5) {
             i = merge_low_res_pair(i, steps, t0, t1, step_len, voxel_ray, b, n, bricks, len, x);
@@ -397,7 +402,10 @@ vec4 cast_ray(Ray ray) {
             vec3 start_hi = band_hi;
 #endif
             bool starts_run = all(greaterThanEqual(q, start_lo)) && all(lessThanEqual(q, start_hi));
-            if (entry.w == 0.0 || starts_run) {
+#ifdef ABSENT_BRICKS
+            starts_run = starts_run || entry.w == 0.0;
+#endif
+            if (starts_run) {
                 break;
             }
             COARSE_PAIR(i)
@@ -417,16 +425,22 @@ vec4 cast_ray(Ray ray) {
         // The brick's run (sample i lies in it, so it holds at least that sample), or the jump
         // over an absent brick (its whole box).
         vec3 origin = vec3(b) * n;
+#ifdef ABSENT_BRICKS
         float run_margin = entry.w == 0.0 ? 0.0 : margin;
+#else
+        float run_margin = margin;
+#endif
         vec3 run_lo = max(band_lo, vec3(0.0)) + run_margin;
         vec3 run_hi = min(band_hi, vec3(n)) - run_margin;
         float t_leave = intersect_box(voxel_ray, origin + run_lo, origin + run_hi).y;
         int i_out = clamp(first_sample_after(t_leave, t0, step_len) - trim, i + 1, steps);
+#ifdef ABSENT_BRICKS
         if (entry.w == 0.0) {
             i = clamp(first_sample_after(t_leave, t0, step_len), i + 1, steps);
             break_ray(s);
             continue;
         }
+#endif
         INTERIOR_RUN(i_out, RUN_DEEP)
     }
     return finish_ray(s, ray.dir);

@@ -187,6 +187,9 @@ pub(crate) struct MixedState {
     any_transition: bool,
     /// Some resident brick is low-res (tricubic reconstruction then stays off).
     any_low_res: bool,
+    /// Some brick is absent (culled or not resident): rays jump over it. A cache with every brick
+    /// resident draws with a variant without that code.
+    any_absent: bool,
     /// The sampling model of a pre-classified RGBA source (`None`: scalar data).
     rgba_model: Option<SamplingModel>,
     value_range: (f32, f32),
@@ -584,6 +587,8 @@ impl VolumePass {
             gpu,
             any_transition: false,
             any_low_res: false,
+            // Nothing is resident before the first plan.
+            any_absent: true,
             value_range: (range.min, range.max),
             rgba_model: None,
         }));
@@ -679,9 +684,10 @@ impl VolumePass {
         };
         state.gpu.stage(&regions, &tables)?;
         state.any_transition = !fixup_slots.is_empty();
-        state.any_low_res = state.cache.levels().contains(&Level::Lo);
-        let smooth = state.config.transition == Transition::Smooth;
         let current = state.cache.levels();
+        state.any_low_res = current.contains(&Level::Lo);
+        state.any_absent = current.contains(&Level::Absent);
+        let smooth = state.config.transition == Transition::Smooth;
         Ok(ResidencyReport {
             uploaded_bricks: regions.len(),
             uploaded_bytes: regions.iter().map(|r| r.bytes.len()).sum(),
@@ -701,6 +707,7 @@ impl VolumePass {
             Source::Mixed(m) => RaycastVariant {
                 mixed_resolution: true,
                 smooth_transitions: m.config.transition == Transition::Smooth && m.any_transition,
+                absent_bricks: m.any_absent,
                 host_depth,
                 rgba_volume: m.rgba_model.is_some(),
                 features: RayFeatures {

@@ -269,22 +269,27 @@ fn mixed_images_match_the_reference_and_all_hi_matches_single_resolution() {
         let camera = Camera::perspective(Vec3::new(1.0, 0.8, 1.5), Vec3::ZERO, 40.0);
         let mut rng = Rng(0x77);
         for transition in [Transition::Smooth, Transition::Discontinuous] {
-            let levels = random_levels(&mut rng, count, true);
-            let (gpu, cpu, variant) =
-                render_pair(&ctx, volume.clone(), &levels, transition, &camera);
-            assert_eq!(variant.smooth_transitions, transition == Transition::Smooth);
-            let d = common::diff(&gpu, &cpu, 1.0 / 255.0);
-            assert!(
-                d.mean < 1e-3 && d.max < 6.0 / 255.0 && d.large_fraction < 0.005,
-                "{transition:?}: {d:?}"
-            );
+            // With absent bricks, and with every brick resident (the variant without the jump).
+            for absent in [true, false] {
+                let levels = random_levels(&mut rng, count, absent);
+                let (gpu, cpu, variant) =
+                    render_pair(&ctx, volume.clone(), &levels, transition, &camera);
+                assert_eq!(variant.smooth_transitions, transition == Transition::Smooth);
+                assert_eq!(variant.absent_bricks, levels.contains(&Level::Absent));
+                assert_eq!(variant.absent_bricks, absent);
+                let d = common::diff(&gpu, &cpu, 1.0 / 255.0);
+                assert!(
+                    d.mean < 1e-3 && d.max < 6.0 / 255.0 && d.large_fraction < 0.005,
+                    "{transition:?} absent {absent}: {d:?}"
+                );
+            }
         }
         // Every brick hi-res: the variant has no transition code and the image equals the
         // single-resolution renderer's.
         let all_hi = vec![Level::Hi; count];
         let (mixed, _, variant) =
             render_pair(&ctx, volume.clone(), &all_hi, Transition::Smooth, &camera);
-        assert!(variant.mixed_resolution && !variant.smooth_transitions);
+        assert!(variant.mixed_resolution && !variant.smooth_transitions && !variant.absent_bricks);
         let tf = TransferFunction::preset(TfPreset::Bands);
         let mut single = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
         single.set_transfer_function(&tf).unwrap();

@@ -17,6 +17,9 @@ pub struct RaycastVariant {
     pub mixed_resolution: bool,
     /// Add the C0 transition blend (mixed resolution only).
     pub smooth_transitions: bool,
+    /// Some bricks are absent and rays jump over them (mixed resolution only); without it every
+    /// brick must be resident.
+    pub absent_bricks: bool,
     /// Stop rays at a host depth buffer (embedding).
     pub host_depth: bool,
     /// What each sample does: mode, shading, gradient opacity, sampling model, pre-integration.
@@ -36,6 +39,9 @@ impl RaycastVariant {
             defines.push(("MIXED_RESOLUTION", "1".into()));
             if self.smooth_transitions {
                 defines.push(("SMOOTH_TRANSITIONS", "1".into()));
+            }
+            if self.absent_bricks {
+                defines.push(("ABSENT_BRICKS", "1".into()));
             }
         }
         if self.host_depth {

@@ -65,29 +65,38 @@ FIELD cache_fetch(vec3 texel) {
 }
 #include "include/mixed.glsl"
 
+// The brick b of volume point x and what sampling in it needs: its layout entry, neighbour bits
+// and band bounds (bits are 0 for low-res and absent bricks, so they have no band). Mirrors the
+// lookup in `sample_mixed`.
+void look_up_brick(vec3 x, float n, ivec3 bricks, out ivec3 b, out vec4 entry, out uint bits,
+                   out vec3 band_lo, out vec3 band_hi) {
+    b = brick_of(x, n, bricks);
+    int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
+    entry = layout_entries[bi];
+    bits = neighbour_bits[bi];
+    band_bounds(bits, n, band_lo, band_hi);
+}
+
 // The reconstructed field at voxel position x (clamped into the volume), as the ray's samples
 // see it; `present` is false in an absent brick.
 float field_at(vec3 x, out bool present) {
     float n = params.volume_dims.w;
     ivec3 bricks = ivec3(ceil(params.volume_dims.xyz / n));
     x = clamp(x, vec3(0.0), params.volume_dims.xyz);
-    ivec3 b = brick_of(x, n, bricks);
-    int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
-    vec4 entry = layout_entries[bi];
-    present = entry.w != 0.0;
-    if (!present) {
-        return 0.0;
-    }
 #ifdef SMOOTH_TRANSITIONS
-    uint bits = neighbour_bits[bi];
-    vec3 band_lo = vec3(-1.0);
-    vec3 band_hi = vec3(n + 1.0);
-    if (entry.w == 1.0 && bits != 0u) {
-        band_bounds(bits, n, band_lo, band_hi);
-    }
-    return field_scalar(sample_in_brick(x, b, entry, bits, band_lo, band_hi, n));
+    ivec3 b;
+    vec4 entry;
+    uint bits;
+    vec3 band_lo;
+    vec3 band_hi;
+    look_up_brick(x, n, bricks, b, entry, bits, band_lo, band_hi);
+    present = entry.w != 0.0;
+    return present ? field_scalar(sample_in_brick(x, b, entry, bits, band_lo, band_hi, n)) : 0.0;
 #else
-    return field_scalar(cache_fetch(x * entry.w + entry.xyz));
+    ivec3 b = brick_of(x, n, bricks);
+    vec4 entry = layout_entries[b.x + bricks.x * (b.y + bricks.y * b.z)];
+    present = entry.w != 0.0;
+    return present ? field_scalar(cache_fetch(x * entry.w + entry.xyz)) : 0.0;
 #endif
 }
 #else
@@ -387,11 +396,7 @@ vec4 cast_ray(Ray ray) {
             t_start = t0 + float(i) * step_len;
             len = max(min(step_len, t1 - t_start), 0.0);
             x = voxel_ray.origin + voxel_ray.dir * (t_start + 0.5 * len);
-            b = brick_of(x, n, bricks);
-            int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
-            entry = layout_entries[bi];
-            bits = neighbour_bits[bi];
-            band_bounds(bits, n, band_lo, band_hi);
+            look_up_brick(x, n, bricks, b, entry, bits, band_lo, band_hi);
             vec3 q = x - vec3(b) * n;
 #if defined(SHADING) || defined(GRADIENT_OPACITY)
             vec3 start_lo = max(band_lo, vec3(0.0)) + (margin + guard);

@@ -185,6 +185,51 @@ fn check(name: &str, gpu: &[Vec4], cpu: &[Vec4], iso: bool) {
     eprintln!("{name}: {d:?}");
 }
 
+/// A smooth mixed-resolution renderer of `volume` with bricks of `brick_size` on a random plan of
+/// hi (4/9), lo (4/9) and absent (1/9) bricks, and the CPU reference cache of the same plan.
+fn random_smooth_mixed(
+    ctx: &mixvol::gpu::GpuContext,
+    volume: &Arc<Volume>,
+    tf: &TransferFunction,
+    brick_size: u32,
+    seed: u64,
+) -> (Renderer, ReferenceCache) {
+    let mut mixed = Renderer::new(ctx, TargetFormat::Rgba32Float).unwrap();
+    mixed.set_transfer_function(tf).unwrap();
+    mixed
+        .set_mixed_volume(
+            volume.clone(),
+            MixedConfig {
+                brick_size,
+                filter: DownsampleFilter::Mean2,
+                cache_budget_bytes: 64 << 20,
+                transition: Transition::Smooth,
+            },
+        )
+        .unwrap();
+    let count = BrickGrid::new(volume.dims(), brick_size)
+        .unwrap()
+        .brick_count();
+    let mut rng = Rng(seed);
+    let levels: Vec<Level> = (0..count)
+        .map(|_| match rng.below(9) {
+            0..=3 => Level::Lo,
+            4..=7 => Level::Hi,
+            _ => Level::Absent,
+        })
+        .collect();
+    mixed.set_levels(&levels).unwrap();
+    let cache = ReferenceCache::build(
+        volume,
+        DownsampleFilter::Mean2,
+        mixed.brick_cache().unwrap(),
+        volume.scalar_type(),
+        Transition::Smooth,
+    )
+    .unwrap();
+    (mixed, cache)
+}
+
 #[test]
 fn every_mode_and_option_matches_the_reference_single_and_mixed() {
     let ctx = common::validated_context();
@@ -199,37 +244,7 @@ fn every_mode_and_option_matches_the_reference_single_and_mixed() {
         let mut single = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
         single.set_transfer_function(&tf).unwrap();
         single.set_volume(&volume).unwrap();
-        let mut mixed = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
-        mixed.set_transfer_function(&tf).unwrap();
-        mixed
-            .set_mixed_volume(
-                volume.clone(),
-                MixedConfig {
-                    brick_size: N,
-                    filter: DownsampleFilter::Mean2,
-                    cache_budget_bytes: 64 << 20,
-                    transition: Transition::Smooth,
-                },
-            )
-            .unwrap();
-        let count = BrickGrid::new(volume.dims(), N).unwrap().brick_count();
-        let mut rng = Rng(0x5eed);
-        let levels: Vec<Level> = (0..count)
-            .map(|_| match rng.below(9) {
-                0..=3 => Level::Lo,
-                4..=7 => Level::Hi,
-                _ => Level::Absent,
-            })
-            .collect();
-        mixed.set_levels(&levels).unwrap();
-        let cache = ReferenceCache::build(
-            &volume,
-            DownsampleFilter::Mean2,
-            mixed.brick_cache().unwrap(),
-            volume.scalar_type(),
-            Transition::Smooth,
-        )
-        .unwrap();
+        let (mut mixed, cache) = random_smooth_mixed(&ctx, &volume, &tf, N, 0x5eed);
         for (name, settings) in scenes() {
             let iso = matches!(settings.mode, RenderMode::Iso { .. });
             let frame = single.render(&camera, &settings, SIZE, SIZE).unwrap();
@@ -281,37 +296,7 @@ fn small_bricks_with_gradients_and_coarse_pairs_match_the_reference() {
         );
         let tf = TransferFunction::preset(TfPreset::Bands);
         let camera = Camera::perspective(Vec3::new(1.1, 0.7, 1.4), Vec3::ZERO, 40.0);
-        let mut mixed = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
-        mixed.set_transfer_function(&tf).unwrap();
-        mixed
-            .set_mixed_volume(
-                volume.clone(),
-                MixedConfig {
-                    brick_size: SMALL,
-                    filter: DownsampleFilter::Mean2,
-                    cache_budget_bytes: 64 << 20,
-                    transition: Transition::Smooth,
-                },
-            )
-            .unwrap();
-        let count = BrickGrid::new(volume.dims(), SMALL).unwrap().brick_count();
-        let mut rng = Rng(0x4b1d);
-        let levels: Vec<Level> = (0..count)
-            .map(|_| match rng.below(9) {
-                0..=3 => Level::Lo,
-                4..=7 => Level::Hi,
-                _ => Level::Absent,
-            })
-            .collect();
-        mixed.set_levels(&levels).unwrap();
-        let cache = ReferenceCache::build(
-            &volume,
-            DownsampleFilter::Mean2,
-            mixed.brick_cache().unwrap(),
-            volume.scalar_type(),
-            Transition::Smooth,
-        )
-        .unwrap();
+        let (mut mixed, cache) = random_smooth_mixed(&ctx, &volume, &tf, SMALL, 0x4b1d);
         let base = RenderSettings {
             samples_per_voxel: 1.3,
             ..RenderSettings::default()

@@ -13,11 +13,12 @@ use glam::{UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
 use mixvol::cache::Level;
 use mixvol::gpu::{ContextDesc, GpuContext};
-use mixvol::lod::{ClipPlane, ClipPlanes};
 use mixvol::optics::{SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::Transition;
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
-use mixvol::scene::{Camera, Reconstruction, RenderMode, RenderSettings, Shading};
+use mixvol::scene::{
+    Camera, ClipPlane, ClipPlanes, Reconstruction, RenderMode, RenderSettings, Shading,
+};
 use mixvol::volume::{ScalarType, SyntheticField};
 use std::sync::Arc;
 

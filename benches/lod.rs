@@ -9,11 +9,12 @@
 use glam::{UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, ValueRange};
 use mixvol::lod::{
-    cull_bricks_into, BrickGeometry, ClipPlane, ClipPlanes, CullParams, LodSelector, LodView,
-    SelectionOptions, TfCullTable, ValueCulling,
+    cull_bricks_into, BrickGeometry, CullParams, LodSelector, LodView, SelectionOptions,
+    TfCullTable, ValueCulling,
 };
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::scene::Camera;
+use mixvol::scene::{ClipPlane, ClipPlanes};
 use std::hint::black_box;
 use std::time::Instant;
 

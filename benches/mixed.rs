@@ -32,8 +32,7 @@ fn main() -> mixvol::Result<()> {
     let ctx = GpuContext::new(&ContextDesc::default())?;
     let volume =
         Arc::new(SyntheticField::MarschnerLobb.generate(UVec3::splat(128), ScalarType::U8)?);
-    let grid = BrickGrid::new(volume.dims(), brick_size)
-        .map_err(|e| mixvol::Error::InvalidInput(e.to_string()))?;
+    let grid = BrickGrid::new(volume.dims(), brick_size)?;
     let tf = TransferFunction::preset(TfPreset::Bands);
     let camera = Camera::perspective(Vec3::new(1.0, 1.3, 1.4), Vec3::ZERO, 35.0);
     let settings = RenderSettings::default();

@@ -33,13 +33,13 @@ use mixvol::bricks::DownsampleFilter;
 use mixvol::cache::Level;
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::lod::{
-    cull_bricks, select_levels, BrickGeometry, ClipPlanes, CullParams, LodView, SelectionOptions,
-    TfCullTable, ValueCulling,
+    cull_bricks, select_levels, BrickGeometry, CullParams, LodView, SelectionOptions, TfCullTable,
+    ValueCulling,
 };
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::Transition;
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
-use mixvol::scene::{Camera, RenderSettings};
+use mixvol::scene::{Camera, ClipPlanes, RenderSettings};
 use mixvol::store::{
     request_plan, write_store, write_store_from_volume, BrickStreamer, StoreDesc, StreamerConfig,
 };

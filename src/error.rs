@@ -44,6 +44,15 @@ pub enum Error {
     /// A volume could not be built or loaded.
     #[error(transparent)]
     Volume(#[from] VolumeError),
+    /// A brick grid or brick packing request is unusable.
+    #[error(transparent)]
+    Brick(#[from] crate::bricks::BrickError),
+    /// The brick cache cannot be laid out or updated as asked.
+    #[error(transparent)]
+    Cache(#[from] crate::cache::CacheError),
+    /// Culling or level selection was given unusable input.
+    #[error(transparent)]
+    Lod(#[from] crate::lod::LodError),
     /// The brick store could not be written, read or streamed.
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),

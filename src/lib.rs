@@ -1,5 +1,9 @@
 //! mixvol: a Vulkan-native, explicitly memory-managed volume ray-caster.
 //!
+//! The library prints nothing and parses no command line: the `mixvol` tool is the
+//! `mixvol-cli` crate, the papers' experiments and reports are `mixvol-experiments`. Long work
+//! reports progress through callbacks the caller may turn into a bar.
+//!
 //! Modules, one per concept:
 //! - [`volume`]: voxel storage, synthetic fields, loaders.
 //! - [`optics`]: transfer functions, opacity correction, compositing.
@@ -8,8 +12,6 @@
 //! - [`gpu`]: the ash backend (context, memory, shaders, ray-cast pipeline).
 //! - [`embed`]: the volume pass recorded into a host engine's command buffers.
 //! - [`renderer`]: the offscreen façade that turns a volume + scene into an image.
-//! - [`report`]: the accuracy-versus-time report.
-//! - [`kraus`]: Kraus & Bürger's opacity- vs extinction-based sampling experiments (CPU).
 //! - [`store`]: the on-disk brick store (preprocessing) and background brick streaming.
 #![warn(
     missing_docs,
@@ -22,12 +24,10 @@ pub mod cache;
 pub mod embed;
 pub mod error;
 pub mod gpu;
-pub mod kraus;
 pub mod lod;
 pub mod optics;
 pub mod reference;
 pub mod renderer;
-pub mod report;
 pub mod scene;
 pub mod store;
 pub mod volume;

@@ -4,8 +4,11 @@
 //! World space: the volume box is centred at the origin and scaled so that its longest physical
 //! side (dims * spacing) is 1. Anisotropic spacing therefore renders with the right aspect.
 
+mod clip;
+
+pub use clip::{ClipPlane, ClipPlaneError, ClipPlanes, MAX_CLIP_PLANES};
+
 use crate::error::{Error, Result};
-use crate::lod::{ClipPlanes, MAX_CLIP_PLANES};
 use crate::optics::SamplingModel;
 use crate::volume::Volume;
 use glam::{Mat4, UVec3, Vec3, Vec4};

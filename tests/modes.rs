@@ -14,11 +14,12 @@ use common::Rng;
 use glam::{UVec3, Vec3, Vec4};
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
 use mixvol::cache::Level;
-use mixvol::lod::{ClipPlane, ClipPlanes};
 use mixvol::optics::{ClassificationTable, SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::{self, RayProgram, ReferenceCache, Transition};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
-use mixvol::scene::{Camera, RayFeatures, Reconstruction, RenderMode, RenderSettings, Shading};
+use mixvol::scene::{
+    Camera, ClipPlane, ClipPlanes, RayFeatures, Reconstruction, RenderMode, RenderSettings, Shading,
+};
 use mixvol::volume::{ScalarType, SyntheticField, Volume, VoxelData};
 use std::sync::Arc;
 

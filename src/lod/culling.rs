@@ -7,7 +7,7 @@
 //!   non-zero opacity answers "is any entry in `a..=b` visible?" with two loads.
 //! - **Iso-value culling** ([`iso_active`]): for iso-surface rendering a brick matters only when
 //!   its value range contains the iso-value.
-//! - **Clip planes** ([`ClipPlanes`]): a brick whose world-space box lies entirely on the clipped
+//! - **Clip planes** ([`ClipPlanes`], defined with the scene): a brick whose world-space box lies entirely on the clipped
 //!   side of a plane is removed.
 //!
 //! Brick value ranges are the conservative per-brick min/max of [`crate::bricks`]
@@ -18,10 +18,7 @@ use super::error::LodError;
 use super::geometry::BrickGeometry;
 use crate::bricks::ValueRange;
 use crate::optics::{TransferFunction, TF_SIZE};
-use glam::Vec3;
-
-/// The most clip planes [`ClipPlanes`] accepts.
-pub const MAX_CLIP_PLANES: usize = 6;
+use crate::scene::ClipPlanes;
 
 /// Transfer-function culling table for one transfer function and value window.
 ///
@@ -138,91 +135,6 @@ pub fn iso_active(range: ValueRange, iso: f32) -> bool {
     range.min <= iso && iso <= range.max
 }
 
-/// A world-space plane `normal . p + offset = 0`. Points with `normal . p + offset < 0` lie on
-/// the clipped side; the normal need not be unit length.
-#[derive(Copy, Clone, Debug, PartialEq)]
-pub struct ClipPlane {
-    /// Plane normal, pointing towards the kept side.
-    pub normal: Vec3,
-    /// Plane offset `d` in `n . p + d`.
-    pub offset: f32,
-}
-
-impl ClipPlane {
-    /// The plane `normal . p + offset = 0`.
-    pub const fn new(normal: Vec3, offset: f32) -> Self {
-        Self { normal, offset }
-    }
-
-    /// `normal . p + offset`: negative on the clipped side.
-    pub fn signed_distance(&self, p: Vec3) -> f32 {
-        self.normal.dot(p) + self.offset
-    }
-
-    /// True when all eight corners of the box `[min, max]` lie on the clipped side
-    /// (`n . p + d < 0`). Evaluated at the one corner that maximises `n . p` (the "positive
-    /// vertex"): the other seven are then below it too.
-    pub fn box_clipped(&self, min: Vec3, max: Vec3) -> bool {
-        let n = self.normal;
-        let corner = Vec3::new(
-            if n.x >= 0.0 { max.x } else { min.x },
-            if n.y >= 0.0 { max.y } else { min.y },
-            if n.z >= 0.0 { max.z } else { min.z },
-        );
-        self.signed_distance(corner) < 0.0
-    }
-}
-
-/// Up to [`MAX_CLIP_PLANES`] clip planes; a brick is culled when its box lies entirely on the
-/// clipped side of any one of them.
-#[derive(Copy, Clone, Debug, Default, PartialEq)]
-pub struct ClipPlanes {
-    planes: [ClipPlane; MAX_CLIP_PLANES],
-    count: usize,
-}
-
-impl Default for ClipPlane {
-    fn default() -> Self {
-        Self::new(Vec3::ZERO, 0.0)
-    }
-}
-
-impl ClipPlanes {
-    /// No clip planes: nothing is clipped.
-    pub const NONE: Self = Self {
-        planes: [ClipPlane::new(Vec3::ZERO, 0.0); MAX_CLIP_PLANES],
-        count: 0,
-    };
-
-    /// Validates `planes`: at most [`MAX_CLIP_PLANES`], every normal and offset finite.
-    pub fn new(planes: &[ClipPlane]) -> Result<Self, LodError> {
-        if planes.len() > MAX_CLIP_PLANES {
-            return Err(LodError::TooManyClipPlanes {
-                count: planes.len(),
-            });
-        }
-        let mut out = Self::NONE;
-        for (index, plane) in planes.iter().enumerate() {
-            if !(plane.normal.is_finite() && plane.offset.is_finite()) {
-                return Err(LodError::NonFiniteClipPlane { index });
-            }
-            out.planes[index] = *plane;
-        }
-        out.count = planes.len();
-        Ok(out)
-    }
-
-    /// The planes.
-    pub fn planes(&self) -> &[ClipPlane] {
-        &self.planes[..self.count]
-    }
-
-    /// True when the box `[min, max]` lies entirely on the clipped side of some plane.
-    pub fn box_clipped(&self, min: Vec3, max: Vec3) -> bool {
-        self.planes().iter().any(|p| p.box_clipped(min, max))
-    }
-}
-
 /// Which value-based test decides whether a brick is visible.
 #[derive(Clone, Debug, PartialEq)]
 pub enum ValueCulling {
@@ -314,6 +226,8 @@ mod tests {
     use super::*;
     use crate::bricks::BrickGrid;
     use crate::optics::{classify, TfPreset};
+    use crate::scene::{ClipPlane, ClipPlaneError};
+    use glam::Vec3;
     use glam::{UVec3, Vec4};
 
     /// Deterministic pseudo-random numbers in [0, 1) (xorshift64).
@@ -604,12 +518,12 @@ mod tests {
         let seven = [ClipPlane::new(Vec3::X, 0.0); 7];
         assert_eq!(
             ClipPlanes::new(&seven),
-            Err(LodError::TooManyClipPlanes { count: 7 })
+            Err(ClipPlaneError::TooMany { count: 7 })
         );
         let bad = [ClipPlane::new(Vec3::X, 0.0), ClipPlane::new(Vec3::NAN, 0.0)];
         assert_eq!(
             ClipPlanes::new(&bad),
-            Err(LodError::NonFiniteClipPlane { index: 1 })
+            Err(ClipPlaneError::NonFinite { index: 1 })
         );
     }
 

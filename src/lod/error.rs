@@ -1,22 +1,8 @@
 //! The error type of the level-of-detail module.
 
-use super::culling::MAX_CLIP_PLANES;
-
 /// Everything that can go wrong while culling bricks or selecting their levels.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum LodError {
-    /// More clip planes than the ray-caster supports were given.
-    #[error("{count} clip planes given; at most {MAX_CLIP_PLANES} are supported")]
-    TooManyClipPlanes {
-        /// Number of planes given.
-        count: usize,
-    },
-    /// A clip plane has a non-finite normal or offset.
-    #[error("clip plane {index} has a non-finite normal or offset")]
-    NonFiniteClipPlane {
-        /// Position of the plane in the list given.
-        index: usize,
-    },
     /// The transfer-function value window is not finite, or so narrow that `1 / (hi - lo)`
     /// overflows, or its inverse range is negative or not finite.
     #[error("value window lo = {lo}, inverse range = {inv_range} is unusable (must be finite, inverse range >= 0)")]

@@ -5,10 +5,9 @@
 //! `[n*b, min(n*(b+1), dims)]` (partial bricks at the far faces are clipped to the volume, see
 //! `docs/cache-layout.md`).
 
-use super::culling::ClipPlane;
 use super::error::LodError;
 use crate::bricks::BrickGrid;
-use crate::scene::{volume_box, Camera, Projection};
+use crate::scene::{volume_box, Camera, ClipPlane, Projection};
 use glam::{UVec3, Vec3};
 
 /// A brick grid placed in world space: the grid plus the voxel spacing.

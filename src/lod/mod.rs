@@ -21,8 +21,7 @@ pub mod geometry;
 pub mod selection;
 
 pub use culling::{
-    cull_bricks, cull_bricks_into, iso_active, ClipPlane, ClipPlanes, CullParams, TfCullTable,
-    ValueCulling, MAX_CLIP_PLANES,
+    cull_bricks, cull_bricks_into, iso_active, CullParams, TfCullTable, ValueCulling,
 };
 pub use error::LodError;
 pub use geometry::{BrickGeometry, LodView, ViewProjection};

@@ -485,17 +485,16 @@ impl ReferenceCache {
         let grid = cache.grid();
         let geometry = cache.geometry();
         let mut image = CacheImage::new(geometry.extent());
-        let brick_err = |e: crate::bricks::BrickError| crate::Error::InvalidInput(e.to_string());
         for (index, residency) in cache.residencies().iter().enumerate() {
             let brick = grid.brick_coords(index);
             let (values, origin) = match *residency {
                 Residency::Absent => continue,
                 Residency::Hi { slot } => (
-                    pack_hi_res_brick(volume, grid, brick).map_err(brick_err)?,
+                    pack_hi_res_brick(volume, grid, brick)?,
                     geometry.slot_origin(slot),
                 ),
                 Residency::Lo { slot, sub_slot } => (
-                    pack_low_res_brick(volume, grid, filter, brick).map_err(brick_err)?,
+                    pack_low_res_brick(volume, grid, filter, brick)?,
                     geometry.sub_slot_origin(slot, sub_slot),
                 ),
             };

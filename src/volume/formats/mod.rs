@@ -208,6 +208,34 @@ impl FileFormat {
             None
         }
     }
+
+    /// The format [`load_volume`] reads `path` as, looking at the file system as well as the
+    /// name: [`FileFormat::from_path`], except that a `.raw` file counts only when its JSON
+    /// sidecar exists (`NAME.raw.json` or `NAME.json`; a bare `.raw` is headerless data that the
+    /// caller must describe), and a folder holding Zarr metadata (`zarr.json`, `.zattrs`,
+    /// `.zarray`) is [`FileFormat::Zarr`] whatever its name. `None`: no format with a header.
+    pub fn detect(path: &Path) -> Option<Self> {
+        let lower = path
+            .file_name()
+            .map(|n| n.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
+        match Self::from_path(path) {
+            Some(FileFormat::Sidecar) if lower.ends_with(".raw") => raw_sidecar_candidates(path)
+                .iter()
+                .any(|p| p.is_file())
+                .then_some(FileFormat::Sidecar),
+            Some(format) => Some(format),
+            None if is_zarr_folder(path) => Some(FileFormat::Zarr),
+            None => None,
+        }
+    }
+}
+
+/// Whether `path` is a folder holding Zarr v2 or v3 metadata.
+fn is_zarr_folder(path: &Path) -> bool {
+    ["zarr.json", ".zattrs", ".zarray"]
+        .iter()
+        .any(|m| path.join(m).is_file())
 }
 
 /// What a loader learned besides the voxels.
@@ -329,12 +357,7 @@ pub fn load_volume_with_meta(path: &Path) -> Result<LoadedVolume, VolumeError> {
             }
             sidecar::load_parsed(json, &sidecar)
         }
-        None if ["zarr.json", ".zattrs", ".zarray"]
-            .iter()
-            .any(|m| path.join(m).is_file()) =>
-        {
-            load_zarr(path)
-        }
+        None if is_zarr_folder(path) => load_zarr(path),
         None => Err(format_err(
             path,
             "extension",

@@ -1,12 +1,13 @@
 //! The accuracy-versus-time report: its rows behave the way the settings say they should.
 
+#[path = "../../../tests/common/mod.rs"]
 mod common;
 
 use glam::{UVec3, Vec3};
 use mixvol::optics::{TfPreset, TransferFunction};
-use mixvol::report::{accuracy_report, ReportOptions};
 use mixvol::scene::Camera;
 use mixvol::volume::{ScalarType, SyntheticField};
+use mixvol_experiments::accuracy::{accuracy_report, ReportOptions};
 use std::sync::Arc;
 
 #[test]

@@ -4,21 +4,22 @@
 //! and a PNG chart (frame time against PSNR). Settings that later issues add (tricubic
 //! reconstruction, extinction-based sampling, shading, pre-integration) join the list as they land.
 
-use crate::bricks::{brick_value_ranges, BrickGrid, DownsampleFilter};
-use crate::cache::Level;
-use crate::embed::MixedConfig;
-use crate::error::{Error, Result};
-use crate::gpu::GpuContext;
-use crate::lod::{
-    cull_bricks, select_levels, BrickGeometry, ClipPlanes, CullParams, LodView, SelectionOptions,
-    TfCullTable, ValueCulling,
-};
-use crate::optics::TransferFunction;
-use crate::reference::Transition;
-use crate::renderer::{Renderer, TargetFormat};
-use crate::scene::{Camera, RenderSettings};
-use crate::volume::Volume;
+use crate::chart::draw_text;
 use glam::Vec4;
+use mixvol::bricks::{brick_value_ranges, BrickGrid, DownsampleFilter};
+use mixvol::cache::Level;
+use mixvol::embed::MixedConfig;
+use mixvol::gpu::GpuContext;
+use mixvol::lod::{
+    cull_bricks, select_levels, BrickGeometry, CullParams, LodView, SelectionOptions, TfCullTable,
+    ValueCulling,
+};
+use mixvol::optics::TransferFunction;
+use mixvol::reference::Transition;
+use mixvol::renderer::{Renderer, TargetFormat};
+use mixvol::scene::{Camera, ClipPlanes, RenderSettings};
+use mixvol::volume::Volume;
+use mixvol::Result;
 use std::sync::Arc;
 
 /// What the report renders.
@@ -118,25 +119,23 @@ pub fn levels_for_fraction(
     size: u32,
     fraction: f64,
 ) -> Result<Vec<Level>> {
-    let lod = |e: crate::lod::LodError| Error::InvalidInput(e.to_string());
-    let ranges = brick_value_ranges(volume, grid, DownsampleFilter::Mean2)
-        .map_err(|e| Error::InvalidInput(e.to_string()))?;
-    let geometry = BrickGeometry::new(*grid, volume.spacing()).map_err(lod)?;
-    let window = if volume.scalar_type() == crate::volume::ScalarType::F32 {
+    let ranges = brick_value_ranges(volume, grid, DownsampleFilter::Mean2)?;
+    let geometry = BrickGeometry::new(*grid, volume.spacing())?;
+    let window = if volume.scalar_type() == mixvol::volume::ScalarType::F32 {
         volume.value_range()
     } else {
         (0.0, 1.0)
     };
     let params = CullParams {
-        value: ValueCulling::TransferFunction(TfCullTable::new(tf, window).map_err(lod)?),
+        value: ValueCulling::TransferFunction(TfCullTable::new(tf, window)?),
         clip: ClipPlanes::NONE,
     };
-    let active = cull_bricks(&geometry, &ranges, &params).map_err(lod)?;
+    let active = cull_bricks(&geometry, &ranges, &params)?;
     let count = active.iter().filter(|a| **a).count();
     let hi = ((count as f64) * fraction.clamp(0.0, 1.0)).round() as usize;
     let slots = hi + (count - hi).div_ceil(8);
-    let view = LodView::new(camera, size, size).map_err(lod)?;
-    select_levels(
+    let view = LodView::new(camera, size, size)?;
+    Ok(select_levels(
         &geometry,
         &view,
         &ranges,
@@ -146,8 +145,7 @@ pub fn levels_for_fraction(
             distance_filter: None,
             fov_filter: None,
         },
-    )
-    .map_err(lod)
+    )?)
 }
 
 /// Renders the report for `volume` seen through `tf`.
@@ -187,8 +185,7 @@ pub fn accuracy_report(
         });
     }
     drop(single);
-    let grid = BrickGrid::new(volume.dims(), options.brick_size)
-        .map_err(|e| Error::InvalidInput(e.to_string()))?;
+    let grid = BrickGrid::new(volume.dims(), options.brick_size)?;
     let n = options.brick_size as u64;
     let texel = volume.scalar_type().size_bytes() as u64;
     let settings = RenderSettings::default();
@@ -359,52 +356,5 @@ impl Report {
             }
         }
         img
-    }
-}
-
-/// 3x5 bitmap glyphs for digits, '.', '-' (bit 2 = left column), drawn at twice the size.
-pub(crate) fn draw_text(
-    img: &mut image::RgbImage,
-    x: i64,
-    y: i64,
-    text: &str,
-    colour: image::Rgb<u8>,
-) {
-    const DIGITS: [[u8; 5]; 10] = [
-        [7, 5, 5, 5, 7],
-        [2, 6, 2, 2, 7],
-        [7, 1, 7, 4, 7],
-        [7, 1, 7, 1, 7],
-        [5, 5, 7, 1, 1],
-        [7, 4, 7, 1, 7],
-        [7, 4, 7, 5, 7],
-        [7, 1, 1, 1, 1],
-        [7, 5, 7, 5, 7],
-        [7, 5, 7, 1, 7],
-    ];
-    for (i, ch) in text.chars().enumerate() {
-        let glyph = match ch {
-            '0'..='9' => DIGITS[ch as usize - '0' as usize],
-            '.' => [0, 0, 0, 0, 2],
-            '-' => [0, 0, 7, 0, 0],
-            _ => continue,
-        };
-        for (row, bits) in glyph.iter().enumerate() {
-            for col in 0..3 {
-                if bits & (4 >> col) != 0 {
-                    for s in 0..4 {
-                        let px = x + i as i64 * 8 + col * 2 + (s & 1);
-                        let py = y + row as i64 * 2 + (s >> 1);
-                        if px >= 0
-                            && py >= 0
-                            && (px as u32) < img.width()
-                            && (py as u32) < img.height()
-                        {
-                            img.put_pixel(px as u32, py as u32, colour);
-                        }
-                    }
-                }
-            }
-        }
     }
 }

@@ -235,7 +235,8 @@ fn bench_reports_every_pass_as_a_table_and_json() {
 
 #[test]
 fn renders_the_real_mri_template_with_the_mri_preset_and_auto_window() {
-    let dir = std::env::var("MIXVOL_DATA_DIR").unwrap_or_else(|_| "target/datasets".into());
+    let dir = std::env::var("MIXVOL_DATA_DIR")
+        .unwrap_or_else(|_| concat!(env!("CARGO_MANIFEST_DIR"), "/../../target/datasets").into());
     let nii = std::path::Path::new(&dir).join("mni_icbm152_t1_tal_nlin_sym_09a_converted.nii.gz");
     assert!(
         nii.exists(),

@@ -1,0 +1,329 @@
+//! The command line: subcommands, their flags, and the parsers of flag values.
+
+use crate::parse::{parse_floats, parse_scalar, parse_tf, parse_uvec3, parse_vec3};
+use clap::{Args, ValueEnum};
+use glam::{UVec3, Vec3};
+use mixvol::optics::{SamplingModel, TfPreset};
+use mixvol::reference::Transition;
+use mixvol::renderer::MixedConfig;
+use mixvol::scene::{
+    Camera, ClipPlane, ClipPlanes, Projection, Reconstruction, RenderMode, RenderSettings, Shading,
+};
+use mixvol::volume::ScalarType;
+use mixvol::{Error, Result};
+use std::path::PathBuf;
+
+#[derive(Args, Debug)]
+pub struct KrausArgs {
+    /// Folder for kraus.md, .csv and .png.
+    #[arg(long, default_value = "docs/report")]
+    pub output_dir: PathBuf,
+}
+
+#[derive(Args, Debug)]
+pub struct ReportArgs {
+    /// Folder for accuracy-vs-time.md, .csv and .png.
+    #[arg(long, default_value = "docs/report")]
+    pub output_dir: PathBuf,
+    /// Image width and height.
+    #[arg(long, default_value_t = 256)]
+    pub size: u32,
+    /// Timed frames per setting (median reported).
+    #[arg(long, default_value_t = 5)]
+    pub frames: u32,
+    /// Edge of the cubic Marschner-Lobb volume.
+    #[arg(long, default_value_t = 128)]
+    pub volume_size: u32,
+    /// Brick size of the mixed-resolution rows.
+    #[arg(long, default_value_t = 16)]
+    pub brick_size: u32,
+    /// Enable the validation layers.
+    #[arg(long)]
+    pub validation: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    #[command(flatten)]
+    pub render: RenderArgs,
+    /// Change the brick levels every frame (alternating two patterns) so uploads and the fixup
+    /// are timed too (needs --levels).
+    #[arg(long)]
+    pub churn: bool,
+    /// Also write the results as JSON to this path ('-' for standard output).
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+#[derive(ValueEnum, Copy, Clone, Debug, PartialEq)]
+pub enum LevelsArg {
+    /// Every brick at full resolution.
+    AllHi,
+    /// Every brick low-res.
+    AllLo,
+    /// Hi-res and low-res bricks alternate in a 3D checkerboard.
+    Checker,
+    /// Bricks with x below the middle are low-res.
+    Half,
+}
+
+#[derive(ValueEnum, Copy, Clone, Debug, PartialEq)]
+pub enum TransitionArg {
+    /// C0 transitions (border fixup + band blend).
+    Smooth,
+    /// Plain trilinear in every brick: the baseline.
+    Discontinuous,
+}
+
+#[derive(Args, Debug)]
+pub struct MixedArgs {
+    /// Render through the mixed-resolution brick cache with this level pattern (omit for the
+    /// plain single-texture ray-caster).
+    #[arg(long, value_enum)]
+    pub levels: Option<LevelsArg>,
+    /// Brick edge in voxels (power of two).
+    #[arg(long, default_value_t = 32)]
+    pub brick_size: u32,
+    /// Transition reconstruction between resolution levels.
+    #[arg(long, value_enum, default_value_t = TransitionArg::Smooth)]
+    pub transition: TransitionArg,
+    /// Cache image budget in MiB.
+    #[arg(long, default_value_t = 256)]
+    pub cache_mb: u64,
+}
+
+#[derive(Args, Debug)]
+pub struct JunctionArgs {
+    /// Output PNG path (folders are created).
+    #[arg(long, short, default_value = "out/junction.png")]
+    pub output: PathBuf,
+    /// Width of each half in pixels.
+    #[arg(long, default_value_t = 256)]
+    pub size: u32,
+    /// Enable the Khronos validation layers.
+    #[arg(long)]
+    pub validation: bool,
+}
+
+#[derive(ValueEnum, Copy, Clone, Debug)]
+pub enum ProjectionArg {
+    Perspective,
+    Orthographic,
+}
+
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    /// Volume to render: a synthetic field (`ml` = Marschner-Lobb, `sphere`, `wall`), a file with
+    /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), or a
+    /// headerless raw file (then --dims, --scalar, --spacing describe it).
+    #[arg(long, default_value = "ml")]
+    pub volume: String,
+    /// Dimensions x,y,z: of the synthetic field, or of the raw file.
+    #[arg(long, default_value = "128,128,128", value_parser = parse_uvec3)]
+    pub dims: UVec3,
+    /// Scalar type: u8, u16 or f32 (synthetic fields are generated in it; raw files hold it).
+    #[arg(long, default_value = "u8", value_parser = parse_scalar)]
+    pub scalar: ScalarType,
+    /// Voxel spacing x,y,z of a raw file (anisotropic spacing renders with the right aspect).
+    #[arg(long, default_value = "1,1,1", value_parser = parse_vec3)]
+    pub spacing: Vec3,
+    /// Bytes to skip at the start of a raw file.
+    #[arg(long, default_value_t = 0)]
+    pub header_bytes: u64,
+    /// The raw file's multi-byte values are big-endian.
+    #[arg(long)]
+    pub big_endian: bool,
+    /// Resolution level of an OME-Zarr image (index into its multiscales datasets, 0 = finest).
+    #[arg(long)]
+    pub zarr_level: Option<usize>,
+    /// Transfer-function preset: grey, fire, bands, constant, ct, mri.
+    #[arg(long, default_value = "fire", value_parser = parse_tf)]
+    pub tf: TfPreset,
+    /// Scan preset: `ct` or `mri` picks that transfer function and an automatic window from the
+    /// histogram (overrides --tf).
+    #[arg(long, value_parser = parse_tf)]
+    pub preset: Option<TfPreset>,
+    /// Value window `lo,hi` in normalised units mapped onto the transfer function, or `auto`
+    /// (histogram percentiles). Default: [0, 1] for integer data, the value range for floats.
+    #[arg(long)]
+    pub window: Option<String>,
+    /// Camera projection.
+    #[arg(long, value_enum, default_value_t = ProjectionArg::Perspective)]
+    pub projection: ProjectionArg,
+    /// Eye position x,y,z in world units (the volume box is centred at the origin, longest side 1).
+    #[arg(long, default_value = "1.0,1.3,1.4", value_parser = parse_vec3)]
+    pub eye: Vec3,
+    /// Point looked at, x,y,z.
+    #[arg(long, default_value = "0,0,0", value_parser = parse_vec3)]
+    pub target: Vec3,
+    /// Vertical field of view in degrees (perspective).
+    #[arg(long, default_value_t = 35.0)]
+    pub fov: f32,
+    /// Visible height in world units (orthographic).
+    #[arg(long, default_value_t = 1.6)]
+    pub ortho_height: f32,
+    /// Image width in pixels.
+    #[arg(long, default_value_t = 512)]
+    pub width: u32,
+    /// Image height in pixels.
+    #[arg(long, default_value_t = 512)]
+    pub height: u32,
+    /// Samples per voxel along each ray.
+    #[arg(long, default_value_t = 2.0)]
+    pub samples_per_voxel: f32,
+    /// Opacity at which a ray stops early.
+    #[arg(long, default_value_t = mixvol::scene::DEFAULT_EARLY_TERMINATION)]
+    pub early_termination: f32,
+    /// Background colour r,g,b in [0,1] the image is composited over.
+    #[arg(long, default_value = "0.08,0.08,0.1", value_parser = parse_vec3)]
+    pub background: Vec3,
+    /// Output PNG path (folders are created).
+    #[arg(long, short, default_value = "out/render.png")]
+    pub output: PathBuf,
+    /// Frames to render for timing (min / median / max are printed); the image is the last one.
+    #[arg(long, default_value_t = 5)]
+    pub frames: u32,
+    /// Enable the Khronos validation layers (with synchronization validation).
+    #[arg(long)]
+    pub validation: bool,
+    /// Use the first Vulkan device whose name contains this (default: prefer a discrete GPU).
+    #[arg(long)]
+    pub device: Option<String>,
+    /// Also render with the CPU reference and print the largest per-pixel difference.
+    #[arg(long)]
+    pub compare: bool,
+    #[command(flatten)]
+    pub mixed: MixedArgs,
+    #[command(flatten)]
+    pub optics: OpticsArgs,
+}
+
+/// Render mode and optical model (each compiles into the pipeline variant only when asked for).
+#[derive(Args, Debug)]
+pub struct OpticsArgs {
+    /// Render mode.
+    #[arg(long, value_enum, default_value_t = ModeArg::Dvr)]
+    pub mode: ModeArg,
+    /// Iso value (mode iso), in the units of --window (normalised for integer data).
+    #[arg(long, default_value_t = 0.5)]
+    pub iso: f32,
+    /// Iso-surface colour r,g,b.
+    #[arg(long, default_value = "0.9,0.75,0.55", value_parser = parse_vec3)]
+    pub iso_colour: Vec3,
+    /// MIDA gamma in [-1, 1]: -1 DVR, 0 MIDA, 1 MIP (mode mida).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    pub gamma: f32,
+    /// Blinn-Phong shading from field gradients.
+    #[arg(long)]
+    pub shading: bool,
+    /// Gradient-magnitude opacity modulation with this scale.
+    #[arg(long)]
+    pub gradient_opacity: Option<f32>,
+    /// Extinction-based sampling (default: opacity-based).
+    #[arg(long)]
+    pub extinction: bool,
+    /// Pre-integrated classification (DVR, MIDA).
+    #[arg(long)]
+    pub preintegrated: bool,
+    /// Tricubic B-spline reconstruction (single resolution, or every resident brick hi-res).
+    #[arg(long)]
+    pub tricubic: bool,
+    /// LaMar's coarse sampling: low-res bricks at twice the step (mixed resolution).
+    #[arg(long)]
+    pub coarse_low_res: bool,
+    /// A world-space clip plane `nx,ny,nz,d` keeping `n . p + d >= 0` (repeat for up to 6).
+    #[arg(long, value_parser = parse_floats::<4>, allow_hyphen_values = true)]
+    pub clip: Vec<[f32; 4]>,
+}
+
+#[derive(Copy, Clone, Debug, ValueEnum)]
+pub enum ModeArg {
+    Dvr,
+    Iso,
+    Mip,
+    Mida,
+}
+
+impl OpticsArgs {
+    /// Fills the mode and optics fields of `settings`.
+    pub fn apply(&self, settings: RenderSettings) -> Result<RenderSettings> {
+        let planes: Vec<ClipPlane> = self
+            .clip
+            .iter()
+            .map(|c| ClipPlane::new(Vec3::new(c[0], c[1], c[2]), c[3]))
+            .collect();
+        let clip_planes =
+            ClipPlanes::new(&planes).map_err(|e| Error::InvalidInput(format!("--clip: {e}")))?;
+        Ok(RenderSettings {
+            clip_planes,
+            mode: match self.mode {
+                ModeArg::Dvr => RenderMode::Dvr,
+                ModeArg::Iso => RenderMode::Iso {
+                    value: self.iso,
+                    colour: self.iso_colour,
+                },
+                ModeArg::Mip => RenderMode::Mip,
+                ModeArg::Mida => RenderMode::Mida { gamma: self.gamma },
+            },
+            shading: self.shading.then(Shading::default),
+            gradient_opacity: self.gradient_opacity,
+            sampling_model: if self.extinction {
+                SamplingModel::Extinction
+            } else {
+                SamplingModel::Opacity
+            },
+            preintegrated: self.preintegrated,
+            reconstruction: if self.tricubic {
+                Reconstruction::TricubicBSpline
+            } else {
+                Reconstruction::Trilinear
+            },
+            coarse_low_res_steps: self.coarse_low_res,
+            ..settings
+        })
+    }
+}
+
+impl RenderArgs {
+    /// The camera the flags describe (`--projection`, `--eye`, `--target`, `--fov`,
+    /// `--ortho-height`).
+    pub fn camera(&self) -> Camera {
+        let projection = match self.projection {
+            ProjectionArg::Perspective => Projection::Perspective {
+                fov_y_degrees: self.fov,
+            },
+            ProjectionArg::Orthographic => Projection::Orthographic {
+                height: self.ortho_height,
+            },
+        };
+        Camera {
+            projection,
+            ..Camera::perspective(self.eye, self.target, self.fov)
+        }
+    }
+}
+
+impl TransitionArg {
+    /// The reconstruction across level changes this flag value names.
+    pub fn transition(self) -> Transition {
+        match self {
+            TransitionArg::Smooth => Transition::Smooth,
+            TransitionArg::Discontinuous => Transition::Discontinuous,
+        }
+    }
+}
+
+impl MixedArgs {
+    /// The brick-cache configuration of `--brick-size`, `--cache-mb` and `--transition`.
+    pub fn config(&self) -> Result<MixedConfig> {
+        let cache_budget_bytes = self.cache_mb.checked_mul(1 << 20).ok_or_else(|| {
+            Error::InvalidInput(format!("--cache-mb {} is too large", self.cache_mb))
+        })?;
+        Ok(MixedConfig {
+            brick_size: self.brick_size,
+            cache_budget_bytes,
+            transition: self.transition.transition(),
+            ..MixedConfig::default()
+        })
+    }
+}

@@ -1,0 +1,157 @@
+//! `mixvol bench`: N frames of one scene, min / median / max of every GPU pass (upload, fixup,
+//! ray-cast) and of the CPU frame time, as a table and as JSON.
+
+use crate::args::BenchArgs;
+use crate::files::write_text;
+use crate::input::load_volume;
+use crate::levels::{level_pattern, swapped};
+use crate::stats::Summary;
+use mixvol::bricks::BrickGrid;
+use mixvol::gpu::{ContextDesc, GpuContext};
+use mixvol::optics::TransferFunction;
+use mixvol::renderer::{Renderer, TargetFormat};
+use mixvol::scene::RenderSettings;
+use mixvol::{Error, Result};
+use serde::Serialize;
+use std::sync::Arc;
+
+/// One pass's times in the JSON output.
+#[derive(Serialize)]
+struct PassJson<'a> {
+    pass: &'a str,
+    samples: usize,
+    min_ms: f64,
+    median_ms: f64,
+    max_ms: f64,
+}
+
+/// The JSON output (fields in this order).
+#[derive(Serialize)]
+struct BenchJson<'a> {
+    device: &'a str,
+    device_type: String,
+    width: u32,
+    height: u32,
+    frames: u32,
+    volume: &'a str,
+    passes: Vec<PassJson<'a>>,
+}
+
+/// Runs `mixvol bench`.
+pub fn bench(args: &BenchArgs) -> Result<()> {
+    let r = &args.render;
+    if r.frames == 0 {
+        return Err(Error::InvalidInput("--frames must be at least 1".into()));
+    }
+    if args.churn && r.mixed.levels.is_none() {
+        return Err(Error::InvalidInput("--churn needs --levels".into()));
+    }
+    let volume = Arc::new(load_volume(r)?);
+    let ctx = GpuContext::new(&ContextDesc {
+        validation: r.validation,
+        device_name: r.device.clone(),
+    })?;
+    let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
+    renderer.set_transfer_function(&TransferFunction::preset(r.tf))?;
+    let mut patterns = Vec::new();
+    match r.mixed.levels {
+        None => renderer.set_volume(&volume)?,
+        Some(pattern) => {
+            renderer.set_mixed_volume(volume.clone(), r.mixed.config()?)?;
+            let grid = BrickGrid::new(volume.dims(), r.mixed.brick_size)?;
+            let levels = level_pattern(&grid, pattern);
+            // The churn partner: the same pattern with hi and lo swapped.
+            patterns.push(swapped(&levels));
+            patterns.insert(0, levels);
+            renderer.set_levels(&patterns[0])?;
+        }
+    }
+    let camera = r.camera();
+    let settings = r.optics.apply(RenderSettings {
+        samples_per_voxel: r.samples_per_voxel,
+        early_termination: r.early_termination,
+        ..RenderSettings::default()
+    })?;
+    renderer.render(&camera, &settings, r.width, r.height)?; // warm-up
+    let (mut upload, mut fixup, mut raycast, mut cpu) = (vec![], vec![], vec![], vec![]);
+    let mut variant = None;
+    for i in 0..r.frames {
+        if args.churn {
+            renderer.stage_levels(&patterns[(i as usize + 1) % 2])?;
+        }
+        let frame = renderer.render(&camera, &settings, r.width, r.height)?;
+        upload.extend(frame.timing.gpu_upload_ms);
+        fixup.extend(frame.timing.gpu_fixup_ms);
+        raycast.extend(frame.timing.gpu_raycast_ms);
+        cpu.push(frame.timing.cpu_frame_ms);
+        variant = Some(frame.variant);
+    }
+    let info = ctx.info();
+    let rows = [
+        ("upload (gpu)", &upload),
+        ("fixup (gpu)", &fixup),
+        ("ray-cast (gpu)", &raycast),
+        ("frame (cpu)", &cpu),
+    ];
+    println!(
+        "# {} frames, {}x{}, volume {} {:?}, device {} ({:?})",
+        r.frames,
+        r.width,
+        r.height,
+        r.volume,
+        volume.dims().to_array(),
+        info.name,
+        info.device_type
+    );
+    println!("# variant {:?}", variant.expect("frames >= 1"));
+    println!("| pass | samples | min ms | median ms | max ms |");
+    println!("|---|---|---|---|---|");
+    let mut passes = Vec::new();
+    for (name, values) in rows {
+        match Summary::of(values) {
+            Some(s) => {
+                println!(
+                    "| {name} | {} | {:.3} | {:.3} | {:.3} |",
+                    values.len(),
+                    s.min,
+                    s.median,
+                    s.max
+                );
+                passes.push(PassJson {
+                    pass: name,
+                    samples: values.len(),
+                    min_ms: s.min,
+                    median_ms: s.median,
+                    max_ms: s.max,
+                });
+            }
+            None => println!("| {name} | 0 | - | - | - |"),
+        }
+    }
+    if info.device_type == ash::vk::PhysicalDeviceType::CPU {
+        println!(
+            "note: {} is a CPU implementation; compare ratios, not absolute times",
+            info.name
+        );
+    }
+    if let Some(path) = &args.json {
+        let json = BenchJson {
+            device: &info.name,
+            device_type: format!("{:?}", info.device_type),
+            width: r.width,
+            height: r.height,
+            frames: r.frames,
+            volume: &r.volume,
+            passes,
+        };
+        let text = serde_json::to_string(&json)
+            .map_err(|e| Error::InvalidInput(format!("bench results as JSON: {e}")))?
+            + "\n";
+        if path.as_os_str() == "-" {
+            print!("{text}");
+        } else {
+            write_text(path, &text)?;
+        }
+    }
+    Ok(())
+}

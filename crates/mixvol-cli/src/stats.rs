@@ -1,0 +1,40 @@
+//! Minimum, median and maximum of a timing series: the one summary every command prints.
+
+/// min / median / max of a series of times.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct Summary {
+    /// The smallest value.
+    pub min: f64,
+    /// The middle value (the upper one of the two middles for an even count).
+    pub median: f64,
+    /// The largest value.
+    pub max: f64,
+}
+
+impl Summary {
+    /// The summary of `values`; `None` when there are none.
+    pub fn of(values: &[f64]) -> Option<Self> {
+        if values.is_empty() {
+            return None;
+        }
+        let mut v = values.to_vec();
+        v.sort_by(|a, b| a.total_cmp(b));
+        Some(Self {
+            min: v[0],
+            median: v[v.len() / 2],
+            max: v[v.len() - 1],
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Summary;
+
+    #[test]
+    fn summary_orders_and_picks_the_middle() {
+        let s = Summary::of(&[3.0, 1.0, 2.0, 9.0]).unwrap();
+        assert_eq!((s.min, s.median, s.max), (1.0, 3.0, 9.0));
+        assert_eq!(Summary::of(&[]), None);
+    }
+}

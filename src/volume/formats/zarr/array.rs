@@ -1,0 +1,265 @@
+//! One Zarr array through zarrs: its metadata, stored type and byte order, and the chunk reader
+//! that assembles the voxels under the size limits.
+
+use super::*;
+
+/// Reads a metadata document of at most [`MAX_HEADER_BYTES`].
+pub(super) fn read_metadata(path: &Path) -> Result<Vec<u8>, VolumeError> {
+    let (bytes, len) = read_prefix(path, MAX_HEADER_BYTES)?;
+    if len > MAX_HEADER_BYTES {
+        return Err(format_err(
+            path,
+            "json",
+            format!("the metadata is {len} bytes; at most {MAX_HEADER_BYTES} are read"),
+        ));
+    }
+    Ok(bytes)
+}
+
+/// True when the array metadata declares big-endian values (v2 `dtype` starting with `>`, v3
+/// a `bytes` codec with `"endian": "big"`). Only reported in [`VolumeMeta`]; `zarrs` decodes.
+pub(super) fn declared_big_endian(text: &[u8], version: ZarrVersion) -> bool {
+    let Ok(Value::Object(doc)) = serde_json::from_slice::<Value>(text) else {
+        return false;
+    };
+    match version {
+        ZarrVersion::V2 => doc
+            .get("dtype")
+            .and_then(Value::as_str)
+            .is_some_and(|d| d.starts_with('>')),
+        ZarrVersion::V3 => doc
+            .get("codecs")
+            .and_then(Value::as_array)
+            .is_some_and(|codecs| {
+                codecs.iter().any(|c| {
+                    c.get("name").and_then(Value::as_str) == Some("bytes")
+                        && c.pointer("/configuration/endian").and_then(Value::as_str) == Some("big")
+                })
+            }),
+    }
+}
+
+/// The stored type of the array's data type.
+pub(super) fn stored_type(
+    array: &Array<FilesystemStore>,
+    array_doc: &Path,
+    version: ZarrVersion,
+) -> Result<StoredType, VolumeError> {
+    use zarrs::array::data_type::{
+        Float32DataType, Float64DataType, Int16DataType, Int32DataType, Int8DataType,
+        UInt16DataType, UInt32DataType, UInt8DataType,
+    };
+    let dt = array.data_type();
+    Ok(if dt.is::<UInt8DataType>() {
+        StoredType::U8
+    } else if dt.is::<Int8DataType>() {
+        StoredType::I8
+    } else if dt.is::<UInt16DataType>() {
+        StoredType::U16
+    } else if dt.is::<Int16DataType>() {
+        StoredType::I16
+    } else if dt.is::<UInt32DataType>() {
+        StoredType::U32
+    } else if dt.is::<Int32DataType>() {
+        StoredType::I32
+    } else if dt.is::<Float32DataType>() {
+        StoredType::F32
+    } else if dt.is::<Float64DataType>() {
+        StoredType::F64
+    } else {
+        return Err(format_err(
+            array_doc,
+            version.dtype_field(),
+            format!(
+                "data type {dt} is not supported (uint8, int8, uint16, int16, uint32, int32, \
+                 float32, float64)"
+            ),
+        ));
+    })
+}
+
+/// Maps `zarrs`' array-opening errors to the metadata field at fault.
+pub(super) fn array_create_err(
+    array_doc: &Path,
+    version: ZarrVersion,
+    e: ArrayCreateError,
+) -> VolumeError {
+    let field = match &e {
+        ArrayCreateError::DataTypeCreateError(_) => version.dtype_field(),
+        ArrayCreateError::InvalidFillValue { .. }
+        | ArrayCreateError::InvalidFillValueMetadata { .. } => "fill_value",
+        ArrayCreateError::CodecsCreateError(_) => version.codecs_field(),
+        ArrayCreateError::StorageTransformersCreateError(_) => "storage_transformers",
+        ArrayCreateError::ChunkGridCreateError(_)
+        | ArrayCreateError::InvalidChunkGridDimensionality(..)
+        | ArrayCreateError::InvalidSubchunkShape(_) => version.chunks_field(),
+        ArrayCreateError::ChunkKeyEncodingCreateError(_) => match version {
+            ZarrVersion::V2 => "dimension_separator",
+            ZarrVersion::V3 => "chunk_key_encoding",
+        },
+        ArrayCreateError::InvalidDimensionNames(..) => "dimension_names",
+        ArrayCreateError::AdditionalFieldUnsupportedError(a) => {
+            return format_err(array_doc, short(a.name()), e.to_string())
+        }
+        ArrayCreateError::MissingMetadata => {
+            return format_err(
+                array_doc,
+                "path",
+                "the dataset's array metadata is missing".to_string(),
+            )
+        }
+        ArrayCreateError::StorageError(StorageError::IOError(io)) => {
+            return VolumeError::Io {
+                path: array_doc.to_path_buf(),
+                source: std::io::Error::new(io.kind(), io.to_string()),
+            }
+        }
+        ArrayCreateError::StorageError(StorageError::InvalidMetadata(..)) => "json",
+        // Raised for the byte order of `dtype`, or for `order` / `filters` / `compressor` (the
+        // codec chain; the message names the part).
+        ArrayCreateError::UnsupportedZarrV2Array(m) if m.contains("endian") => "dtype",
+        ArrayCreateError::UnsupportedZarrV2Array(_) => "compressor",
+        ArrayCreateError::NodePathError(_) | ArrayCreateError::StorageError(_) => "path",
+    };
+    format_err(array_doc, field, e.to_string())
+}
+
+/// Reads an array's chunks one by one into a volume-ordered buffer.
+pub(super) struct ChunkReader<'a> {
+    pub(super) array: &'a Array<FilesystemStore>,
+    pub(super) root: &'a Path,
+    pub(super) array_doc: &'a Path,
+    pub(super) version: ZarrVersion,
+    /// Volume x, y, z sizes (array axes reversed).
+    pub(super) dims: [usize; 3],
+    /// Voxels in the volume (checked).
+    pub(super) count: usize,
+    /// Bytes per stored element.
+    pub(super) elem_bytes: u64,
+}
+
+impl ChunkReader<'_> {
+    /// The file of the chunk at `indices`.
+    fn chunk_path(&self, indices: &[u64]) -> PathBuf {
+        let key = self.array.chunk_key(indices);
+        key.as_str()
+            .split('/')
+            .fold(self.root.to_path_buf(), |p, s| p.join(s))
+    }
+
+    /// Reads every chunk (bounded to the array) into a buffer of `count` values, x fastest.
+    pub(super) fn read<T: ElementOwned + Copy + Default>(&self) -> Result<Vec<T>, VolumeError> {
+        let chunks_field = self.version.chunks_field();
+        let mut out: Vec<T> = Vec::new();
+        out.try_reserve_exact(self.count).map_err(|_| {
+            io_err(self.array_doc)(std::io::Error::from(std::io::ErrorKind::OutOfMemory))
+        })?;
+        out.resize(self.count, T::default());
+        let grid = self.array.chunk_grid_shape().to_vec();
+        let ndim = grid.len();
+        if grid.contains(&0) {
+            return Ok(out);
+        }
+        let [nx, ny, _] = self.dims;
+        let mut indices = vec![0u64; ndim];
+        loop {
+            let chunk_shape = self
+                .array
+                .chunk_shape(&indices)
+                .map_err(|e| format_err(self.array_doc, chunks_field, e.to_string()))?;
+            let bytes = chunk_shape
+                .iter()
+                .try_fold(self.elem_bytes, |acc, d| acc.checked_mul(d.get()))
+                .filter(|&b| b <= MAX_CHUNK_BYTES);
+            if bytes.is_none() {
+                return Err(format_err(
+                    self.array_doc,
+                    chunks_field,
+                    format!(
+                        "chunk shape {:?} exceeds the {} MiB chunk size limit",
+                        chunk_shape.iter().map(|d| d.get()).collect::<Vec<_>>(),
+                        MAX_CHUNK_BYTES >> 20
+                    ),
+                ));
+            }
+            let bounded = self
+                .array
+                .chunk_subset_bounded(&indices)
+                .map_err(|e| format_err(self.array_doc, chunks_field, e.to_string()))?;
+            if bounded.shape().iter().all(|&s| s > 0) {
+                // The whole chunk is decoded (so a chunk that does not hold its full shape is
+                // an error even where the array ends inside it), then its part inside the
+                // array is copied. Leading axes have size 1: their index is 0.
+                let values: Vec<T> = self
+                    .array
+                    .retrieve_chunk::<Vec<T>>(&indices)
+                    .map_err(|e| self.chunk_err(&indices, e))?;
+                let full: Vec<usize> = chunk_shape.iter().map(|d| d.get() as usize).collect();
+                let (fy, fx) = (full[ndim - 2], full[ndim - 1]);
+                let start = bounded.start();
+                let extent = bounded.shape();
+                let at = |a: usize| (start[a] as usize, extent[a] as usize);
+                let ((z0, cz), (y0, cy), (x0, cx)) = (at(ndim - 3), at(ndim - 2), at(ndim - 1));
+                if values.len() != full.iter().product::<usize>() {
+                    return Err(format_err(
+                        &self.chunk_path(&indices),
+                        chunks_field,
+                        format!(
+                            "chunk {indices:?} decoded to {} values, expected {}",
+                            values.len(),
+                            full.iter().product::<usize>()
+                        ),
+                    ));
+                }
+                for z in 0..cz {
+                    for y in 0..cy {
+                        let src = fx * (y + fy * z);
+                        let dst = x0 + nx * (y0 + y + ny * (z0 + z));
+                        out[dst..dst + cx].copy_from_slice(&values[src..src + cx]);
+                    }
+                }
+            }
+            // Next chunk, last axis fastest.
+            let mut axis = ndim;
+            loop {
+                if axis == 0 {
+                    return Ok(out);
+                }
+                axis -= 1;
+                indices[axis] += 1;
+                if indices[axis] < grid[axis] {
+                    break;
+                }
+                indices[axis] = 0;
+            }
+        }
+    }
+
+    /// A chunk that could not be read or decoded.
+    fn chunk_err(&self, indices: &[u64], e: ArrayError) -> VolumeError {
+        let file = self.chunk_path(indices);
+        let field = match &e {
+            ArrayError::StorageError(StorageError::IOError(io)) => {
+                return VolumeError::Io {
+                    path: file,
+                    source: std::io::Error::new(io.kind(), io.to_string()),
+                }
+            }
+            ArrayError::CodecError(
+                zarrs::array::CodecError::UnexpectedChunkDecodedSize(_)
+                | zarrs::array::CodecError::InvalidNumberOfElements(_)
+                | zarrs::array::CodecError::InvalidArrayShape(_)
+                | zarrs::array::CodecError::ExpectedFixedLengthBytes(_),
+            ) => self.version.chunks_field(),
+            ArrayError::UnexpectedChunkDecodedSize(..)
+            | ArrayError::InvalidBytesInputSize(..)
+            | ArrayError::UnexpectedChunkDecodedShape(..) => self.version.chunks_field(),
+            _ => self.version.codecs_field(),
+        };
+        format_err(
+            &file,
+            field,
+            format!("chunk {indices:?} does not decode: {e}"),
+        )
+    }
+}

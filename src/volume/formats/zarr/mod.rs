@@ -1,0 +1,290 @@
+//! OME-Zarr images (Zarr v2 and v3) through the `zarrs` crate.
+//!
+//! A path names the root folder of an OME-Zarr image (usually `NAME.zarr` / `NAME.ome.zarr`):
+//!
+//! - **Zarr v3, OME-Zarr 0.5**: the root `zarr.json` is a group (`"node_type": "group"`) whose
+//!   `attributes.ome.multiscales` describes the levels (a bare `attributes.multiscales` is accepted
+//!   too).
+//! - **Zarr v2, OME-Zarr 0.1-0.4**: the root `.zattrs` holds `multiscales`.
+//! - A plain Zarr array (root `zarr.json` with `"node_type": "array"`, or a root `.zarray`) loads
+//!   as a volume with unit spacing, its last three axes being z, y, x.
+//!
+//! Of the first multiscale, the dataset of the requested level (0, the finest, by default) is
+//! opened with `zarrs` (chunk grid, chunk keys, codecs, fill value for missing chunks). Axes:
+//! the last three must be spatial (`"type": "space"`, or named `z`, `y`, `x` where no type is
+//! given) and are taken as volume z, y, x (the last array axis varies fastest, like the volume's
+//! x); up to two leading axes (time, channel, ...) are allowed when their size is 1. OME-Zarr
+//! before 0.3 has no `axes`: the last three array axes are then z, y, x. Spacing and origin come
+//! from the dataset's `coordinateTransformations` (`scale`, then optional `translation`),
+//! followed by the multiscale's own ones if present: spacing `s_d * s_m`, origin
+//! `t_d * s_m + t_m` per axis. Units are not interpreted.
+//!
+//! Data types: `uint8`, `int8`, `uint16`, `int16`, `uint32`, `int32`, `float32`, `float64` (v2:
+//! `|u1`, `<i2`, `>f4`, ...), in either byte order, mapped to the volume's scalar types like every
+//! other format (see [`super`]: i16 is stored as u16 + [`I16_OFFSET`](super::I16_OFFSET), ...).
+//! Codecs built in: raw, gzip and sharding (with crc32c index checksums). Blosc and zstd need C
+//! libraries and are not built (an array using them fails on the field `compressor` / `codecs`).
+//!
+//! # Safety against hostile stores
+//!
+//! Metadata documents are read only up to [`MAX_HEADER_BYTES`]. The volume size is checked with
+//! checked arithmetic against [`MAX_VOLUME_BYTES`](super::MAX_VOLUME_BYTES), and every chunk's
+//! decoded size against [`MAX_CHUNK_BYTES`], before anything is allocated or decoded; the volume
+//! buffer is reserved fallibly. Chunks are decoded one at a time (`zarrs`), each bounded to the
+//! array, and copied into the volume. A chunk that does not decode to its shape (a truncated raw
+//! chunk, corrupt gzip) is a [`VolumeError::Format`] naming the chunk file. Limitation: `zarrs`
+//! decodes gzip chunks without an output limit before checking their size, so a gzip bomb in a
+//! chunk file can allocate up to about 1000 times the file's size.
+//!
+//! [`parse_zarr_root`] parses a root metadata document from bytes (the fuzz target's entry
+//! point); [`load_zarr`] / [`load_zarr_level`] load.
+//!
+//! Files: this one loads (`load_zarr`, `load_zarr_level`); `ome.rs` parses the root metadata
+//! (Zarr version, OME-Zarr multiscales, axes and coordinate transformations); `array.rs` opens
+//! an array through zarrs and reads its chunks under the limits above.
+
+mod array;
+mod ome;
+
+pub use ome::{parse_zarr_root, OmeAxis, OmeDataset, OmeMultiscale, ZarrRoot, ZarrVersion};
+
+use super::read::{format_err, io_err, layout, read_prefix};
+use super::{FileFormat, LoadedVolume, StoredType, VolumeMeta, MAX_HEADER_BYTES};
+use crate::volume::{Volume, VolumeError, VoxelData};
+use array::*;
+use glam::Vec3;
+use ome::*;
+use serde_json::{Map, Value};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use zarrs::array::{Array, ArrayCreateError, ArrayError, ElementOwned};
+use zarrs::filesystem::FilesystemStore;
+use zarrs::storage::StorageError;
+
+/// The largest decoded chunk accepted, in bytes: 1 GiB.
+pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
+
+/// Axes an OME-Zarr image may have besides z, y, x (time, channel), each of size 1.
+const MAX_LEADING_AXES: usize = 2;
+
+/// Loads level 0 (the finest) of the OME-Zarr image (or plain Zarr array) at `root`. See the
+/// module docs.
+pub fn load_zarr(root: &Path) -> Result<LoadedVolume, VolumeError> {
+    load_zarr_level(root, 0)
+}
+
+/// Loads level `level` (index into `multiscales[0].datasets`, 0 the finest) of the OME-Zarr
+/// image at `root`; a plain Zarr array has only level 0. A level that does not exist is an
+/// error on the field `datasets`.
+pub fn load_zarr_level(root: &Path, level: usize) -> Result<LoadedVolume, VolumeError> {
+    let meta = std::fs::metadata(root).map_err(io_err(root))?;
+    if !meta.is_dir() {
+        return Err(format_err(
+            root,
+            "zarr_format",
+            "an OME-Zarr image is a folder (holding zarr.json or .zattrs)",
+        ));
+    }
+    let v3_doc = root.join("zarr.json");
+    let (version, root_desc) = if v3_doc.is_file() {
+        let bytes = read_metadata(&v3_doc)?;
+        (
+            ZarrVersion::V3,
+            parse_zarr_root(&v3_doc, &bytes, ZarrVersion::V3)?,
+        )
+    } else if root.join(".zarray").is_file() {
+        (ZarrVersion::V2, ZarrRoot::Array)
+    } else if root.join(".zattrs").is_file() {
+        let attrs = root.join(".zattrs");
+        let bytes = read_metadata(&attrs)?;
+        (
+            ZarrVersion::V2,
+            parse_zarr_root(&attrs, &bytes, ZarrVersion::V2)?,
+        )
+    } else if root.join(".zgroup").is_file() {
+        return Err(format_err(
+            &root.join(".zattrs"),
+            "multiscales",
+            "missing: the Zarr v2 group has no .zattrs, so no OME-Zarr multiscales",
+        ));
+    } else {
+        return Err(format_err(
+            root,
+            "zarr_format",
+            "not a Zarr store: no zarr.json (v3) nor .zattrs / .zgroup / .zarray (v2)",
+        ));
+    };
+    let group_doc = root.join(version.attributes_file());
+    let (dataset, axes) = match root_desc {
+        ZarrRoot::Array => {
+            if level != 0 {
+                return Err(format_err(
+                    root,
+                    "datasets",
+                    format!("level {level} requested, but a plain array has only level 0"),
+                ));
+            }
+            (None, Vec::new())
+        }
+        ZarrRoot::Multiscales(m) => {
+            let count = m.datasets.len();
+            let Some(d) = m.datasets.into_iter().nth(level) else {
+                return Err(format_err(
+                    &group_doc,
+                    "datasets",
+                    format!("level {level} requested, but the image has {count} levels"),
+                ));
+            };
+            (Some(d), m.axes)
+        }
+    };
+    let array_dir = match &dataset {
+        Some(d) => d.path.split('/').fold(root.to_path_buf(), |p, s| p.join(s)),
+        None => root.to_path_buf(),
+    };
+    let array_doc = array_dir.join(version.array_file());
+    let array_text = read_metadata(&array_doc)?;
+    let big_endian = declared_big_endian(&array_text, version);
+
+    let store = FilesystemStore::new(root).map_err(|e| {
+        io_err(root)(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            e.to_string(),
+        ))
+    })?;
+    let node = match &dataset {
+        Some(d) => format!("/{}", d.path),
+        None => "/".to_string(),
+    };
+    let array = Array::open(Arc::new(store), &node)
+        .map_err(|e| array_create_err(&array_doc, version, e))?;
+
+    // Axes and shape.
+    let shape = array.shape().to_vec();
+    let ndim = shape.len();
+    if !axes.is_empty() && axes.len() != ndim {
+        return Err(format_err(
+            &group_doc,
+            "axes",
+            format!(
+                "{} axes, but the array {} has {ndim} dimensions",
+                axes.len(),
+                array_doc.display()
+            ),
+        ));
+    }
+    let shape_field = "shape";
+    if !(3..=3 + MAX_LEADING_AXES).contains(&ndim) {
+        return Err(format_err(
+            &array_doc,
+            shape_field,
+            format!("{ndim} dimensions {shape:?}; a volume needs 3 (z, y, x), after at most {MAX_LEADING_AXES} of size 1"),
+        ));
+    }
+    let lead = ndim - 3;
+    if let Some(i) = (0..lead).find(|&i| shape[i] != 1) {
+        let name = axes
+            .get(i)
+            .map_or_else(|| format!("{i}"), |a| short(&a.name));
+        return Err(format_err(
+            &array_doc,
+            shape_field,
+            format!(
+                "axis {name} has size {} in shape {shape:?}; only one time point / channel can \
+                 be loaded as a volume",
+                shape[i]
+            ),
+        ));
+    }
+    let stored = stored_type(&array, &array_doc, version)?;
+    let dims = [shape[ndim - 1], shape[ndim - 2], shape[ndim - 3]];
+    let lay = layout(&array_doc, shape_field, dims, stored)?;
+
+    // Spacing and origin (x, y, z = the last three axes, reversed).
+    let (spacing, origin) = match &dataset {
+        Some(d) if !d.scale.is_empty() => {
+            if d.scale.len() != ndim {
+                return Err(format_err(
+                    &group_doc,
+                    "coordinateTransformations",
+                    format!(
+                        "{} scale values, but the array has {ndim} dimensions",
+                        d.scale.len()
+                    ),
+                ));
+            }
+            let s = [d.scale[ndim - 1], d.scale[ndim - 2], d.scale[ndim - 3]];
+            let t = [
+                d.translation[ndim - 1],
+                d.translation[ndim - 2],
+                d.translation[ndim - 3],
+            ];
+            (s, t)
+        }
+        _ => ([1.0; 3], [0.0; 3]),
+    };
+    let spacing_f32 = Vec3::from_array(spacing.map(|s| s as f32));
+    if !(spacing_f32.is_finite() && spacing_f32.min_element() > 0.0) {
+        return Err(format_err(
+            &group_doc,
+            "coordinateTransformations",
+            format!("spacing {spacing:?} does not fit in f32"),
+        ));
+    }
+
+    let reader = ChunkReader {
+        array: &array,
+        root,
+        array_doc: &array_doc,
+        version,
+        dims: [dims[0] as usize, dims[1] as usize, dims[2] as usize],
+        count: lay.count,
+        elem_bytes: stored.size_bytes() as u64,
+    };
+    let data = match stored {
+        StoredType::U8 => VoxelData::U8(reader.read::<u8>()?),
+        StoredType::I8 => VoxelData::U8(
+            reader
+                .read::<i8>()?
+                .into_iter()
+                .map(|v| (v as u8) ^ 0x80)
+                .collect(),
+        ),
+        StoredType::U16 => VoxelData::U16(reader.read::<u16>()?),
+        StoredType::I16 => VoxelData::U16(
+            reader
+                .read::<i16>()?
+                .into_iter()
+                .map(|v| (v as u16) ^ 0x8000)
+                .collect(),
+        ),
+        StoredType::U32 => VoxelData::F32(
+            reader
+                .read::<u32>()?
+                .into_iter()
+                .map(|v| v as f32)
+                .collect(),
+        ),
+        StoredType::I32 => VoxelData::F32(
+            reader
+                .read::<i32>()?
+                .into_iter()
+                .map(|v| v as f32)
+                .collect(),
+        ),
+        StoredType::F32 => VoxelData::F32(reader.read::<f32>()?),
+        StoredType::F64 => VoxelData::F32(
+            reader
+                .read::<f64>()?
+                .into_iter()
+                .map(|v| v as f32)
+                .collect(),
+        ),
+    };
+    let mut meta = VolumeMeta::plain(FileFormat::Zarr, stored, big_endian);
+    meta.origin = origin;
+    Ok(LoadedVolume {
+        volume: Volume::new(lay.dims, spacing_f32, data)?,
+        meta,
+    })
+}

@@ -9,7 +9,7 @@ use mixvol::lod::{ClipPlane, ClipPlanes};
 use mixvol::optics::{SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::{ReferenceCache, Transition};
 use mixvol::renderer::MixedConfig;
-use mixvol::renderer::{Renderer, TargetFormat};
+use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, Projection, Reconstruction, RenderMode, RenderSettings, Shading};
 use mixvol::volume::formats::{load_zarr_level, FileFormat};
 use mixvol::volume::{load_raw, RawDescriptor, ScalarType, SyntheticField, Volume};
@@ -464,7 +464,7 @@ fn render(args: &RenderArgs) -> Result<()> {
     let volume = Arc::new(volume);
     let mut reference_cache = None;
     match args.mixed.levels {
-        None => renderer.set_volume(&volume)?,
+        None => renderer.set_source(VolumeSource::Volume(&volume))?,
         Some(pattern) => {
             let config = MixedConfig {
                 brick_size: args.mixed.brick_size,
@@ -472,7 +472,10 @@ fn render(args: &RenderArgs) -> Result<()> {
                 transition: transition_of(args.mixed.transition),
                 ..MixedConfig::default()
             };
-            renderer.set_mixed_volume(volume.clone(), config)?;
+            renderer.set_source(VolumeSource::Mixed {
+                volume: volume.clone(),
+                config,
+            })?;
             let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)
                 .map_err(|e| Error::InvalidInput(e.to_string()))?;
             let levels = level_pattern(&grid, pattern);
@@ -682,14 +685,14 @@ fn junction(args: &JunctionArgs) -> Result<()> {
     for transition in [Transition::Discontinuous, Transition::Smooth] {
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
         renderer.set_transfer_function(&tf)?;
-        renderer.set_mixed_volume(
-            volume.clone(),
-            MixedConfig {
+        renderer.set_source(VolumeSource::Mixed {
+            volume: volume.clone(),
+            config: MixedConfig {
                 brick_size: 16,
                 transition,
                 ..MixedConfig::default()
             },
-        )?;
+        })?;
         renderer.set_levels(&levels)?;
         let frame = renderer.render(&camera, &settings, args.size, args.size)?;
         halves.push(frame.to_rgba8(Vec3::splat(0.08)));
@@ -743,7 +746,7 @@ fn bench(args: &BenchArgs) -> Result<()> {
     renderer.set_transfer_function(&TransferFunction::preset(r.tf))?;
     let mut patterns = Vec::new();
     match r.mixed.levels {
-        None => renderer.set_volume(&volume)?,
+        None => renderer.set_source(VolumeSource::Volume(&volume))?,
         Some(pattern) => {
             let config = MixedConfig {
                 brick_size: r.mixed.brick_size,
@@ -751,7 +754,10 @@ fn bench(args: &BenchArgs) -> Result<()> {
                 transition: transition_of(r.mixed.transition),
                 ..MixedConfig::default()
             };
-            renderer.set_mixed_volume(volume.clone(), config)?;
+            renderer.set_source(VolumeSource::Mixed {
+                volume: volume.clone(),
+                config,
+            })?;
             let grid = BrickGrid::new(volume.dims(), r.mixed.brick_size)
                 .map_err(|e| Error::InvalidInput(e.to_string()))?;
             patterns.push(level_pattern(&grid, pattern));

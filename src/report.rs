@@ -15,7 +15,7 @@ use crate::lod::{
 };
 use crate::optics::TransferFunction;
 use crate::reference::Transition;
-use crate::renderer::{Renderer, TargetFormat};
+use crate::renderer::{Renderer, TargetFormat, VolumeSource};
 use crate::scene::{Camera, RenderSettings};
 use crate::volume::Volume;
 use glam::Vec4;
@@ -159,7 +159,7 @@ pub fn accuracy_report(
 ) -> Result<Report> {
     let mut single = Renderer::new(ctx, TargetFormat::Rgba32Float)?;
     single.set_transfer_function(tf)?;
-    single.set_volume(&volume)?;
+    single.set_source(VolumeSource::Volume(&volume))?;
     let fine = RenderSettings {
         samples_per_voxel: 8.0,
         ..RenderSettings::default()
@@ -201,14 +201,14 @@ pub fn accuracy_report(
             levels_for_fraction(&volume, &grid, tf, &options.camera, options.size, fraction)?;
         let mut renderer = Renderer::new(ctx, TargetFormat::Rgba32Float)?;
         renderer.set_transfer_function(tf)?;
-        renderer.set_mixed_volume(
-            volume.clone(),
-            MixedConfig {
+        renderer.set_source(VolumeSource::Mixed {
+            volume: volume.clone(),
+            config: MixedConfig {
                 brick_size: options.brick_size,
                 transition,
                 ..MixedConfig::default()
             },
-        )?;
+        })?;
         let report = renderer.set_levels(&levels)?;
         let (ms, pixels) = timed(&mut renderer, options, &settings)?;
         let e = rmse(&pixels, &reference);

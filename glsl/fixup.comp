@@ -46,7 +46,7 @@ void main() {
     t[(axis + 2) % 3] = uv.y;
 
     uint slot = fixup_slots[job];
-    uint brick_index = reverse_entries[slot * 8u];
+    uint brick_index = reverse_entries[slot * uint(SUB_SLOTS_PER_SLOT)];
     ivec3 brick = unflatten(brick_index, pc.bricks.xyz);
     ivec3 slot_origin = unflatten(slot, pc.slots_per_axis.xyz) * extent;
     uint bits = neighbour_bits[brick_index];

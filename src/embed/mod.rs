@@ -1,9 +1,10 @@
 //! The volume pass, embeddable in a host engine's Vulkan frame.
 //!
-//! The pass is a folder: this file holds the contract below, the pass and its [`VolumePass::record`];
-//! `source` what is drawn ([`VolumeSource`], given to [`VolumePass::set_source`]) and residency
-//! changes; `tables` the transfer-function and pre-integration tables; `frames` the frame slots
-//! and their timings. Every Vulkan command is recorded through the safe types of [`crate::gpu`].
+//! The pass is a folder: this file holds the contract below, the pass and its
+//! [`VolumePass::record`]; `source` what is drawn ([`VolumeSource`], given to
+//! [`VolumePass::set_source`]) and residency changes; `tables` the transfer-function and
+//! pre-integration tables; `frames` the frame slots and their timings. Every Vulkan command is
+//! recorded through the safe types of [`crate::gpu`].
 //!
 //! [`VolumePass`] records everything it does into a command buffer the caller owns: staged
 //! uploads (volume, brick cache, transfer function), the fixup pass, and the ray-cast, which

@@ -61,6 +61,36 @@ pub enum VolumeSource<'a> {
     },
 }
 
+/// Names the kind of source and its size (not the voxels).
+impl std::fmt::Debug for VolumeSource<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            VolumeSource::Volume(v) => f.debug_struct("Volume").field("dims", &v.dims()).finish(),
+            VolumeSource::Rgba(v) => f.debug_struct("Rgba").field("dims", &v.dims()).finish(),
+            VolumeSource::Mixed { volume, config } => f
+                .debug_struct("Mixed")
+                .field("dims", &volume.dims())
+                .field("config", config)
+                .finish(),
+            VolumeSource::Bricks { source, config } => f
+                .debug_struct("Bricks")
+                .field("dims", &source.grid().dims())
+                .field("config", config)
+                .finish(),
+            VolumeSource::RgbaMixed {
+                volume,
+                model,
+                config,
+            } => f
+                .debug_struct("RgbaMixed")
+                .field("dims", &volume.dims())
+                .field("model", model)
+                .field("config", config)
+                .finish(),
+        }
+    }
+}
+
 /// How a volume is rendered through the brick cache.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct MixedConfig {
@@ -300,23 +330,25 @@ impl VolumePass {
             }
             VolumeSource::Mixed { volume, config } => {
                 let source = VolumeBrickSource::new(volume, config.brick_size, config.filter)?;
-                self.set_brick_source(Arc::new(source), config, None)
+                self.attach_brick_source(Arc::new(source), config, None)
             }
-            VolumeSource::Bricks { source, config } => self.set_brick_source(source, config, None),
+            VolumeSource::Bricks { source, config } => {
+                self.attach_brick_source(source, config, None)
+            }
             VolumeSource::RgbaMixed {
                 volume,
                 model,
                 config,
             } => {
                 let source = RgbaBrickSource::new(volume, model, config.brick_size, config.filter)?;
-                self.set_brick_source(Arc::new(source), config, Some(model))
+                self.attach_brick_source(Arc::new(source), config, Some(model))
             }
         }
     }
 
     /// Renders bricks from `source` through a new brick cache (`rgba_model`: the sampling model
     /// of pre-classified RGBA bricks).
-    fn set_brick_source(
+    fn attach_brick_source(
         &mut self,
         source: Arc<dyn BrickSource>,
         config: MixedConfig,

@@ -14,6 +14,7 @@ use super::shared_defs::{
     PROBE_BINDING_NEIGHBOUR_TABLE, PROBE_BINDING_POINTS, PROBE_BINDING_VALUES, PROBE_GROUP_SIZE,
 };
 use super::upload::{record_image_readback, CopyRegion, StagingUpload};
+use crate::cache::SUB_SLOTS_PER_SLOT;
 use crate::error::{Error, Result};
 use crate::volume::ScalarType;
 use ash::vk;
@@ -41,6 +42,9 @@ pub(crate) fn cache_format(
     })
 }
 
+/// One reverse-table entry: the bricks in a cache slot (`SUB_SLOTS_PER_SLOT` words in GLSL).
+type ReverseEntry = [u32; SUB_SLOTS_PER_SLOT as usize];
+
 /// One brick's worth of texels to copy into the cache.
 pub(crate) struct CacheRegion<'a> {
     /// Destination texel origin.
@@ -55,7 +59,7 @@ pub(crate) struct CacheRegion<'a> {
 pub(crate) struct CacheTables<'a> {
     pub(crate) layout: &'a [[f32; 4]],
     pub(crate) neighbours: &'a [u32],
-    pub(crate) reverse: &'a [[u32; 8]],
+    pub(crate) reverse: &'a [ReverseEntry],
     pub(crate) fixup_slots: &'a [u32],
     pub(crate) bricks: UVec3,
     pub(crate) brick_size: u32,
@@ -102,7 +106,7 @@ struct SlotTables {
 struct OwnedTables {
     layout: Vec<[f32; 4]>,
     neighbours: Vec<u32>,
-    reverse: Vec<[u32; 8]>,
+    reverse: Vec<ReverseEntry>,
     fixup_slots: Vec<u32>,
 }
 
@@ -199,7 +203,11 @@ impl GpuBrickCache {
                 Ok(SlotTables {
                     layout: host_buffer(shared, "layout table", brick_count * 16)?,
                     neighbours: host_buffer(shared, "neighbour table", brick_count * 4)?,
-                    reverse: host_buffer(shared, "reverse table", slot_count * 32)?,
+                    reverse: host_buffer(
+                        shared,
+                        "reverse table",
+                        slot_count * std::mem::size_of::<ReverseEntry>(),
+                    )?,
                     jobs: host_buffer(shared, "fixup jobs", slot_count * 4)?,
                     version: 0,
                 })

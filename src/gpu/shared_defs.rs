@@ -4,9 +4,11 @@
 //!   constants; [`defines`] turns them into GLSL macros, which [`super::shaders::compile`] adds to
 //!   every compile of the crate's shaders, so the GLSL names them (`BINDING_VOLUME`,
 //!   `MAX_CLIP_PLANES`, ...) and never writes the number by hand. Some live with the code they
-//!   belong to and are only referenced here: the clip-plane limit ([`crate::lod::MAX_CLIP_PLANES`]),
-//!   the iso bisection count ([`crate::reference::ISO_BISECTIONS`]), the transfer-function table
-//!   size ([`crate::optics::TF_SIZE`]) and the ray-direction epsilon
+//!   belong to and are only referenced here: the clip-plane limit
+//!   ([`crate::lod::MAX_CLIP_PLANES`]), the iso bisection count
+//!   ([`crate::reference::ISO_BISECTIONS`]), the words of a reverse-table entry
+//!   ([`crate::cache::SUB_SLOTS_PER_SLOT`]), the transfer-function table size
+//!   ([`crate::optics::TF_SIZE`]) and the ray-direction epsilon
 //!   ([`crate::scene::RAY_DIR_EPSILON`]).
 //! - **Blocks** the shaders read (the uniform parameter block [`crate::scene::RaycastParams`],
 //!   the push constants of `fixup.comp` and `probe.comp`) have their size and every field's
@@ -80,6 +82,10 @@ pub fn defines() -> Vec<(&'static str, String)> {
         (
             "ISO_BISECTIONS",
             crate::reference::ISO_BISECTIONS.to_string(),
+        ),
+        (
+            "SUB_SLOTS_PER_SLOT",
+            crate::cache::SUB_SLOTS_PER_SLOT.to_string(),
         ),
     ];
     for (name, value) in [
@@ -185,6 +191,7 @@ mod tests {
             || token.starts_with("MAX_")
             || token.ends_with("_GROUP_SIZE")
             || token.ends_with("_PER_JOB")
+            || token.ends_with("_PER_SLOT")
             || token.ends_with("BISECTIONS")
     }
 

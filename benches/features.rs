@@ -15,7 +15,7 @@ use mixvol::cache::Level;
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::optics::{SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::Transition;
-use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
+use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{
     Camera, ClipPlane, ClipPlanes, Reconstruction, RenderMode, RenderSettings, Shading,
 };
@@ -170,22 +170,22 @@ fn main() -> mixvol::Result<()> {
     );
     let mut single = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     single.set_transfer_function(&tf)?;
-    single.set_volume(&volume)?;
+    single.set_source(VolumeSource::Volume(&volume))?;
     measure("single resolution", &mut single, &camera, size, rounds)?;
     drop(single);
 
     let brick_size = 32;
     let mut mixed = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     mixed.set_transfer_function(&tf)?;
-    mixed.set_mixed_volume(
-        volume.clone(),
-        MixedConfig {
+    mixed.set_source(VolumeSource::Mixed {
+        volume: volume.clone(),
+        config: MixedConfig {
             brick_size,
             filter: DownsampleFilter::Mean2,
             cache_budget_bytes: 256 << 20,
             transition: Transition::Smooth,
         },
-    )?;
+    })?;
     let grid = BrickGrid::new(volume.dims(), brick_size).expect("valid grid");
     let levels: Vec<Level> = (0..grid.brick_count())
         .map(|i| {

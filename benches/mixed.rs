@@ -20,7 +20,7 @@ use mixvol::cache::Level;
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::Transition;
-use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
+use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Shading};
 use mixvol::volume::{ScalarType, SyntheticField};
 use std::sync::Arc;
@@ -55,21 +55,21 @@ fn main() -> mixvol::Result<()> {
     let mixed = |transition, levels: &[Level]| -> mixvol::Result<Renderer> {
         let mut r = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
         r.set_transfer_function(&tf)?;
-        r.set_mixed_volume(
-            volume.clone(),
-            MixedConfig {
+        r.set_source(VolumeSource::Mixed {
+            volume: volume.clone(),
+            config: MixedConfig {
                 brick_size,
                 filter: DownsampleFilter::Mean2,
                 cache_budget_bytes: 64 << 20,
                 transition,
             },
-        )?;
+        })?;
         r.set_levels(levels)?;
         Ok(r)
     };
     let mut plain = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     plain.set_transfer_function(&tf)?;
-    plain.set_volume(&volume)?;
+    plain.set_source(VolumeSource::Volume(&volume))?;
     let mut configs: Vec<(&str, Renderer)> = vec![
         ("plain single-texture ray-cast", plain),
         (

@@ -38,7 +38,7 @@ use mixvol::lod::{
 };
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::Transition;
-use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
+use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, ClipPlanes, RenderSettings};
 use mixvol::store::{
     request_plan, write_store, write_store_from_volume, BrickStreamer, StoreDesc, StreamerConfig,
@@ -267,7 +267,8 @@ fn first_frames(dir: &Path, cold: bool) {
         r.set_transfer_function(&tf).expect("tf");
         let s =
             Arc::new(BrickStreamer::open(&path, StreamerConfig::default()).expect("open store"));
-        r.set_brick_source(s, config).expect("source");
+        r.set_source(VolumeSource::Bricks { source: s, config })
+            .expect("source");
         r.render(&camera, &settings, SIZE, SIZE).expect("render");
     }
     println!(
@@ -294,7 +295,10 @@ fn first_frames(dir: &Path, cold: bool) {
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm).expect("renderer");
         renderer.set_transfer_function(&tf).expect("tf");
         renderer
-            .set_brick_source(streamer.clone(), config)
+            .set_source(VolumeSource::Bricks {
+                source: streamer.clone(),
+                config,
+            })
             .expect("source");
         let slots = renderer
             .brick_cache()

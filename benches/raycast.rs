@@ -11,7 +11,7 @@ use common::{env_u32, median};
 use glam::{UVec3, Vec3};
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::optics::{TfPreset, TransferFunction};
-use mixvol::renderer::{Renderer, TargetFormat};
+use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings};
 use mixvol::volume::{ScalarType, SyntheticField};
 
@@ -21,7 +21,7 @@ fn main() -> mixvol::Result<()> {
     let ctx = GpuContext::new(&ContextDesc::default())?;
     let volume = SyntheticField::MarschnerLobb.generate(UVec3::splat(128), ScalarType::U8)?;
     let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float)?;
-    renderer.set_volume(&volume)?;
+    renderer.set_source(VolumeSource::Volume(&volume))?;
     renderer.set_transfer_function(&TransferFunction::preset(TfPreset::Fire))?;
     let camera = Camera::perspective(Vec3::new(1.0, 1.3, 1.4), Vec3::ZERO, 35.0);
     let settings = |spv: f32| RenderSettings {

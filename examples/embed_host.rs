@@ -13,7 +13,7 @@ use gpu_allocator::vulkan::{
     Allocation, AllocationCreateDesc, AllocationScheme, Allocator, AllocatorCreateDesc,
 };
 use gpu_allocator::MemoryLocation;
-use mixvol::embed::{HostDepth, PassDesc, PassTarget, TargetLoad, VolumePass};
+use mixvol::embed::{HostDepth, PassDesc, PassTarget, TargetLoad, VolumePass, VolumeSource};
 use mixvol::gpu::{shaders::compile_source, GpuContext, HostDevice, ShaderStage};
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::scene::{Camera, RenderSettings};
@@ -405,7 +405,7 @@ pub fn run() -> Result<HostReport, BoxError> {
             frames_in_flight: 2,
         },
     )?;
-    pass.set_volume(&volume())?;
+    pass.set_source(VolumeSource::Volume(&volume()))?;
     pass.set_transfer_function(&TransferFunction::preset(TfPreset::ConstantWhite));
     let settings = RenderSettings {
         early_termination: 2.0,

@@ -2,17 +2,19 @@
 // Border fixup: for every hi-res brick with a low-res neighbour, rewrite its duplicated border
 // texels to the nearest low-res sample of the first low-res neighbour (faces, then edges, then the
 // corner). Original samples are never touched. Mirrors `fixup_value` in src/reference/mixed.rs.
-// One workgroup layer per (job, face): the z workgroup index is job * 6 + face.
+// One workgroup layer per (job, face): the z workgroup index is job * FIXUP_FACES_PER_JOB + face.
+// Bindings, group sizes and the push-constant block: src/gpu/shared_defs.rs.
 #include "include/neighbours.glsl"
 
-layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
+layout(local_size_x = FIXUP_GROUP_SIZE, local_size_y = FIXUP_GROUP_SIZE, local_size_z = 1) in;
 
-layout(set = 0, binding = 0, CACHE_IMAGE_FORMAT) uniform image3D cache_image;
-layout(std430, set = 0, binding = 1) readonly buffer LayoutTable { vec4 layout_entries[]; };
-layout(std430, set = 0, binding = 2) readonly buffer NeighbourTable { uint neighbour_bits[]; };
-layout(std430, set = 0, binding = 3) readonly buffer ReverseTable { uint reverse_entries[]; };
-layout(std430, set = 0, binding = 4) readonly buffer FixupJobs { uint fixup_slots[]; };
+layout(set = 0, binding = FIXUP_BINDING_CACHE, CACHE_IMAGE_FORMAT) uniform image3D cache_image;
+layout(std430, set = 0, binding = FIXUP_BINDING_LAYOUT_TABLE) readonly buffer LayoutTable { vec4 layout_entries[]; };
+layout(std430, set = 0, binding = FIXUP_BINDING_NEIGHBOUR_TABLE) readonly buffer NeighbourTable { uint neighbour_bits[]; };
+layout(std430, set = 0, binding = FIXUP_BINDING_REVERSE_TABLE) readonly buffer ReverseTable { uint reverse_entries[]; };
+layout(std430, set = 0, binding = FIXUP_BINDING_JOBS) readonly buffer FixupJobs { uint fixup_slots[]; };
 
+// Mirrors `FixupPush` in src/gpu/shared_defs.rs (32 bytes).
 layout(push_constant) uniform FixupParams {
     ivec4 bricks;          // xyz: bricks per axis; w: brick size n
     ivec4 slots_per_axis;  // xyz: cache slots per axis; w: number of jobs
@@ -26,8 +28,8 @@ ivec3 unflatten(uint index, ivec3 dims) {
 }
 
 void main() {
-    uint job = gl_WorkGroupID.z / 6u;
-    int face = int(gl_WorkGroupID.z % 6u);
+    uint job = gl_WorkGroupID.z / uint(FIXUP_FACES_PER_JOB);
+    int face = int(gl_WorkGroupID.z % uint(FIXUP_FACES_PER_JOB));
     if (job >= uint(pc.slots_per_axis.w)) {
         return;
     }
@@ -44,7 +46,7 @@ void main() {
     t[(axis + 2) % 3] = uv.y;
 
     uint slot = fixup_slots[job];
-    uint brick_index = reverse_entries[slot * 8u];
+    uint brick_index = reverse_entries[slot * uint(SUB_SLOTS_PER_SLOT)];
     ivec3 brick = unflatten(brick_index, pc.bricks.xyz);
     ivec3 slot_origin = unflatten(slot, pc.slots_per_axis.xyz) * extent;
     uint bits = neighbour_bits[brick_index];

@@ -3,14 +3,15 @@
 // units): the same functions the ray-caster uses, so tests can check the field itself.
 // Output per point: x = value, y = 1 when the point lies in a resident brick, 0 otherwise.
 
-layout(local_size_x = 64) in;
+layout(local_size_x = PROBE_GROUP_SIZE) in;
 
-layout(set = 0, binding = 0) uniform sampler3D cache_tex;
-layout(std430, set = 0, binding = 1) readonly buffer LayoutTable { vec4 layout_entries[]; };
-layout(std430, set = 0, binding = 2) readonly buffer NeighbourTable { uint neighbour_bits[]; };
-layout(std430, set = 0, binding = 3) readonly buffer Points { vec4 points[]; };
-layout(std430, set = 0, binding = 4) writeonly buffer Values { vec2 values[]; };
+layout(set = 0, binding = PROBE_BINDING_CACHE) uniform sampler3D cache_tex;
+layout(std430, set = 0, binding = PROBE_BINDING_LAYOUT_TABLE) readonly buffer LayoutTable { vec4 layout_entries[]; };
+layout(std430, set = 0, binding = PROBE_BINDING_NEIGHBOUR_TABLE) readonly buffer NeighbourTable { uint neighbour_bits[]; };
+layout(std430, set = 0, binding = PROBE_BINDING_POINTS) readonly buffer Points { vec4 points[]; };
+layout(std430, set = 0, binding = PROBE_BINDING_VALUES) writeonly buffer Values { vec2 values[]; };
 
+// Mirrors `ProbePush` in src/gpu/shared_defs.rs (32 bytes).
 layout(push_constant) uniform ProbeParams {
     vec4 volume_dims;      // xyz: volume dimensions; w: brick size n
     vec4 cache_extent_inv; // xyz: 1 / cache extent in texels; w: number of points

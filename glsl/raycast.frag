@@ -10,18 +10,18 @@
 #include "include/optics.glsl"
 #include "include/sampling.glsl"
 
-layout(set = 0, binding = 0, std140) uniform Params {
+layout(set = 0, binding = BINDING_PARAMS, std140) uniform Params {
     RaycastParams params;
 };
-layout(set = 0, binding = 2) uniform sampler1D tf_tex;
+layout(set = 0, binding = BINDING_TF) uniform sampler1D tf_tex;
 
 layout(location = 0) out vec4 out_color;
 
 #ifdef HOST_DEPTH
-layout(set = 0, binding = 5) uniform sampler2D depth_tex;
+layout(set = 0, binding = BINDING_HOST_DEPTH) uniform sampler2D depth_tex;
 #endif
 #ifdef PREINTEGRATED
-layout(set = 0, binding = 6) uniform sampler2D preint_tex;
+layout(set = 0, binding = BINDING_PREINTEGRATION) uniform sampler2D preint_tex;
 #endif
 
 // The far end of the ray: the volume box exit, the far plane and (HOST_DEPTH) the host's depth.
@@ -35,9 +35,9 @@ float ray_end(Ray ray, float box_exit) {
 }
 
 #ifdef MIXED_RESOLUTION
-layout(set = 0, binding = 1) uniform sampler3D cache_tex;
-layout(std430, set = 0, binding = 3) readonly buffer LayoutTable { vec4 layout_entries[]; };
-layout(std430, set = 0, binding = 4) readonly buffer NeighbourTable { uint neighbour_bits[]; };
+layout(set = 0, binding = BINDING_VOLUME) uniform sampler3D cache_tex;
+layout(std430, set = 0, binding = BINDING_LAYOUT_TABLE) readonly buffer LayoutTable { vec4 layout_entries[]; };
+layout(std430, set = 0, binding = BINDING_NEIGHBOUR_TABLE) readonly buffer NeighbourTable { uint neighbour_bits[]; };
 
 #ifdef RGBA_VOLUME
 #define FIELD vec4
@@ -101,7 +101,7 @@ float field_at(vec3 x, out bool present) {
 }
 #else
 #include "include/sampling.glsl"
-layout(set = 0, binding = 1) uniform sampler3D volume_tex;
+layout(set = 0, binding = BINDING_VOLUME) uniform sampler3D volume_tex;
 
 // The reconstructed field at voxel position x (clamp-to-edge outside the volume); for an RGBA
 // volume its coefficient channel (unused: RGBA volumes have no gradient effects).

@@ -9,7 +9,8 @@
 //! - [`optics`]: transfer functions, opacity correction, compositing.
 //! - [`scene`]: camera, render settings and the per-frame parameter block.
 //! - [`reference`](mod@reference): the CPU reference ray-caster (the oracle for every GPU test).
-//! - [`gpu`]: the ash backend (context, memory, shaders, ray-cast pipeline).
+//! - [`gpu`]: the ash backend (context, memory, uploads, shaders and the definitions they share
+//!   with Rust, ray-cast pipeline).
 //! - [`embed`]: the volume pass recorded into a host engine's command buffers.
 //! - [`renderer`]: the offscreen façade that turns a volume + scene into an image.
 //! - [`store`]: the on-disk brick store (preprocessing) and background brick streaming.

@@ -1,22 +1,20 @@
 //! The façade: a volume, a transfer function and a camera in, an image and its timing out.
 
 use crate::cache::{BrickCache, Level};
-pub use crate::embed::{MixedConfig, ResidencyReport};
+pub use crate::embed::{MixedConfig, ResidencyReport, VolumeSource};
 use crate::embed::{PassDesc, PassTarget, TargetLoad, VolumePass};
-use crate::error::{Error, Result, VkResultExt};
+use crate::error::{Error, Result};
 use crate::gpu::{
-    image_barrier, memory_barrier, Access, Buffer, FieldProbe, GpuContext, Image, ImageDesc,
-    RaycastVariant, Submitter, COLOR_LAYERS,
+    image_barrier, record_image_readback, Access, Buffer, FieldProbe, GpuContext, Image, ImageDesc,
+    RaycastVariant, Submitter,
 };
 use crate::optics::TransferFunction;
 use crate::reference::Transition;
 use crate::scene::{Camera, RaycastParams, RenderSettings};
-use crate::volume::Volume;
 use ash::vk;
 use glam::{Vec3, Vec4};
 use gpu_allocator::MemoryLocation;
 use std::path::Path;
-use std::sync::Arc;
 use std::time::Instant;
 
 /// Format of the offscreen colour target.
@@ -173,50 +171,20 @@ impl Renderer {
         self.submitter.run(|_, cmd| pass.record_updates(cmd, 0))
     }
 
-    /// Uploads `volume` into a 3D image (replacing any previous source).
-    pub fn set_volume(&mut self, volume: &Volume) -> Result<()> {
+    /// Draws `source` from now on, replacing any previous source (see
+    /// [`VolumePass::set_source`]). A plain volume is uploaded at once (and waited for); for a
+    /// brick-cache source call [`Renderer::set_levels`] to make bricks resident.
+    pub fn set_source(&mut self, source: VolumeSource<'_>) -> Result<()> {
         self.probe = None;
-        self.pass.set_volume(volume)?;
-        self.flush()
+        let upload_now = matches!(source, VolumeSource::Volume(_));
+        self.pass.set_source(source)?;
+        if upload_now {
+            self.flush()?;
+        }
+        Ok(())
     }
 
-    /// Renders the pre-classified `volume` from now on (see [`VolumePass::set_rgba_volume`]).
-    pub fn set_rgba_volume(&mut self, volume: Arc<crate::volume::RgbaVolume>) -> Result<()> {
-        self.probe = None;
-        self.pass.set_rgba_volume(volume)
-    }
-
-    /// Renders the pre-classified `volume` through a brick cache holding `model`-weighted data
-    /// from now on (see [`VolumePass::set_rgba_mixed_volume`]); call [`Renderer::set_levels`].
-    pub fn set_rgba_mixed_volume(
-        &mut self,
-        volume: &crate::volume::RgbaVolume,
-        model: crate::optics::SamplingModel,
-        config: MixedConfig,
-    ) -> Result<()> {
-        self.probe = None;
-        self.pass.set_rgba_mixed_volume(volume, model, config)
-    }
-
-    /// Renders `volume` through a brick cache from now on (see [`VolumePass::set_mixed_volume`]);
-    /// call [`Renderer::set_levels`] to make bricks resident.
-    pub fn set_mixed_volume(&mut self, volume: Arc<Volume>, config: MixedConfig) -> Result<()> {
-        self.probe = None;
-        self.pass.set_mixed_volume(volume, config)
-    }
-
-    /// Renders bricks from `source` (e.g. a [`crate::store::BrickStreamer`]) through the brick
-    /// cache (see [`VolumePass::set_brick_source`]).
-    pub fn set_brick_source(
-        &mut self,
-        source: Arc<dyn crate::store::BrickSource>,
-        config: MixedConfig,
-    ) -> Result<()> {
-        self.probe = None;
-        self.pass.set_brick_source(source, config)
-    }
-
-    /// The brick grid and cache model of the mixed-resolution volume, if one is set.
+    /// The brick grid and cache model of the brick-cache source, if one is set.
     pub fn brick_cache(&self) -> Option<&BrickCache> {
         self.pass.brick_cache()
     }
@@ -248,7 +216,7 @@ impl Renderer {
     pub fn probe_field(&mut self, points: &[Vec3]) -> Result<Vec<Option<f32>>> {
         let Some(state) = self.pass.mixed_state_mut() else {
             return Err(Error::InvalidInput(
-                "probe_field needs set_mixed_volume first".into(),
+                "probe_field needs a brick-cache source (set_source) first".into(),
             ));
         };
         if self.probe.is_none() {
@@ -272,7 +240,7 @@ impl Renderer {
     pub fn read_cache(&mut self) -> Result<Vec<f32>> {
         let Some(state) = self.pass.mixed_state_mut() else {
             return Err(Error::InvalidInput(
-                "read_cache needs set_mixed_volume first".into(),
+                "read_cache needs a brick-cache source (set_source) first".into(),
             ));
         };
         let bytes = state.gpu.read_back(&mut self.submitter)?;
@@ -386,29 +354,14 @@ impl Renderer {
                 camera,
                 settings,
             )?);
-            image_barrier(
+            record_image_readback(
                 device,
                 cmd,
-                target.image.raw,
+                &target.image,
+                &target.readback,
                 Access::ColorAttachmentWrite,
-                Access::TransferRead,
-            );
-            let copy = vk::BufferImageCopy::default()
-                .image_subresource(COLOR_LAYERS)
-                .image_extent(target.image.desc.extent);
-            // SAFETY: the readback buffer holds the whole image, which is in
-            // TRANSFER_SRC_OPTIMAL after the barrier; `cmd` is recording.
-            unsafe {
-                device.cmd_copy_image_to_buffer(
-                    cmd,
-                    target.image.raw,
-                    vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
-                    target.readback.raw,
-                    &[copy],
-                )
-            };
-            memory_barrier(device, cmd, Access::TransferWrite, Access::HostRead);
-            Ok(())
+                None,
+            )
         })?;
         let recorded = recorded.expect("recorded in the submission");
         let timings = self.pass.timings(0)?;
@@ -445,16 +398,7 @@ impl Renderer {
 
 impl Drop for Renderer {
     fn drop(&mut self) {
-        // SAFETY: waiting idle on a live device (holding the queue lock, since idle waits need
-        // external queue synchronisation); afterwards no GPU work uses our objects, which the
-        // field drops then destroy.
-        let _queue = self
-            .ctx
-            .shared
-            .queue_lock
-            .lock()
-            .unwrap_or_else(|e| e.into_inner());
-        // SAFETY: see above.
-        let _ = unsafe { self.ctx.shared.device.device_wait_idle() }.vk("vkDeviceWaitIdle");
+        // Afterwards no GPU work uses our objects, which the field drops then destroy.
+        let _ = self.ctx.shared.wait_idle();
     }
 }

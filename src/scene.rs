@@ -327,7 +327,7 @@ impl Default for RenderSettings {
 }
 
 /// The per-frame parameter block, std140-compatible: vec4 fields and one mat4 (368 bytes). Mirrors `RaycastParams`
-/// in `glsl/include/params.glsl`.
+/// in `glsl/include/params.glsl`; size and field offsets are checked in [`crate::gpu::shared_defs`].
 #[repr(C)]
 #[derive(Copy, Clone, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct RaycastParams {
@@ -362,8 +362,6 @@ pub struct RaycastParams {
     /// Inverse of the host's `clip_from_world` (used only when rays stop at a host depth buffer).
     pub world_from_clip: Mat4,
 }
-
-const _: () = assert!(std::mem::size_of::<RaycastParams>() == 368);
 
 /// The world-space box of a volume: centred, longest physical side 1.
 pub fn volume_box(dims: UVec3, spacing: Vec3) -> (Vec3, Vec3) {

@@ -1,10 +1,24 @@
 //! Runs the embedding example host and checks depth-correct compositing analytically: where the
 //! host's opaque quad (plane z = 0, left half of the image) is in front of the back half of the
 //! volume, rays stop at it and the volume (16 voxels of it) composites over the quad; elsewhere
-//! the whole 32-voxel path composites over the background.
+//! the whole 32-voxel path composites over the background. And a host of its own with frames in
+//! flight: residency changes between frames and a resize, clean under synchronization validation.
 
+mod common;
 #[path = "../examples/embed_host.rs"]
 mod embed_host;
+
+use ash::vk;
+use glam::{UVec3, Vec3};
+use gpu_allocator::vulkan::{
+    Allocation, AllocationCreateDesc, AllocationScheme, Allocator, AllocatorCreateDesc,
+};
+use gpu_allocator::MemoryLocation;
+use mixvol::cache::Level;
+use mixvol::embed::{MixedConfig, PassDesc, PassTarget, TargetLoad, VolumePass, VolumeSource};
+use mixvol::scene::{Camera, RenderSettings};
+use mixvol::volume::{ScalarType, SyntheticField};
+use std::sync::Arc;
 
 fn channel_close(actual: u8, expected: f32) -> bool {
     (actual as f32 - expected * 255.0).abs() <= 2.5
@@ -55,4 +69,274 @@ fn volume_composites_over_host_geometry_and_stops_at_its_depth() {
         !channel_close(px(16, 32)[1], full_over_quad[1]),
         "rays did not stop at the depth"
     );
+}
+
+/// A colour target the test host owns: image, view and memory from the host's own allocator.
+struct HostTarget {
+    image: vk::Image,
+    view: vk::ImageView,
+    allocation: Option<Allocation>,
+}
+
+impl HostTarget {
+    fn new(device: &ash::Device, allocator: &mut Allocator, size: u32) -> HostTarget {
+        let format = vk::Format::R8G8B8A8_UNORM;
+        let info = vk::ImageCreateInfo::default()
+            .image_type(vk::ImageType::TYPE_2D)
+            .format(format)
+            .extent(vk::Extent3D {
+                width: size,
+                height: size,
+                depth: 1,
+            })
+            .mip_levels(1)
+            .array_layers(1)
+            .samples(vk::SampleCountFlags::TYPE_1)
+            .tiling(vk::ImageTiling::OPTIMAL)
+            .usage(vk::ImageUsageFlags::COLOR_ATTACHMENT);
+        // SAFETY: valid create info on a live device.
+        let image = unsafe { device.create_image(&info, None) }.unwrap();
+        // SAFETY: `image` was just created.
+        let requirements = unsafe { device.get_image_memory_requirements(image) };
+        let allocation = allocator
+            .allocate(&AllocationCreateDesc {
+                name: "test target",
+                requirements,
+                location: MemoryLocation::GpuOnly,
+                linear: false,
+                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+            })
+            .unwrap();
+        // SAFETY: memory from an allocation made for these requirements.
+        unsafe { device.bind_image_memory(image, allocation.memory(), allocation.offset()) }
+            .unwrap();
+        let view_info = vk::ImageViewCreateInfo::default()
+            .image(image)
+            .view_type(vk::ImageViewType::TYPE_2D)
+            .format(format)
+            .subresource_range(COLOR_RANGE);
+        // SAFETY: the image is bound.
+        let view = unsafe { device.create_image_view(&view_info, None) }.unwrap();
+        HostTarget {
+            image,
+            view,
+            allocation: Some(allocation),
+        }
+    }
+
+    /// Destroys the target; the GPU must be done with it.
+    fn destroy(mut self, device: &ash::Device, allocator: &mut Allocator) {
+        // SAFETY: the caller waited for the frames that used the target.
+        unsafe {
+            device.destroy_image_view(self.view, None);
+            device.destroy_image(self.image, None);
+        }
+        allocator.free(self.allocation.take().unwrap()).unwrap();
+    }
+}
+
+const COLOR_RANGE: vk::ImageSubresourceRange = vk::ImageSubresourceRange {
+    aspect_mask: vk::ImageAspectFlags::COLOR,
+    base_mip_level: 0,
+    level_count: 1,
+    base_array_layer: 0,
+    layer_count: 1,
+};
+
+/// Two frames in flight, residency changes staged between frames while the other frame may
+/// still run, and a target resize halfway: clean under synchronization validation.
+#[test]
+fn frames_in_flight_with_residency_changes_and_a_resize_are_validation_clean() {
+    let ctx = common::validated_context();
+    {
+        let device = ctx.device();
+        let mut allocator = Allocator::new(&AllocatorCreateDesc {
+            instance: ctx.instance().clone(),
+            device: device.clone(),
+            physical_device: ctx.physical_device(),
+            debug_settings: Default::default(),
+            buffer_device_address: false,
+            allocation_sizes: Default::default(),
+        })
+        .unwrap();
+        let frames = 2usize;
+        let mut pass = VolumePass::new(
+            &ctx,
+            PassDesc {
+                color_format: vk::Format::R8G8B8A8_UNORM,
+                frames_in_flight: frames as u32,
+            },
+        )
+        .unwrap();
+        let volume = Arc::new(
+            SyntheticField::MarschnerLobb
+                .generate(UVec3::splat(32), ScalarType::U8)
+                .unwrap(),
+        );
+        pass.set_source(VolumeSource::Mixed {
+            volume,
+            config: MixedConfig {
+                brick_size: 8,
+                ..MixedConfig::default()
+            },
+        })
+        .unwrap();
+        let count = pass.brick_cache().unwrap().grid().brick_count();
+        // SAFETY: plain object creation on a live device; destroyed below after waiting.
+        let (pool, cmds, fences) = unsafe {
+            let pool = device
+                .create_command_pool(
+                    &vk::CommandPoolCreateInfo::default()
+                        .queue_family_index(ctx.queue_family())
+                        .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
+                    None,
+                )
+                .unwrap();
+            let cmds = device
+                .allocate_command_buffers(
+                    &vk::CommandBufferAllocateInfo::default()
+                        .command_pool(pool)
+                        .command_buffer_count(frames as u32),
+                )
+                .unwrap();
+            let fences: Vec<_> = (0..frames)
+                .map(|_| {
+                    device
+                        .create_fence(
+                            &vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED),
+                            None,
+                        )
+                        .unwrap()
+                })
+                .collect();
+            (pool, cmds, fences)
+        };
+        let make_targets = |allocator: &mut Allocator, size: u32| -> Vec<HostTarget> {
+            (0..frames)
+                .map(|_| HostTarget::new(device, allocator, size))
+                .collect()
+        };
+        let mut targets = make_targets(&mut allocator, 24);
+        let mut size = 24;
+        for i in 0..12 {
+            let slot = i % frames;
+            if i % 3 == 0 {
+                let levels: Vec<Level> = (0..count)
+                    .map(|b| {
+                        if (b + i) % 3 == 0 {
+                            Level::Lo
+                        } else {
+                            Level::Hi
+                        }
+                    })
+                    .collect();
+                pass.set_levels(&levels).unwrap();
+            }
+            if i == 6 {
+                // Resize: wait for the frames using the old targets, then replace them.
+                // SAFETY: waiting on our own fences.
+                unsafe { device.wait_for_fences(&fences, true, u64::MAX).unwrap() };
+                size = 40;
+                for t in std::mem::take(&mut targets) {
+                    t.destroy(device, &mut allocator);
+                }
+                targets = make_targets(&mut allocator, size);
+            }
+            let cmd = cmds[slot];
+            // SAFETY: the slot's fence guarantees its previous frame completed.
+            unsafe {
+                device
+                    .wait_for_fences(&[fences[slot]], true, u64::MAX)
+                    .unwrap();
+                device.reset_fences(&[fences[slot]]).unwrap();
+                device
+                    .reset_command_buffer(cmd, vk::CommandBufferResetFlags::empty())
+                    .unwrap();
+                device
+                    .begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
+                    .unwrap();
+            }
+            let target = &targets[slot];
+            // Discard the old content and make the target a colour attachment.
+            let barrier = [vk::ImageMemoryBarrier2::default()
+                .src_stage_mask(vk::PipelineStageFlags2::NONE)
+                .src_access_mask(vk::AccessFlags2::NONE)
+                .old_layout(vk::ImageLayout::UNDEFINED)
+                .dst_stage_mask(vk::PipelineStageFlags2::COLOR_ATTACHMENT_OUTPUT)
+                .dst_access_mask(vk::AccessFlags2::COLOR_ATTACHMENT_WRITE)
+                .new_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+                .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                .image(target.image)
+                .subresource_range(COLOR_RANGE)];
+            // SAFETY: `cmd` is recording.
+            unsafe {
+                device.cmd_pipeline_barrier2(
+                    cmd,
+                    &vk::DependencyInfo::default().image_memory_barriers(&barrier),
+                )
+            };
+            let angle = i as f32 * 0.2;
+            let camera = Camera::perspective(
+                Vec3::new(2.0 * angle.cos(), 0.6, 2.0 * angle.sin()),
+                Vec3::ZERO,
+                40.0,
+            );
+            let recorded = pass
+                .record(
+                    cmd,
+                    slot,
+                    &PassTarget {
+                        view: target.view,
+                        extent: vk::Extent2D {
+                            width: size,
+                            height: size,
+                        },
+                        load: TargetLoad::Clear([0.0; 4]),
+                        depth: None,
+                    },
+                    &camera,
+                    &RenderSettings::default(),
+                )
+                .unwrap();
+            assert!(recorded.variant.mixed_resolution);
+            let cmd_infos = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
+            let submits = [vk::SubmitInfo2::default().command_buffer_infos(&cmd_infos)];
+            // SAFETY: the command buffer is complete; the fence is unsignalled; only this thread
+            // uses the queue.
+            unsafe {
+                device.end_command_buffer(cmd).unwrap();
+                device
+                    .queue_submit2(ctx.queue(), &submits, fences[slot])
+                    .unwrap();
+            }
+            if i >= frames {
+                // The slot recorded two frames ago has completed: its timings are readable.
+                let other = (i + 1) % frames;
+                // SAFETY: waiting on our own fence.
+                unsafe {
+                    device
+                        .wait_for_fences(&[fences[other]], true, u64::MAX)
+                        .unwrap()
+                };
+                let t = pass.timings(other).unwrap();
+                assert!(t.raycast_ms.is_some_and(|ms| ms >= 0.0), "{t:?}");
+            }
+        }
+        // SAFETY: wait for everything, then destroy our objects.
+        unsafe {
+            device.device_wait_idle().unwrap();
+            for f in fences {
+                device.destroy_fence(f, None);
+            }
+            device.destroy_command_pool(pool, None);
+        }
+        for t in targets {
+            t.destroy(device, &mut allocator);
+        }
+        drop(allocator);
+        drop(pass);
+    }
+    // No allocation of the crate is live, and validation reported nothing (warnings included).
+    common::finish(ctx);
 }

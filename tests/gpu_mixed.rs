@@ -11,7 +11,7 @@ use mixvol::bricks::{BrickGrid, DownsampleFilter};
 use mixvol::cache::Level;
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::{self, sample_mixed, ReferenceCache, Transition};
-use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
+use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings};
 use mixvol::volume::{ScalarType, SyntheticField, Volume, VoxelData};
 use std::sync::Arc;
@@ -80,7 +80,10 @@ fn cache_contents_after_upload_and_fixup_match_the_reference() {
             let volume = Arc::new(smooth_random_volume(&mut rng, dims, scalar));
             let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm).unwrap();
             renderer
-                .set_mixed_volume(volume.clone(), config(Transition::Smooth))
+                .set_source(VolumeSource::Mixed {
+                    volume: volume.clone(),
+                    config: config(Transition::Smooth),
+                })
                 .unwrap();
             let count = BrickGrid::new(dims, N).unwrap().brick_count();
             for round in 0..4 {
@@ -136,7 +139,10 @@ fn gpu_field_matches_reference_and_is_continuous() {
         for transition in [Transition::Smooth, Transition::Discontinuous] {
             let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm).unwrap();
             renderer
-                .set_mixed_volume(volume.clone(), config(transition))
+                .set_source(VolumeSource::Mixed {
+                    volume: volume.clone(),
+                    config: config(transition),
+                })
                 .unwrap();
             // Largest jump across probe points at two step sizes: it must shrink with eps in
             // smooth mode (C0) and stay put in discontinuous mode.
@@ -235,7 +241,10 @@ fn render_pair(
     let mut renderer = Renderer::new(ctx, TargetFormat::Rgba32Float).unwrap();
     renderer.set_transfer_function(&tf).unwrap();
     renderer
-        .set_mixed_volume(volume.clone(), config(transition))
+        .set_source(VolumeSource::Mixed {
+            volume: volume.clone(),
+            config: config(transition),
+        })
         .unwrap();
     renderer.set_levels(levels).unwrap();
     let settings = RenderSettings {
@@ -293,7 +302,7 @@ fn mixed_images_match_the_reference_and_all_hi_matches_single_resolution() {
         let tf = TransferFunction::preset(TfPreset::Bands);
         let mut single = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
         single.set_transfer_function(&tf).unwrap();
-        single.set_volume(&volume).unwrap();
+        single.set_source(VolumeSource::Volume(&volume)).unwrap();
         let settings = RenderSettings {
             samples_per_voxel: 1.5,
             ..RenderSettings::default()
@@ -322,7 +331,10 @@ fn a_hundred_residency_changes_stay_validation_clean() {
         let count = BrickGrid::new(volume.dims(), N).unwrap().brick_count();
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm).unwrap();
         renderer
-            .set_mixed_volume(volume, config(Transition::Smooth))
+            .set_source(VolumeSource::Mixed {
+                volume,
+                config: config(Transition::Smooth),
+            })
             .unwrap();
         let camera = Camera::default_view();
         let mut previous = random_levels(&mut rng, count, true);

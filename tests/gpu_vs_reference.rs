@@ -20,7 +20,7 @@ mod common;
 use glam::{UVec3, Vec3};
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference;
-use mixvol::renderer::{Renderer, TargetFormat};
+use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, Projection, RenderSettings};
 use mixvol::volume::{ScalarType, SyntheticField, Volume};
 
@@ -41,7 +41,7 @@ fn compare(
     {
         let tf = TransferFunction::preset(tf);
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
-        renderer.set_volume(volume).unwrap();
+        renderer.set_source(VolumeSource::Volume(volume)).unwrap();
         renderer.set_transfer_function(&tf).unwrap();
         for (camera_name, camera) in cameras {
             let frame = renderer.render(camera, &settings, SIZE, SIZE).unwrap();

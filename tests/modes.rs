@@ -16,7 +16,7 @@ use mixvol::bricks::{BrickGrid, DownsampleFilter};
 use mixvol::cache::Level;
 use mixvol::optics::{ClassificationTable, SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::{self, RayProgram, ReferenceCache, Transition};
-use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
+use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{
     Camera, ClipPlane, ClipPlanes, RayFeatures, Reconstruction, RenderMode, RenderSettings, Shading,
 };
@@ -198,15 +198,15 @@ fn random_smooth_mixed(
     let mut mixed = Renderer::new(ctx, TargetFormat::Rgba32Float).unwrap();
     mixed.set_transfer_function(tf).unwrap();
     mixed
-        .set_mixed_volume(
-            volume.clone(),
-            MixedConfig {
+        .set_source(VolumeSource::Mixed {
+            volume: volume.clone(),
+            config: MixedConfig {
                 brick_size,
                 filter: DownsampleFilter::Mean2,
                 cache_budget_bytes: 64 << 20,
                 transition: Transition::Smooth,
             },
-        )
+        })
         .unwrap();
     let count = BrickGrid::new(volume.dims(), brick_size)
         .unwrap()
@@ -244,7 +244,7 @@ fn every_mode_and_option_matches_the_reference_single_and_mixed() {
         let camera = Camera::perspective(Vec3::new(1.0, 0.8, 1.5), Vec3::ZERO, 40.0);
         let mut single = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
         single.set_transfer_function(&tf).unwrap();
-        single.set_volume(&volume).unwrap();
+        single.set_source(VolumeSource::Volume(&volume)).unwrap();
         let (mut mixed, cache) = random_smooth_mixed(&ctx, &volume, &tf, N, 0x5eed);
         for (name, settings) in scenes() {
             let iso = matches!(settings.mode, RenderMode::Iso { .. });
@@ -371,7 +371,7 @@ fn render_all(
 ) -> Vec<Vec<Vec4>> {
     let mut renderer = Renderer::new(ctx, TargetFormat::Rgba32Float).unwrap();
     renderer.set_transfer_function(tf).unwrap();
-    renderer.set_volume(volume).unwrap();
+    renderer.set_source(VolumeSource::Volume(volume)).unwrap();
     settings
         .iter()
         .map(|s| renderer.render(camera, s, SIZE, SIZE).unwrap().pixels)
@@ -405,7 +405,7 @@ fn mip_of_a_ramp_is_the_tf_at_its_maximum() {
         };
         let pixels = &render_all(&ctx, &volume, &tf, &camera, &[settings])[0];
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
-        renderer.set_volume(&volume).unwrap();
+        renderer.set_source(VolumeSource::Volume(&volume)).unwrap();
         let params = renderer.params(&camera, &settings, SIZE, SIZE).unwrap();
         let box_min = params.box_min.truncate();
         let box_max = params.box_max.truncate();
@@ -710,7 +710,7 @@ fn neutral_features_reproduce_the_variants_without_them() {
         ];
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
         renderer.set_transfer_function(&tf).unwrap();
-        renderer.set_volume(&volume).unwrap();
+        renderer.set_source(VolumeSource::Volume(&volume)).unwrap();
         let frames: Vec<_> = all
             .iter()
             .map(|s| renderer.render(&camera, s, SIZE, SIZE).unwrap())
@@ -783,7 +783,7 @@ fn tricubic_b_spline_is_exact_and_consistent_across_bricks() {
         let tf = TransferFunction::preset(TfPreset::Bands);
         let mut single = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
         single.set_transfer_function(&tf).unwrap();
-        single.set_volume(&volume).unwrap();
+        single.set_source(VolumeSource::Volume(&volume)).unwrap();
         let plain = single.render(&camera, &settings, SIZE, SIZE).unwrap();
         assert!(plain.variant.features.tricubic);
         let params = single.params(&camera, &settings, SIZE, SIZE).unwrap();
@@ -803,15 +803,15 @@ fn tricubic_b_spline_is_exact_and_consistent_across_bricks() {
         let mut mixed = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
         mixed.set_transfer_function(&tf).unwrap();
         mixed
-            .set_mixed_volume(
-                volume.clone(),
-                MixedConfig {
+            .set_source(VolumeSource::Mixed {
+                volume: volume.clone(),
+                config: MixedConfig {
                     brick_size: N,
                     filter: DownsampleFilter::Mean2,
                     cache_budget_bytes: 64 << 20,
                     transition: Transition::Smooth,
                 },
-            )
+            })
             .unwrap();
         let count = BrickGrid::new(volume.dims(), N).unwrap().brick_count();
         mixed.set_levels(&vec![Level::Hi; count]).unwrap();
@@ -844,7 +844,7 @@ fn pipeline_cache_data_round_trips_and_foreign_data_is_ignored() {
         let mut first = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
         assert!(!first.pipeline_cache_seeded());
         first.set_transfer_function(&tf).unwrap();
-        first.set_volume(&volume).unwrap();
+        first.set_source(VolumeSource::Volume(&volume)).unwrap();
         let image = first.render(&camera, &settings, SIZE, SIZE).unwrap().pixels;
         let data = first.pipeline_cache_data().unwrap();
         assert!(data.len() >= 32, "{} bytes", data.len());
@@ -859,7 +859,7 @@ fn pipeline_cache_data_round_trips_and_foreign_data_is_ignored() {
             Renderer::with_pipeline_cache(&ctx, TargetFormat::Rgba32Float, &data).unwrap();
         assert!(second.pipeline_cache_seeded());
         second.set_transfer_function(&tf).unwrap();
-        second.set_volume(&volume).unwrap();
+        second.set_source(VolumeSource::Volume(&volume)).unwrap();
         let again = second
             .render(&camera, &settings, SIZE, SIZE)
             .unwrap()
@@ -892,15 +892,15 @@ fn coarse_low_res_steps_are_exact_on_homogeneous_data() {
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
         renderer.set_transfer_function(&tf).unwrap();
         renderer
-            .set_mixed_volume(
-                constant.clone(),
-                MixedConfig {
+            .set_source(VolumeSource::Mixed {
+                volume: constant.clone(),
+                config: MixedConfig {
                     brick_size: N,
                     filter: DownsampleFilter::Mean2,
                     cache_budget_bytes: 64 << 20,
                     transition: Transition::Smooth,
                 },
-            )
+            })
             .unwrap();
         let count = BrickGrid::new(dims, N).unwrap().brick_count();
         renderer.set_levels(&vec![Level::Lo; count]).unwrap();
@@ -932,15 +932,15 @@ fn coarse_low_res_steps_are_exact_on_homogeneous_data() {
                 .unwrap(),
         );
         renderer
-            .set_mixed_volume(
-                ml,
-                MixedConfig {
+            .set_source(VolumeSource::Mixed {
+                volume: ml,
+                config: MixedConfig {
                     brick_size: N,
                     filter: DownsampleFilter::Mean2,
                     cache_budget_bytes: 64 << 20,
                     transition: Transition::Smooth,
                 },
-            )
+            })
             .unwrap();
         renderer.set_levels(&[Level::Lo; 64]).unwrap();
         renderer

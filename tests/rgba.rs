@@ -8,7 +8,7 @@ mod common;
 use glam::{UVec3, Vec3, Vec4};
 use mixvol::optics::SamplingModel;
 use mixvol::reference;
-use mixvol::renderer::{Renderer, TargetFormat};
+use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderMode, RenderSettings};
 use mixvol::volume::{marschner_lobb_value, RgbaVolume};
 use std::sync::Arc;
@@ -54,7 +54,9 @@ fn rgba_volumes_match_the_reference_in_both_models() {
         });
         let camera = Camera::perspective(Vec3::new(1.0, 0.8, 1.4), Vec3::ZERO, 40.0);
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
-        renderer.set_rgba_volume(volume.clone()).unwrap();
+        renderer
+            .set_source(VolumeSource::Rgba(volume.clone()))
+            .unwrap();
         let mut images = Vec::new();
         // Opacity, extinction, and opacity again: the texture is refilled when the model changes.
         for model in [
@@ -112,7 +114,7 @@ fn homogeneous_rgba_slab_is_one_minus_exp() {
         let camera = Camera::orthographic(Vec3::new(0.0, 0.0, 2.0), Vec3::ZERO, 0.2);
         let expected = 1.0 - 0.92f64.powf(30.0);
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
-        renderer.set_rgba_volume(volume).unwrap();
+        renderer.set_source(VolumeSource::Rgba(volume)).unwrap();
         for model in [SamplingModel::Extinction, SamplingModel::Opacity] {
             for spv in [0.35f32, 1.0, 1.7, 3.0] {
                 let frame = renderer
@@ -151,7 +153,9 @@ fn the_opaque_wall_stays_opaque_only_with_extinction_based_sampling() {
             }
         });
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
-        renderer.set_rgba_volume(volume.clone()).unwrap();
+        renderer
+            .set_source(VolumeSource::Rgba(volume.clone()))
+            .unwrap();
         let voxel = 1.0 / 17.0;
         let mut worst = [1.0f32; 2];
         for (m, model) in [SamplingModel::Extinction, SamplingModel::Opacity]
@@ -237,7 +241,11 @@ fn rgba_volumes_through_the_brick_cache_match_the_reference() {
                     .collect();
                 let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
                 renderer
-                    .set_rgba_mixed_volume(&volume, model, config(transition))
+                    .set_source(VolumeSource::RgbaMixed {
+                        volume: &volume,
+                        model,
+                        config: config(transition),
+                    })
                     .unwrap();
                 renderer.set_levels(&levels).unwrap();
                 let s = settings(model, 1.4);
@@ -279,13 +287,19 @@ fn rgba_volumes_through_the_brick_cache_match_the_reference() {
             // Every brick hi-res: the plain RGBA texture's image.
             let mut cached = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
             cached
-                .set_rgba_mixed_volume(&volume, model, config(Transition::Smooth))
+                .set_source(VolumeSource::RgbaMixed {
+                    volume: &volume,
+                    model,
+                    config: config(Transition::Smooth),
+                })
                 .unwrap();
             cached.set_levels(&vec![Level::Hi; count]).unwrap();
             let s = settings(model, 1.4);
             let a = cached.render(&camera, &s, SIZE, SIZE).unwrap().pixels;
             let mut plain = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
-            plain.set_rgba_volume(volume.clone()).unwrap();
+            plain
+                .set_source(VolumeSource::Rgba(volume.clone()))
+                .unwrap();
             let b = plain.render(&camera, &s, SIZE, SIZE).unwrap().pixels;
             let d = common::diff(&a, &b, 1.0 / 255.0);
             assert!(

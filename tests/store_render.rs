@@ -40,7 +40,7 @@ use mixvol::cache::Level;
 use mixvol::lod::{select_levels, BrickGeometry, LodView, SelectionOptions};
 use mixvol::optics::TransferFunction;
 use mixvol::reference::Transition;
-use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
+use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings};
 use mixvol::store::{
     request_plan, write_store, BrickStreamer, ProgressBar, StoreDesc, StreamerConfig,
@@ -209,10 +209,10 @@ fn streamed_volume_over_the_cache_budget_renders_like_the_in_core_downsampled_co
         );
         let mut r = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
         r.set_transfer_function(&tf).unwrap();
-        r.set_brick_source(
-            Arc::new(VolumeBrickSource::new(tiny, BRICK, DownsampleFilter::Mean2).unwrap()),
-            config(cache_budget),
-        )
+        r.set_source(VolumeSource::Bricks {
+            source: Arc::new(VolumeBrickSource::new(tiny, BRICK, DownsampleFilter::Mean2).unwrap()),
+            config: config(cache_budget),
+        })
         .unwrap();
         r.set_levels(&[Level::Hi]).unwrap();
         r.render(&camera, &settings, SIZE, SIZE).unwrap();
@@ -234,7 +234,10 @@ fn streamed_volume_over_the_cache_budget_renders_like_the_in_core_downsampled_co
     let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
     renderer.set_transfer_function(&tf).unwrap();
     renderer
-        .set_brick_source(streamer.clone(), config(cache_budget))
+        .set_source(VolumeSource::Bricks {
+            source: streamer.clone(),
+            config: config(cache_budget),
+        })
         .unwrap();
     let slots = renderer.brick_cache().unwrap().geometry().slot_count() as usize;
     let grid = streamer.store().grid();
@@ -334,7 +337,7 @@ fn streamed_volume_over_the_cache_budget_renders_like_the_in_core_downsampled_co
     plain
         .set_transfer_function(&transfer_function(1.0 - (1.0 - ALPHA).powi(2)))
         .unwrap();
-    plain.set_volume(&copy).unwrap();
+    plain.set_source(VolumeSource::Volume(&copy)).unwrap();
     let expected = plain
         .render(
             &camera,

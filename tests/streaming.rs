@@ -8,7 +8,7 @@ use glam::UVec3;
 use mixvol::bricks::DownsampleFilter;
 use mixvol::cache::Level;
 use mixvol::reference::Transition;
-use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
+use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings};
 use mixvol::store::{request_plan, write_store_from_volume, BrickStreamer, StreamerConfig};
 use mixvol::volume::{ScalarType, SyntheticField};
@@ -51,7 +51,11 @@ fn streamed_bricks_render_like_in_core_bricks_and_missing_ones_fall_back() {
         let settings = RenderSettings::default();
         let render_in_core = |levels: &[Level]| {
             let mut r = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
-            r.set_mixed_volume(volume.clone(), config()).unwrap();
+            r.set_source(VolumeSource::Mixed {
+                volume: volume.clone(),
+                config: config(),
+            })
+            .unwrap();
             r.set_levels(levels).unwrap();
             r.render(&camera, &settings, 48, 48).unwrap().pixels
         };
@@ -77,7 +81,10 @@ fn streamed_bricks_render_like_in_core_bricks_and_missing_ones_fall_back() {
         );
         let mut streamed = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
         streamed
-            .set_brick_source(streamer.clone(), config())
+            .set_source(VolumeSource::Bricks {
+                source: streamer.clone(),
+                config: config(),
+            })
             .unwrap();
         let report = streamed.set_levels(&checker).unwrap();
         assert_eq!(report.fallback_bricks, 0);
@@ -110,7 +117,12 @@ fn streamed_bricks_render_like_in_core_bricks_and_missing_ones_fall_back() {
             "streamer did not settle"
         );
         let mut partial = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
-        partial.set_brick_source(small.clone(), config()).unwrap();
+        partial
+            .set_source(VolumeSource::Bricks {
+                source: small.clone(),
+                config: config(),
+            })
+            .unwrap();
         let report = partial.set_levels(&all_hi).unwrap();
         assert!(
             report.fallback_bricks > 0 && report.hi_bricks <= 20,

@@ -17,7 +17,7 @@ use mixvol::bricks::BrickGrid;
 use mixvol::cache::Level;
 use mixvol::optics::{TfPreset, TransferFunction, TF_SIZE};
 use mixvol::reference::{self, Transition};
-use mixvol::renderer::Renderer;
+use mixvol::renderer::{Renderer, VolumeSource};
 use mixvol::scene::{Camera, RaycastParams, RenderSettings};
 use mixvol::volume::{
     load_raw, RawDescriptor, ScalarType, SyntheticField, Volume, VolumeError, VoxelData,
@@ -375,7 +375,7 @@ fn f32_extreme_value_ranges_render_like_unit_range() {
             // A clear refusal is an accepted outcome.
             let settings = RenderSettings::default();
             let refused = renderer
-                .set_volume(&scaled)
+                .set_source(VolumeSource::Volume(&scaled))
                 .and_then(|_| renderer.render(&camera(), &settings, 4, 4))
                 .err();
             if let Some(e) = refused {

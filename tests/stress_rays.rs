@@ -21,6 +21,7 @@ use mixvol::bricks::BrickGrid;
 use mixvol::cache::Level;
 use mixvol::optics::{TfPreset, TransferFunction, TF_SIZE};
 use mixvol::reference::Transition;
+use mixvol::renderer::VolumeSource;
 use mixvol::scene::{Camera, Projection, RaycastParams, RenderSettings};
 use mixvol::volume::{ScalarType, SyntheticField, Volume};
 use std::sync::Arc;
@@ -242,7 +243,10 @@ fn mixed_resolution_rays_match_reference() {
         let mut rng = Rng(0xca3e_7a45);
         let mut renderer = float_renderer(&ctx);
         renderer
-            .set_mixed_volume(volume.clone(), mixed_config(N, Transition::Smooth))
+            .set_source(VolumeSource::Mixed {
+                volume: volume.clone(),
+                config: mixed_config(N, Transition::Smooth),
+            })
             .unwrap();
         for plan in 0..2 {
             let mut levels = random_levels(&mut rng, grid.brick_count(), true);
@@ -355,12 +359,15 @@ fn zero_size_viewport_is_rejected() {
             }
         }
         let mut renderer = float_renderer(&ctx);
-        renderer.set_volume(&volume).unwrap();
+        renderer.set_source(VolumeSource::Volume(&volume)).unwrap();
         let count = BrickGrid::new(volume.dims(), N).unwrap().brick_count();
         for source in ["single", "mixed"] {
             if source == "mixed" {
                 renderer
-                    .set_mixed_volume(volume.clone(), mixed_config(N, Transition::Smooth))
+                    .set_source(VolumeSource::Mixed {
+                        volume: volume.clone(),
+                        config: mixed_config(N, Transition::Smooth),
+                    })
                     .unwrap();
                 renderer.set_levels(&vec![Level::Lo; count]).unwrap();
             }

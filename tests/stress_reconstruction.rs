@@ -31,7 +31,7 @@ use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::{
     brick_of, sample_mixed, sample_volume, MixedVolume, ReferenceCache, Transition,
 };
-use mixvol::renderer::MixedConfig;
+use mixvol::renderer::{MixedConfig, VolumeSource};
 use mixvol::scene::{volume_box, Camera, RenderSettings};
 use mixvol::volume::{ScalarType, Volume};
 use std::sync::Arc;
@@ -305,7 +305,10 @@ fn warp_singularities_gpu_probe_matches_reference_and_bound() {
         let grid = BrickGrid::new(dims, n).unwrap();
         let mut renderer = float_renderer(&ctx);
         renderer
-            .set_mixed_volume(volume.clone(), mixed_config(n, Transition::Smooth))
+            .set_source(VolumeSource::Mixed {
+                volume: volume.clone(),
+                config: mixed_config(n, Transition::Smooth),
+            })
             .unwrap();
         for (plan, levels) in singular_plans(&mut rng, grid.bricks_per_axis()) {
             renderer.set_levels(&levels).unwrap();
@@ -599,7 +602,7 @@ fn device_limit_volume_renders_like_reference() {
         }
         // One voxel beyond the limit: the 3D texture is refused with a typed error.
         let too_long = long_volume(length + 1);
-        match renderer.set_volume(&too_long) {
+        match renderer.set_source(VolumeSource::Volume(&too_long)) {
             Err(mixvol::Error::Unsupported(message)) => {
                 assert!(message.contains("limit"), "{message}")
             }
@@ -611,7 +614,12 @@ fn device_limit_volume_renders_like_reference() {
             cache_budget_bytes: LONG_BUDGET,
             ..mixed_config(LONG_N, Transition::Smooth)
         };
-        renderer.set_mixed_volume(volume.clone(), config).unwrap();
+        renderer
+            .set_source(VolumeSource::Mixed {
+                volume: volume.clone(),
+                config,
+            })
+            .unwrap();
         let geometry = *renderer.brick_cache().unwrap().geometry();
         let bricks = renderer.brick_cache().unwrap().grid().brick_count();
         let levels = if (geometry.slot_count() as usize) < bricks {
@@ -656,7 +664,10 @@ fn device_limit_volume_renders_like_reference() {
         eprintln!("gpu probe (length {length}): worst position error {worst} voxel");
         // Through the brick cache the axis may exceed the 3D texture limit.
         renderer
-            .set_mixed_volume(Arc::new(too_long), mixed_config(32, Transition::Smooth))
+            .set_source(VolumeSource::Mixed {
+                volume: Arc::new(too_long),
+                config: mixed_config(32, Transition::Smooth),
+            })
             .unwrap();
         let count = renderer.brick_cache().unwrap().grid().brick_count();
         renderer.set_levels(&vec![Level::Lo; count]).unwrap();

@@ -5,7 +5,7 @@ mod common;
 
 use ash::vk;
 use mixvol::gpu::{ContextDesc, GpuContext, Severity};
-use mixvol::renderer::{Renderer, TargetFormat};
+use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings};
 use mixvol::volume::{ScalarType, SyntheticField};
 use mixvol::Error;
@@ -51,7 +51,7 @@ fn a_full_render_is_validation_clean_and_frees_every_allocation() {
             .generate(glam::UVec3::splat(24), ScalarType::U8)
             .unwrap();
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm).unwrap();
-        renderer.set_volume(&volume).unwrap();
+        renderer.set_source(VolumeSource::Volume(&volume)).unwrap();
         assert!(ctx.live_allocation_count() > 0);
         let frame = renderer
             .render(&Camera::default_view(), &RenderSettings::default(), 32, 32)
@@ -60,7 +60,7 @@ fn a_full_render_is_validation_clean_and_frees_every_allocation() {
         renderer
             .render(&Camera::default_view(), &RenderSettings::default(), 40, 24)
             .unwrap();
-        renderer.set_volume(&volume).unwrap();
+        renderer.set_source(VolumeSource::Volume(&volume)).unwrap();
         assert!(
             frame.pixels.iter().any(|p| p.w > 0.0),
             "the sphere must be visible"
@@ -91,7 +91,7 @@ fn render_before_volume_and_zero_viewport_are_errors() {
         let volume = SyntheticField::Wall
             .generate(glam::UVec3::splat(8), ScalarType::U8)
             .unwrap();
-        renderer.set_volume(&volume).unwrap();
+        renderer.set_source(VolumeSource::Volume(&volume)).unwrap();
         let err = renderer
             .render(&Camera::default_view(), &RenderSettings::default(), 0, 8)
             .unwrap_err();

@@ -25,7 +25,7 @@ Ray generate_ray(RaycastParams p, vec2 pixel) {
 
 // Narrows the ray interval [t0, t1] to the kept side (n . p + d >= 0) of each of the
 // `count` planes (xyz: n, w: d); an empty result has t1 <= t0. Mirrors `clip_ray`.
-vec2 clip_ray(Ray ray, float t0, float t1, vec4 planes[6], int count) {
+vec2 clip_ray(Ray ray, float t0, float t1, vec4 planes[MAX_CLIP_PLANES], int count) {
     for (int k = 0; k < count; ++k) {
         float start = dot(planes[k].xyz, ray.origin) + planes[k].w;
         float rate = dot(planes[k].xyz, ray.dir);

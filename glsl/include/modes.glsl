@@ -8,8 +8,8 @@
 #define MODES_GLSL
 #include "optics.glsl"
 
-// Bisection steps of the iso-surface refinement (then one secant step): 2^-10 of a sample step.
-#define ISO_BISECTIONS 10
+// ISO_BISECTIONS (a macro from src/reference/modes.rs): bisection steps of the iso-surface
+// refinement (then one secant step).
 
 struct RayState {
     vec4 acc;         // premultiplied colour and opacity so far

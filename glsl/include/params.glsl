@@ -1,5 +1,5 @@
 // Per-frame ray-casting parameters. Mirrors `RaycastParams` in src/scene.rs field by field
-// (std140: vec4s and one mat4, 368 bytes).
+// (std140: vec4s and one mat4, 368 bytes; offsets checked in src/gpu/shared_defs.rs).
 #ifndef PARAMS_GLSL
 #define PARAMS_GLSL
 
@@ -17,7 +17,7 @@ struct RaycastParams {
     vec4 mode;             // x: iso value; y: MIDA gamma; z: gradient opacity scale; w: gradient step (voxels)
     vec4 shading;          // x: ambient, y: diffuse, z: specular, w: shininess (Blinn-Phong)
     vec4 iso_colour;       // rgb: iso-surface colour; w: number of clip planes
-    vec4 clip_planes[6];   // xyz: normal towards the kept side, w: offset (MAX_CLIP_PLANES)
+    vec4 clip_planes[MAX_CLIP_PLANES]; // xyz: normal towards the kept side, w: offset
     mat4 world_from_clip;  // inverse of the host's clip_from_world (HOST_DEPTH only)
 };
 

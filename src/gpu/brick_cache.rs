@@ -2,11 +2,19 @@
 //! the fixup, sampled read-only by the ray-caster), the layout / neighbour / reverse tables and the fixup
 //! job list as storage buffers, and the fixup compute pass. Conventions: `docs/cache-layout.md`.
 
-use super::commands::{image_barrier, Access, Submitter};
+use super::commands::{image_barrier, Access, Submitter, TimestampPool};
 use super::compute::{ComputePipeline, ComputeResource};
 use super::context::DeviceShared;
 use super::descriptors::Sampler;
-use super::memory::{Buffer, Image, ImageDesc, COLOR_LAYERS};
+use super::memory::{Buffer, Image, ImageDesc};
+use super::shared_defs::{
+    FixupPush, ProbePush, FIXUP_BINDING_CACHE, FIXUP_BINDING_JOBS, FIXUP_BINDING_LAYOUT_TABLE,
+    FIXUP_BINDING_NEIGHBOUR_TABLE, FIXUP_BINDING_REVERSE_TABLE, FIXUP_FACES_PER_JOB,
+    FIXUP_GROUP_SIZE, PROBE_BINDING_CACHE, PROBE_BINDING_LAYOUT_TABLE,
+    PROBE_BINDING_NEIGHBOUR_TABLE, PROBE_BINDING_POINTS, PROBE_BINDING_VALUES, PROBE_GROUP_SIZE,
+};
+use super::upload::{record_image_readback, CopyRegion, StagingUpload};
+use crate::cache::SUB_SLOTS_PER_SLOT;
 use crate::error::{Error, Result};
 use crate::volume::ScalarType;
 use ash::vk;
@@ -34,6 +42,9 @@ pub(crate) fn cache_format(
     })
 }
 
+/// One reverse-table entry: the bricks in a cache slot (`SUB_SLOTS_PER_SLOT` words in GLSL).
+type ReverseEntry = [u32; SUB_SLOTS_PER_SLOT as usize];
+
 /// One brick's worth of texels to copy into the cache.
 pub(crate) struct CacheRegion<'a> {
     /// Destination texel origin.
@@ -48,19 +59,11 @@ pub(crate) struct CacheRegion<'a> {
 pub(crate) struct CacheTables<'a> {
     pub(crate) layout: &'a [[f32; 4]],
     pub(crate) neighbours: &'a [u32],
-    pub(crate) reverse: &'a [[u32; 8]],
+    pub(crate) reverse: &'a [ReverseEntry],
     pub(crate) fixup_slots: &'a [u32],
     pub(crate) bricks: UVec3,
     pub(crate) brick_size: u32,
     pub(crate) slots_per_axis: UVec3,
-}
-
-/// Push constants of `fixup.comp`.
-#[repr(C)]
-#[derive(Copy, Clone, bytemuck::Pod, bytemuck::Zeroable)]
-struct FixupPush {
-    bricks: [i32; 4],
-    slots_per_axis: [i32; 4],
 }
 
 /// A host-visible storage buffer of at least `bytes` bytes (16 minimum).
@@ -103,14 +106,14 @@ struct SlotTables {
 struct OwnedTables {
     layout: Vec<[f32; 4]>,
     neighbours: Vec<u32>,
-    reverse: Vec<[u32; 8]>,
+    reverse: Vec<ReverseEntry>,
     fixup_slots: Vec<u32>,
 }
 
 /// Brick bytes and copy regions waiting to be recorded.
 struct PendingUpdate {
     bytes: Vec<u8>,
-    copies: Vec<vk::BufferImageCopy>,
+    copies: Vec<CopyRegion>,
     jobs: u32,
     push: FixupPush,
 }
@@ -177,11 +180,20 @@ impl GpuBrickCache {
             "fixup.comp",
             &[("CACHE_IMAGE_FORMAT", glsl_format.to_string())],
             &[
-                vk::DescriptorType::STORAGE_IMAGE,
-                vk::DescriptorType::STORAGE_BUFFER,
-                vk::DescriptorType::STORAGE_BUFFER,
-                vk::DescriptorType::STORAGE_BUFFER,
-                vk::DescriptorType::STORAGE_BUFFER,
+                (FIXUP_BINDING_CACHE, vk::DescriptorType::STORAGE_IMAGE),
+                (
+                    FIXUP_BINDING_LAYOUT_TABLE,
+                    vk::DescriptorType::STORAGE_BUFFER,
+                ),
+                (
+                    FIXUP_BINDING_NEIGHBOUR_TABLE,
+                    vk::DescriptorType::STORAGE_BUFFER,
+                ),
+                (
+                    FIXUP_BINDING_REVERSE_TABLE,
+                    vk::DescriptorType::STORAGE_BUFFER,
+                ),
+                (FIXUP_BINDING_JOBS, vk::DescriptorType::STORAGE_BUFFER),
             ],
             std::mem::size_of::<FixupPush>() as u32,
             frames,
@@ -191,7 +203,11 @@ impl GpuBrickCache {
                 Ok(SlotTables {
                     layout: host_buffer(shared, "layout table", brick_count * 16)?,
                     neighbours: host_buffer(shared, "neighbour table", brick_count * 4)?,
-                    reverse: host_buffer(shared, "reverse table", slot_count * 32)?,
+                    reverse: host_buffer(
+                        shared,
+                        "reverse table",
+                        slot_count * std::mem::size_of::<ReverseEntry>(),
+                    )?,
                     jobs: host_buffer(shared, "fixup jobs", slot_count * 4)?,
                     version: 0,
                 })
@@ -235,26 +251,16 @@ impl GpuBrickCache {
             while !pending.bytes.len().is_multiple_of(4) {
                 pending.bytes.push(0);
             }
-            pending.copies.push(
-                vk::BufferImageCopy::default()
-                    .buffer_offset(pending.bytes.len() as u64)
-                    .image_subresource(COLOR_LAYERS)
-                    .image_offset(vk::Offset3D {
-                        x: r.origin.x as i32,
-                        y: r.origin.y as i32,
-                        z: r.origin.z as i32,
-                    })
-                    .image_extent(vk::Extent3D {
-                        width: r.extent.x,
-                        height: r.extent.y,
-                        depth: r.extent.z,
-                    }),
-            );
+            pending.copies.push(CopyRegion {
+                buffer_offset: pending.bytes.len() as u64,
+                origin: r.origin.to_array(),
+                extent: r.extent.to_array(),
+            });
             pending.bytes.extend_from_slice(r.bytes);
         }
         let jobs = tables.fixup_slots.len() as u32;
         let max_groups = self.shared.info.limits.max_compute_work_group_count[2];
-        if jobs.saturating_mul(6) > max_groups {
+        if jobs.saturating_mul(FIXUP_FACES_PER_JOB) > max_groups {
             return Err(Error::Unsupported(format!(
                 "{jobs} fixup jobs exceed maxComputeWorkGroupCount[2] = {max_groups}"
             )));
@@ -323,110 +329,84 @@ impl GpuBrickCache {
     /// Records the staged update into `cmd` for frame slot `frame`: the bricks through `staging`
     /// (grown as needed; the GPU must be done with it) with ONE vkCmdCopyBufferToImage, one region
     /// per brick, then the fixup over the hi-res bricks with low-res neighbours. Between two
-    /// timestamps `queries` (upload end, fixup end) when given. Leaves the cache ready for
-    /// fragment-shader sampling. Returns false when nothing was staged.
+    /// timestamps of `queries` (upload end at the given index, fixup end at the next) when given.
+    /// Leaves the cache ready for fragment-shader sampling. Returns false when nothing was staged.
     pub(crate) fn record(
         &mut self,
         cmd: vk::CommandBuffer,
         frame: usize,
-        staging: &mut Option<Buffer>,
-        queries: Option<(vk::QueryPool, u32)>,
+        staging: &mut StagingUpload,
+        queries: Option<(&TimestampPool, u32)>,
     ) -> Result<bool> {
         let Some(pending) = self.pending.take() else {
             return Ok(false);
         };
         self.sync_slot(frame)?;
-        let shared = self.shared.clone();
-        let device = &shared.device;
-        if !pending.bytes.is_empty() {
-            if staging
-                .as_ref()
-                .is_none_or(|b| b.size < pending.bytes.len() as u64)
-            {
-                *staging = Some(Buffer::new(
-                    &shared,
-                    "brick staging",
-                    (pending.bytes.len() as u64).next_power_of_two(),
-                    vk::BufferUsageFlags::TRANSFER_SRC,
-                    MemoryLocation::CpuToGpu,
-                )?);
-            }
-            let buffer = staging.as_mut().expect("created above");
-            buffer.mapped_mut()?[..pending.bytes.len()].copy_from_slice(&pending.bytes);
-        }
-        let image = self.image.raw;
         let previous = if self.initialized {
             Access::FragmentSampled
         } else {
             Access::Nothing
         };
-        image_barrier(device, cmd, image, previous, Access::TransferWrite);
-        if let (Some(buffer), false) = (staging.as_ref(), pending.copies.is_empty()) {
-            // SAFETY: the staging buffer holds every region at its offset; the cache is in
-            // TRANSFER_DST_OPTIMAL after the barrier; `cmd` is recording.
-            unsafe {
-                device.cmd_copy_buffer_to_image(
-                    cmd,
-                    buffer.raw,
-                    image,
-                    vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                    &pending.copies,
-                )
-            };
-        }
+        let fixup = self.smooth && pending.jobs > 0;
+        let after_copy = if fixup {
+            Access::CacheComputeReadWrite
+        } else {
+            Access::FragmentSampled
+        };
+        staging.record(
+            cmd,
+            &self.image,
+            &pending.bytes,
+            &pending.copies,
+            previous,
+            after_copy,
+        )?;
         let write_timestamp = |index: u32| {
             if let Some((pool, base)) = queries {
-                // SAFETY: the query was reset earlier in this command buffer.
-                unsafe {
-                    device.cmd_write_timestamp2(
-                        cmd,
-                        vk::PipelineStageFlags2::ALL_COMMANDS,
-                        pool,
-                        base + index,
-                    )
-                };
+                pool.write(cmd, base + index);
             }
         };
         write_timestamp(0);
-        if self.smooth && pending.jobs > 0 {
+        if fixup {
             let slot = &self.slots[frame];
             self.fixup.write_descriptors(
                 frame,
                 &[
-                    ComputeResource::StorageImage(self.image.view),
-                    ComputeResource::StorageBuffer(slot.layout.raw),
-                    ComputeResource::StorageBuffer(slot.neighbours.raw),
-                    ComputeResource::StorageBuffer(slot.reverse.raw),
-                    ComputeResource::StorageBuffer(slot.jobs.raw),
+                    (
+                        FIXUP_BINDING_CACHE,
+                        ComputeResource::StorageImage(self.image.view),
+                    ),
+                    (
+                        FIXUP_BINDING_LAYOUT_TABLE,
+                        ComputeResource::StorageBuffer(slot.layout.raw),
+                    ),
+                    (
+                        FIXUP_BINDING_NEIGHBOUR_TABLE,
+                        ComputeResource::StorageBuffer(slot.neighbours.raw),
+                    ),
+                    (
+                        FIXUP_BINDING_REVERSE_TABLE,
+                        ComputeResource::StorageBuffer(slot.reverse.raw),
+                    ),
+                    (
+                        FIXUP_BINDING_JOBS,
+                        ComputeResource::StorageBuffer(slot.jobs.raw),
+                    ),
                 ],
             );
-            let groups_xy = (pending.push.bricks[3] as u32 + 2).div_ceil(8);
-            image_barrier(
-                device,
-                cmd,
-                image,
-                Access::TransferWrite,
-                Access::CacheComputeReadWrite,
-            );
+            // A brick face with its border: n + 2 texels a side.
+            let groups_xy = (pending.push.bricks[3] as u32 + 2).div_ceil(FIXUP_GROUP_SIZE);
             self.fixup.record_dispatch(
                 cmd,
                 frame,
                 bytemuck::bytes_of(&pending.push),
-                [groups_xy, groups_xy, pending.jobs * 6],
+                [groups_xy, groups_xy, pending.jobs * FIXUP_FACES_PER_JOB],
             );
             image_barrier(
-                device,
+                &self.shared.device,
                 cmd,
-                image,
+                self.image.raw,
                 Access::CacheComputeReadWrite,
-                Access::FragmentSampled,
-            );
-        } else {
-            image_barrier(
-                device,
-                cmd,
-                image,
-                Access::TransferWrite,
                 Access::FragmentSampled,
             );
         }
@@ -448,48 +428,19 @@ impl GpuBrickCache {
             vk::BufferUsageFlags::TRANSFER_DST,
             MemoryLocation::GpuToCpu,
         )?;
-        let image = self.image.raw;
-        let copy = vk::BufferImageCopy::default()
-            .image_subresource(COLOR_LAYERS)
-            .image_extent(self.image.desc.extent);
+        let image = &self.image;
         submitter.run(|device, cmd| {
-            image_barrier(
+            record_image_readback(
                 device,
                 cmd,
                 image,
+                &readback,
                 Access::FragmentSampled,
-                Access::TransferRead,
-            );
-            // SAFETY: the buffer holds the whole image, in TRANSFER_SRC_OPTIMAL after the barrier.
-            unsafe {
-                device.cmd_copy_image_to_buffer(
-                    cmd,
-                    image,
-                    vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
-                    readback.raw,
-                    &[copy],
-                )
-            };
-            image_barrier(
-                device,
-                cmd,
-                image,
-                Access::TransferRead,
-                Access::FragmentSampled,
-            );
-            super::commands::memory_barrier(device, cmd, Access::TransferWrite, Access::HostRead);
-            Ok(())
+                Some(Access::FragmentSampled),
+            )
         })?;
         Ok(readback.mapped()?.to_vec())
     }
-}
-
-/// Push constants of `probe.comp`.
-#[repr(C)]
-#[derive(Copy, Clone, bytemuck::Pod, bytemuck::Zeroable)]
-struct ProbePush {
-    volume_dims: [f32; 4],
-    cache_extent_inv: [f32; 4],
 }
 
 /// Samples the GPU-reconstructed field at volume points (hi-res voxel units) with the ray-caster's
@@ -511,11 +462,20 @@ impl FieldProbe {
             "probe.comp",
             &defines,
             &[
-                vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
-                vk::DescriptorType::STORAGE_BUFFER,
-                vk::DescriptorType::STORAGE_BUFFER,
-                vk::DescriptorType::STORAGE_BUFFER,
-                vk::DescriptorType::STORAGE_BUFFER,
+                (
+                    PROBE_BINDING_CACHE,
+                    vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+                ),
+                (
+                    PROBE_BINDING_LAYOUT_TABLE,
+                    vk::DescriptorType::STORAGE_BUFFER,
+                ),
+                (
+                    PROBE_BINDING_NEIGHBOUR_TABLE,
+                    vk::DescriptorType::STORAGE_BUFFER,
+                ),
+                (PROBE_BINDING_POINTS, vk::DescriptorType::STORAGE_BUFFER),
+                (PROBE_BINDING_VALUES, vk::DescriptorType::STORAGE_BUFFER),
             ],
             std::mem::size_of::<ProbePush>() as u32,
             1,
@@ -563,11 +523,26 @@ impl FieldProbe {
         self.pipeline.write_descriptors(
             0,
             &[
-                ComputeResource::SampledImage(cache.image.view, self.sampler.raw),
-                ComputeResource::StorageBuffer(layout),
-                ComputeResource::StorageBuffer(neighbours),
-                ComputeResource::StorageBuffer(input.raw),
-                ComputeResource::StorageBuffer(output.raw),
+                (
+                    PROBE_BINDING_CACHE,
+                    ComputeResource::SampledImage(cache.image.view, self.sampler.raw),
+                ),
+                (
+                    PROBE_BINDING_LAYOUT_TABLE,
+                    ComputeResource::StorageBuffer(layout),
+                ),
+                (
+                    PROBE_BINDING_NEIGHBOUR_TABLE,
+                    ComputeResource::StorageBuffer(neighbours),
+                ),
+                (
+                    PROBE_BINDING_POINTS,
+                    ComputeResource::StorageBuffer(input.raw),
+                ),
+                (
+                    PROBE_BINDING_VALUES,
+                    ComputeResource::StorageBuffer(output.raw),
+                ),
             ],
         );
         let push = ProbePush {
@@ -590,7 +565,7 @@ impl FieldProbe {
                 cmd,
                 0,
                 bytemuck::bytes_of(&push),
-                [(points.len() as u32).div_ceil(64), 1, 1],
+                [(points.len() as u32).div_ceil(PROBE_GROUP_SIZE), 1, 1],
             );
             image_barrier(
                 device,

@@ -202,10 +202,10 @@ impl Drop for Submitter {
     }
 }
 
-/// A timestamp query pool with `count` queries.
+/// A timestamp query pool with `count` queries: reset, write and read through its methods.
 pub(crate) struct TimestampPool {
-    pub(crate) raw: vk::QueryPool,
-    pub(crate) count: u32,
+    raw: vk::QueryPool,
+    count: u32,
     shared: Arc<DeviceShared>,
 }
 
@@ -226,6 +226,39 @@ impl TimestampPool {
 }
 
 impl TimestampPool {
+    /// Records a reset of every query of the pool into `cmd` (before writing them again). The
+    /// pool's previous results must have been read (or be no longer wanted) and no pending
+    /// command buffer may still write them.
+    pub(crate) fn record_reset(&self, cmd: vk::CommandBuffer) {
+        // SAFETY: `cmd` is recording (caller contract, as for every recording helper here); the
+        // range covers the pool, which is live.
+        unsafe {
+            self.shared
+                .device
+                .cmd_reset_query_pool(cmd, self.raw, 0, self.count)
+        };
+    }
+
+    /// Records a timestamp into query `index` after all earlier commands of `cmd`'s queue
+    /// (`ALL_COMMANDS`). The query must have been reset earlier in the command stream.
+    pub(crate) fn write(&self, cmd: vk::CommandBuffer, index: u32) {
+        debug_assert!(
+            index < self.count,
+            "timestamp query {index} of {}",
+            self.count
+        );
+        // SAFETY: `cmd` is recording; `index` lies in the pool (checked by callers against
+        // `count`), which is live.
+        unsafe {
+            self.shared.device.cmd_write_timestamp2(
+                cmd,
+                vk::PipelineStageFlags2::ALL_COMMANDS,
+                self.raw,
+                index,
+            )
+        };
+    }
+
     /// Reads every timestamp that is available, without waiting: `None` for queries not
     /// written (or not yet complete) since their last reset.
     pub(crate) fn read_available(&self) -> Result<Vec<Option<u64>>> {

@@ -29,30 +29,30 @@ impl ComputeResource {
     }
 }
 
-/// A compute pipeline; descriptor sets (one per frame slot) have bindings 0..n in the order given.
+/// A compute pipeline; descriptor sets (one per frame slot) have the bindings given at creation.
 pub(crate) struct ComputePipeline {
     pub(crate) pipeline: vk::Pipeline,
     pub(crate) layout: vk::PipelineLayout,
     descriptors: DescriptorBundle,
-    types: Vec<vk::DescriptorType>,
+    bindings: Vec<(u32, vk::DescriptorType)>,
     shared: Arc<DeviceShared>,
 }
 
 impl ComputePipeline {
-    /// Compiles `shader` (a file under `glsl/`) with `defines`; `types` lists binding 0.. in order.
+    /// Compiles `shader` (a file under `glsl/`) with `defines`; `bindings` lists (binding number,
+    /// descriptor type) of its set (numbers from [`super::shared_defs`]).
     pub(crate) fn new(
         shared: &Arc<DeviceShared>,
         shader: &str,
         defines: &[(&str, String)],
-        types: &[vk::DescriptorType],
+        bindings: &[(u32, vk::DescriptorType)],
         push_constant_bytes: u32,
         sets: u32,
     ) -> Result<Self> {
         let code = compile(shader, ShaderStage::Compute, defines)?;
         let device = &shared.device;
-        let bindings: Vec<_> = (0u32..).zip(types.iter().copied()).collect();
         let descriptors =
-            DescriptorBundle::new(shared, &bindings, vk::ShaderStageFlags::COMPUTE, sets)?;
+            DescriptorBundle::new(shared, bindings, vk::ShaderStageFlags::COMPUTE, sets)?;
         let ranges = [vk::PushConstantRange {
             stage_flags: vk::ShaderStageFlags::COMPUTE,
             offset: 0,
@@ -73,7 +73,7 @@ impl ComputePipeline {
             pipeline: vk::Pipeline::null(),
             layout,
             descriptors,
-            types: types.to_vec(),
+            bindings: bindings.to_vec(),
             shared: shared.clone(),
         };
         // SAFETY: valid create infos on a live device; the module is destroyed before returning.
@@ -98,17 +98,18 @@ impl ComputePipeline {
         Ok(this)
     }
 
-    /// Points descriptor set `set` at `resources` (binding i = resources[i]); their kinds must
-    /// match the types given at creation. The set must not be in use by pending GPU work.
-    pub(crate) fn write_descriptors(&self, set: usize, resources: &[ComputeResource]) {
+    /// Points descriptor set `set` at `resources`: (binding number, resource), one per binding
+    /// given at creation, of the kind given there. The set must not be in use by pending GPU
+    /// work.
+    pub(crate) fn write_descriptors(&self, set: usize, resources: &[(u32, ComputeResource)]) {
         assert_eq!(
             resources.len(),
-            self.types.len(),
+            self.bindings.len(),
             "one resource per binding"
         );
         let mut image_infos = Vec::with_capacity(resources.len());
         let mut buffer_infos = Vec::with_capacity(resources.len());
-        for r in resources {
+        for (_, r) in resources {
             image_infos.push(match *r {
                 ComputeResource::StorageImage(view) => [vk::DescriptorImageInfo {
                     sampler: vk::Sampler::null(),
@@ -134,11 +135,14 @@ impl ComputePipeline {
         let writes: Vec<_> = resources
             .iter()
             .enumerate()
-            .map(|(i, r)| {
-                assert_eq!(r.descriptor_type(), self.types[i], "binding {i} kind");
+            .map(|(i, (binding, r))| {
+                assert!(
+                    self.bindings.contains(&(*binding, r.descriptor_type())),
+                    "binding {binding} kind"
+                );
                 let write = vk::WriteDescriptorSet::default()
                     .dst_set(self.descriptors.sets[set])
-                    .dst_binding(i as u32)
+                    .dst_binding(*binding)
                     .descriptor_type(r.descriptor_type());
                 match r {
                     ComputeResource::StorageBuffer(_) => write.buffer_info(&buffer_infos[i]),

@@ -184,6 +184,14 @@ unsafe impl Send for DeviceShared {}
 unsafe impl Sync for DeviceShared {}
 
 impl DeviceShared {
+    /// Waits until the device is idle, holding the queue lock (idle waits need external
+    /// synchronisation of every queue): afterwards no GPU work uses the crate's objects.
+    pub(crate) fn wait_idle(&self) -> Result<()> {
+        let _queue = self.queue_lock.lock().unwrap_or_else(|e| e.into_inner());
+        // SAFETY: the device is live; `_queue` serialises this with our own submissions.
+        unsafe { self.device.device_wait_idle() }.vk("vkDeviceWaitIdle")
+    }
+
     /// Locks the allocator (recovering from a poisoned lock: the allocator state stays valid).
     pub(crate) fn allocator(&self) -> MutexGuard<'_, Allocator> {
         let mutex = match &self.allocator {
@@ -768,6 +776,29 @@ impl GpuContext {
     /// The ash device, for hosts that record into their own command buffers.
     pub fn device(&self) -> &ash::Device {
         &self.shared.device
+    }
+
+    /// The instance the device was created from (for hosts that create their own objects on a
+    /// context made with [`GpuContext::new`], e.g. to query memory types).
+    pub fn instance(&self) -> &ash::Instance {
+        self.shared.instance()
+    }
+
+    /// The physical device of [`GpuContext::device`].
+    pub fn physical_device(&self) -> vk::PhysicalDevice {
+        self.shared.physical_device
+    }
+
+    /// The graphics + compute queue family the context uses (for the host's command pools).
+    pub fn queue_family(&self) -> u32 {
+        self.shared.queue_family
+    }
+
+    /// The queue the context uses. A host that submits to it itself must not do so while a
+    /// [`crate::renderer::Renderer`] on the same context submits from another thread (the
+    /// queue needs external synchronisation).
+    pub fn queue(&self) -> vk::Queue {
+        self.shared.queue
     }
 }
 

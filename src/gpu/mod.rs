@@ -1,7 +1,9 @@
 //! The ash backend. Raw Vulkan calls live here only, behind small owning types:
 //! [`GpuContext`] (instance, device, allocator, validation messenger), buffers and images
-//! (`memory`), shader compilation (`shaders`), command recording (`commands`) and the ray-cast
-//! pipeline (`raycast`).
+//! (`memory`), the one staging path into images (`upload`), shader compilation ([`shaders`]),
+//! the definitions Rust and GLSL share ([`shared_defs`]), command recording and timestamps
+//! (`commands`), the brick cache and its fixup (`brick_cache`) and the ray-cast pipeline and its
+//! draw (`raycast`).
 
 mod brick_cache;
 mod commands;
@@ -12,6 +14,8 @@ mod memory;
 mod pipeline_cache;
 mod raycast;
 pub mod shaders;
+pub mod shared_defs;
+mod upload;
 
 pub use context::{
     ContextDesc, DebugMessage, DeviceInfo, GpuContext, HostDevice, MessageLog, Severity,
@@ -19,8 +23,9 @@ pub use context::{
 pub use shaders::ShaderStage;
 
 pub(crate) use brick_cache::{CacheRegion, CacheTables, FieldProbe, GpuBrickCache};
-pub(crate) use commands::{image_barrier, memory_barrier, Access, Submitter, TimestampPool};
-pub(crate) use memory::{Buffer, Image, ImageDesc, COLOR_LAYERS};
+pub(crate) use commands::{image_barrier, Access, Submitter, TimestampPool};
+pub(crate) use memory::{Buffer, Image, ImageDesc};
 pub(crate) use pipeline_cache::PipelineCache;
-pub(crate) use raycast::RaycastPipeline;
 pub use raycast::RaycastVariant;
+pub(crate) use raycast::{DrawTarget, RaycastPipeline};
+pub(crate) use upload::{record_image_readback, StagingUpload};

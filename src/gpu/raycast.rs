@@ -4,9 +4,13 @@
 use super::context::DeviceShared;
 use super::descriptors::{DescriptorBundle, Sampler};
 use super::shaders::{compile, ShaderStage};
+use super::shared_defs::{
+    BINDING_HOST_DEPTH, BINDING_LAYOUT_TABLE, BINDING_NEIGHBOUR_TABLE, BINDING_PARAMS,
+    BINDING_PREINTEGRATION, BINDING_TF, BINDING_VOLUME,
+};
 use crate::error::{Result, VkResultExt};
-use crate::optics::{SamplingModel, TF_SIZE};
-use crate::scene::{ModeKind, RayFeatures, RAY_DIR_EPSILON};
+use crate::optics::SamplingModel;
+use crate::scene::{ModeKind, RayFeatures};
 use ash::vk;
 use std::sync::Arc;
 
@@ -29,12 +33,10 @@ pub struct RaycastVariant {
 }
 
 impl RaycastVariant {
-    /// Macros the variant is compiled with: Rust constants defined once, plus feature switches.
+    /// The feature switches the variant is compiled with (the shared constants come from
+    /// [`super::shared_defs`], which every compile adds).
     pub(crate) fn defines(self) -> Vec<(&'static str, String)> {
-        let mut defines = vec![
-            ("TF_SIZE", TF_SIZE.to_string()),
-            ("RAY_DIR_EPSILON", format!("{RAY_DIR_EPSILON:e}")),
-        ];
+        let mut defines = Vec::new();
         if self.mixed_resolution {
             defines.push(("MIXED_RESOLUTION", "1".into()));
             if self.smooth_transitions {
@@ -78,11 +80,22 @@ impl RaycastVariant {
     }
 }
 
+/// Where one ray-cast draw renders: a colour view in `COLOR_ATTACHMENT_OPTIMAL`.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub(crate) struct DrawTarget {
+    /// The colour view.
+    pub(crate) view: vk::ImageView,
+    /// Its size in pixels (render area, viewport and scissor).
+    pub(crate) extent: vk::Extent2D,
+    /// `None`: keep (load) the content; `Some(c)`: clear to premultiplied `c` first.
+    pub(crate) clear: Option<[f32; 4]>,
+}
+
 /// Pipeline, layouts, sampler and the one descriptor set the ray-caster binds.
 pub(crate) struct RaycastPipeline {
-    pub(crate) pipeline: vk::Pipeline,
-    pub(crate) layout: vk::PipelineLayout,
-    pub(crate) descriptors: DescriptorBundle,
+    pipeline: vk::Pipeline,
+    layout: vk::PipelineLayout,
+    descriptors: DescriptorBundle,
     sampler: Sampler,
     depth_sampler: Sampler,
     pub(crate) variant: RaycastVariant,
@@ -105,19 +118,25 @@ impl RaycastPipeline {
         let frag = compile("raycast.frag", ShaderStage::Fragment, &defines)?;
         let device = &shared.device;
         let mut bindings = vec![
-            (0, vk::DescriptorType::UNIFORM_BUFFER),
-            (1, vk::DescriptorType::COMBINED_IMAGE_SAMPLER),
-            (2, vk::DescriptorType::COMBINED_IMAGE_SAMPLER),
+            (BINDING_PARAMS, vk::DescriptorType::UNIFORM_BUFFER),
+            (BINDING_VOLUME, vk::DescriptorType::COMBINED_IMAGE_SAMPLER),
+            (BINDING_TF, vk::DescriptorType::COMBINED_IMAGE_SAMPLER),
         ];
         if variant.mixed_resolution {
-            bindings.push((3, vk::DescriptorType::STORAGE_BUFFER));
-            bindings.push((4, vk::DescriptorType::STORAGE_BUFFER));
+            bindings.push((BINDING_LAYOUT_TABLE, vk::DescriptorType::STORAGE_BUFFER));
+            bindings.push((BINDING_NEIGHBOUR_TABLE, vk::DescriptorType::STORAGE_BUFFER));
         }
         if variant.host_depth {
-            bindings.push((5, vk::DescriptorType::COMBINED_IMAGE_SAMPLER));
+            bindings.push((
+                BINDING_HOST_DEPTH,
+                vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+            ));
         }
         if variant.features.preintegrated {
-            bindings.push((6, vk::DescriptorType::COMBINED_IMAGE_SAMPLER));
+            bindings.push((
+                BINDING_PREINTEGRATION,
+                vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+            ));
         }
         let descriptors =
             DescriptorBundle::new(shared, &bindings, vk::ShaderStageFlags::FRAGMENT, sets)?;
@@ -294,22 +313,25 @@ impl RaycastPipeline {
         let mut writes = vec![
             vk::WriteDescriptorSet::default()
                 .dst_set(self.descriptors.sets[set])
-                .dst_binding(0)
+                .dst_binding(BINDING_PARAMS)
                 .descriptor_type(vk::DescriptorType::UNIFORM_BUFFER)
                 .buffer_info(&buffer_info),
             vk::WriteDescriptorSet::default()
                 .dst_set(self.descriptors.sets[set])
-                .dst_binding(1)
+                .dst_binding(BINDING_VOLUME)
                 .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
                 .image_info(&volume_info),
             vk::WriteDescriptorSet::default()
                 .dst_set(self.descriptors.sets[set])
-                .dst_binding(2)
+                .dst_binding(BINDING_TF)
                 .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
                 .image_info(&tf_info),
         ];
         if self.variant.mixed_resolution && tables.is_some() {
-            for (binding, info) in [(3, &layout_info), (4, &neighbour_info)] {
+            for (binding, info) in [
+                (BINDING_LAYOUT_TABLE, &layout_info),
+                (BINDING_NEIGHBOUR_TABLE, &neighbour_info),
+            ] {
                 writes.push(
                     vk::WriteDescriptorSet::default()
                         .dst_set(self.descriptors.sets[set])
@@ -323,7 +345,7 @@ impl RaycastPipeline {
             writes.push(
                 vk::WriteDescriptorSet::default()
                     .dst_set(self.descriptors.sets[set])
-                    .dst_binding(5)
+                    .dst_binding(BINDING_HOST_DEPTH)
                     .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
                     .image_info(info),
             );
@@ -332,13 +354,68 @@ impl RaycastPipeline {
             writes.push(
                 vk::WriteDescriptorSet::default()
                     .dst_set(self.descriptors.sets[set])
-                    .dst_binding(6)
+                    .dst_binding(BINDING_PREINTEGRATION)
                     .descriptor_type(vk::DescriptorType::COMBINED_IMAGE_SAMPLER)
                     .image_info(info),
             );
         }
         // SAFETY: all handles are live; the caller guarantees no pending GPU use of the set.
         unsafe { self.shared.device.update_descriptor_sets(&writes, &[]) };
+    }
+
+    /// Records the draw into `cmd` (recording, outside rendering): begins dynamic rendering into
+    /// `target`, sets viewport and scissor to its extent, binds the pipeline and descriptor set
+    /// `set` (written with [`RaycastPipeline::write_descriptors`]), draws the full-screen
+    /// triangle and ends rendering.
+    pub(crate) fn record_draw(&self, cmd: vk::CommandBuffer, set: usize, target: &DrawTarget) {
+        let (load_op, clear) = match target.clear {
+            None => (vk::AttachmentLoadOp::LOAD, [0.0; 4]),
+            Some(c) => (vk::AttachmentLoadOp::CLEAR, c),
+        };
+        let color = [vk::RenderingAttachmentInfo::default()
+            .image_view(target.view)
+            .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+            .load_op(load_op)
+            .store_op(vk::AttachmentStoreOp::STORE)
+            .clear_value(vk::ClearValue {
+                color: vk::ClearColorValue { float32: clear },
+            })];
+        let area = vk::Rect2D {
+            offset: vk::Offset2D { x: 0, y: 0 },
+            extent: target.extent,
+        };
+        let rendering = vk::RenderingInfo::default()
+            .render_area(area)
+            .layer_count(1)
+            .color_attachments(&color);
+        let viewport = vk::Viewport {
+            x: 0.0,
+            y: 0.0,
+            width: target.extent.width as f32,
+            height: target.extent.height as f32,
+            min_depth: 0.0,
+            max_depth: 1.0,
+        };
+        let device = &self.shared.device;
+        // SAFETY: `cmd` is recording outside a rendering scope (caller contract); the pipeline,
+        // its layout and descriptor set `set` are live (owned here); the set was written while
+        // not in use by pending work (caller contract of `write_descriptors`).
+        unsafe {
+            device.cmd_begin_rendering(cmd, &rendering);
+            device.cmd_set_viewport(cmd, 0, &[viewport]);
+            device.cmd_set_scissor(cmd, 0, &[area]);
+            device.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, self.pipeline);
+            device.cmd_bind_descriptor_sets(
+                cmd,
+                vk::PipelineBindPoint::GRAPHICS,
+                self.layout,
+                0,
+                &[self.descriptors.sets[set]],
+                &[],
+            );
+            device.cmd_draw(cmd, 3, 1, 0, 0);
+            device.cmd_end_rendering(cmd);
+        }
     }
 }
 

@@ -1,8 +1,9 @@
 //! GLSL sources (embedded at build time from `glsl/`) compiled to SPIR-V through shaderc.
 //!
 //! `#include "..."` resolves against the embedded tree, so the binary needs no source files at run
-//! time. Rust constants reach GLSL as macros (defined once, in Rust). A compile error names the
-//! file (the include file where the error sits) and the line.
+//! time. Rust constants reach GLSL as macros (defined once, in Rust: [`super::shared_defs`], added
+//! to every compile of an embedded shader). A compile error names the file (the include file
+//! where the error sits) and the line.
 
 use crate::error::{Error, Result};
 
@@ -57,6 +58,23 @@ impl ShaderStage {
 /// Looks up an embedded source by its path relative to `glsl/`.
 fn embedded(path: &str) -> Option<&'static str> {
     SOURCES.iter().find(|s| s.path == path).map(|s| s.text)
+}
+
+/// Every embedded GLSL file: (path relative to `glsl/`, text).
+#[cfg(test)]
+pub(crate) fn embedded_sources() -> impl Iterator<Item = (&'static str, &'static str)> {
+    SOURCES.iter().map(|s| (s.path, s.text))
+}
+
+/// The shared definitions ([`super::shared_defs::defines`]) followed by `defines`; a name given
+/// in `defines` replaces the shared value.
+fn with_shared_defines<'a>(defines: &[(&'a str, String)]) -> Vec<(&'a str, String)> {
+    let mut all: Vec<(&'a str, String)> = super::shared_defs::defines()
+        .into_iter()
+        .filter(|(name, _)| !defines.iter().any(|(n, _)| n == name))
+        .collect();
+    all.extend(defines.iter().cloned());
+    all
 }
 
 /// Joins an include name to the directory of the including file and removes `.` and `..`.
@@ -142,19 +160,22 @@ pub(crate) fn compile_with(
     Ok(artifact.as_binary().to_vec())
 }
 
-/// Compiles the embedded GLSL file `path` (relative to `glsl/`) with the given macros.
+/// Compiles the embedded GLSL file `path` (relative to `glsl/`) with the shared definitions
+/// ([`super::shared_defs::defines`]) and the given macros (which win over a shared one of the same
+/// name).
 pub fn compile(path: &str, stage: ShaderStage, defines: &[(&str, String)]) -> Result<Vec<u32>> {
     let text = embedded(path).ok_or_else(|| Error::ShaderCompile {
         file: path.into(),
         line: 0,
         message: format!("no embedded GLSL file '{path}'"),
     })?;
-    compile_with(path, text, stage, defines, &embedded)
+    compile_with(path, text, stage, &with_shared_defines(defines), &embedded)
 }
 
 /// Compiles caller-supplied GLSL `text` as if it were the file `file_name` inside `glsl/`; its
 /// includes resolve against the embedded tree. Used to check error reporting and by hosts that
-/// extend the shaders.
+/// extend the shaders. Only `defines` are defined: a source that includes the crate's files
+/// passes [`super::shared_defs::defines`] too.
 pub fn compile_source(
     file_name: &str,
     text: &str,

@@ -9,7 +9,7 @@ use mixvol::bricks::{BrickGrid, DownsampleFilter};
 use mixvol::cache::{BrickCache, CacheGeometry, Level};
 use mixvol::optics::TransferFunction;
 use mixvol::reference::{self, ReferenceCache, Transition};
-use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
+use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings};
 use mixvol::volume::{Volume, VoxelData};
 use std::sync::Arc;
@@ -138,7 +138,7 @@ pub fn render_single(
     settings: &RenderSettings,
     size: (u32, u32),
 ) -> (Vec<Vec4>, Vec<Vec4>) {
-    renderer.set_volume(volume).unwrap();
+    renderer.set_source(VolumeSource::Volume(volume)).unwrap();
     renderer.set_transfer_function(tf).unwrap();
     let frame = renderer.render(camera, settings, size.0, size.1).unwrap();
     let params = renderer.params(camera, settings, size.0, size.1).unwrap();
@@ -176,6 +176,11 @@ pub fn set_mixed(
     config: MixedConfig,
     levels: &[Level],
 ) {
-    renderer.set_mixed_volume(volume.clone(), config).unwrap();
+    renderer
+        .set_source(VolumeSource::Mixed {
+            volume: volume.clone(),
+            config,
+        })
+        .unwrap();
     renderer.set_levels(levels).unwrap();
 }

@@ -9,7 +9,7 @@ use crate::stats::Summary;
 use mixvol::bricks::BrickGrid;
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::optics::TransferFunction;
-use mixvol::renderer::{Renderer, TargetFormat};
+use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::RenderSettings;
 use mixvol::{Error, Result};
 use serde::Serialize;
@@ -55,9 +55,12 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
     renderer.set_transfer_function(&TransferFunction::preset(r.tf))?;
     let mut patterns = Vec::new();
     match r.mixed.levels {
-        None => renderer.set_volume(&volume)?,
+        None => renderer.set_source(VolumeSource::Volume(&volume))?,
         Some(pattern) => {
-            renderer.set_mixed_volume(volume.clone(), r.mixed.config()?)?;
+            renderer.set_source(VolumeSource::Mixed {
+                volume: volume.clone(),
+                config: r.mixed.config()?,
+            })?;
             let grid = BrickGrid::new(volume.dims(), r.mixed.brick_size)?;
             let levels = level_pattern(&grid, pattern);
             // The churn partner: the same pattern with hi and lo swapped.

@@ -10,7 +10,7 @@ use mixvol::bricks::BrickGrid;
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::optics::TransferFunction;
 use mixvol::reference::Transition;
-use mixvol::renderer::{MixedConfig, Renderer, TargetFormat};
+use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings};
 use mixvol::volume::{ScalarType, SyntheticField};
 use mixvol::{Error, Result};
@@ -63,14 +63,14 @@ pub fn junction(args: &JunctionArgs) -> Result<()> {
     for transition in [Transition::Discontinuous, Transition::Smooth] {
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
         renderer.set_transfer_function(&tf)?;
-        renderer.set_mixed_volume(
-            volume.clone(),
-            MixedConfig {
+        renderer.set_source(VolumeSource::Mixed {
+            volume: volume.clone(),
+            config: MixedConfig {
                 brick_size: 16,
                 transition,
                 ..MixedConfig::default()
             },
-        )?;
+        })?;
         renderer.set_levels(&levels)?;
         let frame = renderer.render(&camera, &settings, args.size, args.size)?;
         halves.push(frame.to_rgba8(Vec3::splat(0.08)));

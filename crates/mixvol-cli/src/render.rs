@@ -11,7 +11,7 @@ use mixvol::bricks::BrickGrid;
 use mixvol::gpu::{ContextDesc, GpuContext, MessageLog};
 use mixvol::optics::TransferFunction;
 use mixvol::reference::{self, ReferenceCache};
-use mixvol::renderer::{Renderer, TargetFormat};
+use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::RenderSettings;
 use mixvol::{Error, Result};
 use std::sync::Arc;
@@ -56,10 +56,13 @@ pub fn render(args: &RenderArgs) -> Result<()> {
     let volume = Arc::new(volume);
     let mut reference_cache = None;
     match args.mixed.levels {
-        None => renderer.set_volume(&volume)?,
+        None => renderer.set_source(VolumeSource::Volume(&volume))?,
         Some(pattern) => {
             let config = args.mixed.config()?;
-            renderer.set_mixed_volume(volume.clone(), config)?;
+            renderer.set_source(VolumeSource::Mixed {
+                volume: volume.clone(),
+                config,
+            })?;
             let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)?;
             let levels = level_pattern(&grid, pattern);
             let report = renderer.set_levels(&levels)?;

@@ -16,7 +16,7 @@ use mixvol::lod::{
 };
 use mixvol::optics::TransferFunction;
 use mixvol::reference::Transition;
-use mixvol::renderer::{Renderer, TargetFormat};
+use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, ClipPlanes, RenderSettings};
 use mixvol::volume::Volume;
 use mixvol::Result;
@@ -157,7 +157,7 @@ pub fn accuracy_report(
 ) -> Result<Report> {
     let mut single = Renderer::new(ctx, TargetFormat::Rgba32Float)?;
     single.set_transfer_function(tf)?;
-    single.set_volume(&volume)?;
+    single.set_source(VolumeSource::Volume(&volume))?;
     let fine = RenderSettings {
         samples_per_voxel: 8.0,
         ..RenderSettings::default()
@@ -198,14 +198,14 @@ pub fn accuracy_report(
             levels_for_fraction(&volume, &grid, tf, &options.camera, options.size, fraction)?;
         let mut renderer = Renderer::new(ctx, TargetFormat::Rgba32Float)?;
         renderer.set_transfer_function(tf)?;
-        renderer.set_mixed_volume(
-            volume.clone(),
-            MixedConfig {
+        renderer.set_source(VolumeSource::Mixed {
+            volume: volume.clone(),
+            config: MixedConfig {
                 brick_size: options.brick_size,
                 transition,
                 ..MixedConfig::default()
             },
-        )?;
+        })?;
         let report = renderer.set_levels(&levels)?;
         let (ms, pixels) = timed(&mut renderer, options, &settings)?;
         let e = rmse(&pixels, &reference);

@@ -1,5 +1,6 @@
 //! The ash backend. Raw Vulkan calls live here only, behind small owning types:
-//! [`GpuContext`] (instance, device, allocator, validation messenger), buffers and images
+//! [`GpuContext`] (instance, device, allocator), what the validation layers say (`validation`:
+//! the messenger callback and its [`MessageLog`]), buffers and images
 //! (`memory`), the one staging path into images (`upload`), shader compilation ([`shaders`]),
 //! the definitions Rust and GLSL share ([`shared_defs`]), command recording and timestamps
 //! (`commands`), the brick cache and its fixup (`brick_cache`) and the ray-cast pipeline and its
@@ -16,11 +17,11 @@ mod raycast;
 pub mod shaders;
 pub mod shared_defs;
 mod upload;
+mod validation;
 
-pub use context::{
-    ContextDesc, DebugMessage, DeviceInfo, GpuContext, HostDevice, MessageLog, Severity,
-};
+pub use context::{ContextDesc, DeviceInfo, GpuContext, HostDevice};
 pub use shaders::ShaderStage;
+pub use validation::{DebugMessage, MessageLog, Severity};
 
 pub(crate) use brick_cache::{CacheRegion, CacheTables, FieldProbe, GpuBrickCache};
 pub(crate) use commands::{image_barrier, Access, Submitter, TimestampPool};

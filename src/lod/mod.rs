@@ -5,7 +5,7 @@
 //! 1. [`culling`]: a brick is *active* when it can contribute to the image: its value range
 //!    reaches a visible transfer-function entry ([`TfCullTable`], O(1) per brick via a prefix
 //!    count) or contains the iso-value ([`iso_active`]), and no clip plane removes it
-//!    ([`ClipPlanes`]). [`cull_bricks`] yields the active mask.
+//!    ([`ClipPlanes`](crate::scene::ClipPlanes)). [`cull_bricks`] yields the active mask.
 //! 2. [`selection`]: every active brick is drawn at least low-res; a screen-space error ranking
 //!    promotes bricks to hi-res while the cache budget `#Hi + ceil(#Lo / 8) <= slots` holds
 //!    (Beyer et al. 2008), optionally restricted by LaMar et al.'s (1999) distance and

@@ -32,8 +32,10 @@
 //! - **Residency changes** ([`VolumePass::set_levels`]) and transfer-function changes are staged
 //!   on the CPU and recorded by the next [`VolumePass::record`]; they need no wait.
 
-use crate::bricks::DownsampleFilter;
-use crate::cache::{BrickCache, CacheGeometry, Level};
+use crate::bricks::{
+    fallback_levels, BrickSource, DownsampleFilter, Level, RgbaBrickSource, VolumeBrickSource,
+};
+use crate::cache::{BrickCache, CacheGeometry};
 use crate::error::{Error, Result};
 use crate::gpu::{
     image_barrier, Access, Buffer, CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image,
@@ -43,7 +45,6 @@ use crate::optics::preintegration::PreintegrationTable;
 use crate::optics::{ClassificationTable, SamplingModel, TfPreset, TransferFunction, TF_SIZE};
 use crate::reference::Transition;
 use crate::scene::{Camera, RayFeatures, RaycastParams, RenderSettings};
-use crate::store::{fallback_levels, BrickSource, RgbaBrickSource, VolumeBrickSource};
 use crate::volume::{RgbaVolume, ScalarType, Volume};
 use ash::vk;
 use glam::{Mat4, UVec3};

@@ -2,8 +2,7 @@
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use glam::{UVec3, Vec3};
-use mixvol::bricks::BrickGrid;
-use mixvol::cache::Level;
+use mixvol::bricks::{BrickGrid, Level};
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::lod::{ClipPlane, ClipPlanes};
 use mixvol::optics::{SamplingModel, TfPreset, TransferFunction};

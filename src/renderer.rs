@@ -1,6 +1,7 @@
 //! The façade: a volume, a transfer function and a camera in, an image and its timing out.
 
-use crate::cache::{BrickCache, Level};
+use crate::bricks::Level;
+use crate::cache::BrickCache;
 pub use crate::embed::{MixedConfig, ResidencyReport};
 use crate::embed::{PassDesc, PassTarget, TargetLoad, VolumePass};
 use crate::error::{Error, Result, VkResultExt};
@@ -209,7 +210,7 @@ impl Renderer {
     /// cache (see [`VolumePass::set_brick_source`]).
     pub fn set_brick_source(
         &mut self,
-        source: Arc<dyn crate::store::BrickSource>,
+        source: Arc<dyn crate::bricks::BrickSource>,
         config: MixedConfig,
     ) -> Result<()> {
         self.probe = None;

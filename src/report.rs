@@ -4,8 +4,7 @@
 //! and a PNG chart (frame time against PSNR). Settings that later issues add (tricubic
 //! reconstruction, extinction-based sampling, shading, pre-integration) join the list as they land.
 
-use crate::bricks::{brick_value_ranges, BrickGrid, DownsampleFilter};
-use crate::cache::Level;
+use crate::bricks::{brick_value_ranges, BrickGrid, DownsampleFilter, Level};
 use crate::embed::MixedConfig;
 use crate::error::{Error, Result};
 use crate::gpu::GpuContext;

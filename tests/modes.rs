@@ -12,8 +12,7 @@ mod common;
 
 use common::Rng;
 use glam::{UVec3, Vec3, Vec4};
-use mixvol::bricks::{BrickGrid, DownsampleFilter};
-use mixvol::cache::Level;
+use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
 use mixvol::lod::{ClipPlane, ClipPlanes};
 use mixvol::optics::{ClassificationTable, SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::{self, RayProgram, ReferenceCache, Transition};

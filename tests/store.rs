@@ -3,15 +3,14 @@
 
 use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{
-    brick_value_ranges_for_storage, pack_hi_res_brick, pack_low_res_brick, quantize_to, BrickGrid,
-    DownsampleFilter, ValueRange,
+    brick_value_ranges_for_storage, fallback_levels, pack_hi_res_brick, pack_low_res_brick,
+    quantize_to, request_plan, BrickGrid, BrickSource, DownsampleFilter, Level, ValueRange,
+    VolumeBrickSource,
 };
-use mixvol::cache::Level;
 use mixvol::store::format::{self, HEADER_SIZE};
 use mixvol::store::{
-    fallback_levels, request_plan, write_store, write_store_from_volume, write_store_with_threads,
-    BrickSource, BrickStore, BrickStreamer, StoreDesc, StoreError, StreamerConfig,
-    VolumeBrickSource,
+    write_store, write_store_from_volume, write_store_with_threads, BrickStore, BrickStreamer,
+    StoreDesc, StoreError, StreamerConfig,
 };
 use mixvol::volume::{ScalarType, Volume, VoxelData};
 use std::path::PathBuf;

@@ -122,6 +122,32 @@ fn rows_split_into_several_chunks_stay_identical() {
 }
 
 #[test]
+fn producer_windows_of_split_rows_equal_the_reference_packers() {
+    // The producer path evaluates a window per chunk (write_store_from_volume reads the volume in
+    // place); n = 64 splits the 8-brick rows into several chunks, so windows start mid-volume.
+    for (scalar, filter) in [
+        (ScalarType::U8, DownsampleFilter::BSpline4),
+        (ScalarType::U16, DownsampleFilter::Mean2),
+        (ScalarType::F32, DownsampleFilter::Box4),
+    ] {
+        let dims = UVec3::new(450, 3, 70);
+        let volume = random_volume(dims, scalar, 41);
+        let desc = StoreDesc {
+            dims,
+            brick_size: 64,
+            scalar,
+            spacing: volume.spacing(),
+            filter,
+        };
+        let sample = |p: IVec3| volume.value(p.x as u32, p.y as u32, p.z as u32);
+        let path = temp_path(&format!("producer-{scalar:?}"));
+        write_store_with_threads(&path, desc, &sample, 2, &mut |_, _| {}).unwrap();
+        assert_matches_reference(&path, &volume, 64, filter);
+        std::fs::remove_file(&path).unwrap();
+    }
+}
+
+#[test]
 fn output_does_not_depend_on_threads_and_matches_the_quantised_volume() {
     let dims = UVec3::new(21, 14, 30);
     let f = |p: IVec3| {

@@ -1,7 +1,9 @@
-//! Throughput of whole-volume bricking (`mixvol::bricks::build_bricks`): packed hi-res
-//! `(n+2)^3` bricks, packed low-res `(n/2+1)^3` bricks, the whole low-res level and per-brick
-//! min/max of a synthetic `u16` volume, against a plain memcpy of the same bytes measured in the
-//! same run.
+//! Throughput of bricking, all of it through the one kernel (`mixvol::bricks::kernel`): the
+//! whole-volume build (`mixvol::bricks::build_bricks`: packed hi-res `(n+2)^3` bricks, packed
+//! low-res `(n/2+1)^3` bricks, the whole low-res level and per-brick min/max) of a synthetic
+//! `u16` volume, and the brick-store writer (`mixvol::store::write_store_from_volume` and
+//! `write_store` from a voxel producer) on the same volume, against a plain memcpy of the same
+//! bytes measured in the same run.
 //!
 //! Run: `cargo bench --bench bricking`. Environment: `MIXVOL_BENCH_DIM` (volume edge, default
 //! 512), `MIXVOL_BENCH_RUNS` (timed runs per row, default 5; median and best are reported).
@@ -11,13 +13,15 @@
 //! zeroes and maps every output page inside the timed region), "warm" rebuilds write into an
 //! existing store, like the preallocated memcpy. The "/ memcpy" columns are memcpy time / row
 //! time (medians, and bests), i.e. the row's throughput as a fraction of the preallocated
-//! memcpy's.
+//! memcpy's. The writer rows write a store file into the system temporary directory (removed at
+//! the end).
 
-use glam::{UVec3, Vec3};
+use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{
     available_threads, build_bricks, build_low_res_level, BrickGrid, DownsampleFilter,
     DEFAULT_BRICK_SIZE,
 };
+use mixvol::store::{write_store, write_store_from_volume, StoreDesc};
 use mixvol::volume::{ScalarType, Volume, VoxelData};
 use std::hint::black_box;
 use std::time::Instant;
@@ -149,4 +153,38 @@ fn main() {
             / 1e6;
         println!("|  ↳ output: {out_mb:.1} MB packed bricks | {name} | | | | | | |");
     }
+
+    let path = std::env::temp_dir().join(format!("mixvol-bricking-{}.store", std::process::id()));
+    let sample = |p: IVec3| volume.value(p.x as u32, p.y as u32, p.z as u32);
+    for filter in [DownsampleFilter::Mean2, DownsampleFilter::BSpline4] {
+        let name = format!("{filter:?}");
+        let from_volume = time(runs.min(3), || {
+            write_store_from_volume(&path, black_box(&volume), DEFAULT_BRICK_SIZE, filter)
+                .expect("writes");
+        });
+        row(
+            "store writer, in-memory volume (write_store_from_volume)",
+            &name,
+            threads,
+            from_volume,
+        );
+        let desc = StoreDesc {
+            dims: volume.dims(),
+            brick_size: DEFAULT_BRICK_SIZE,
+            scalar: ScalarType::U16,
+            spacing: Vec3::ONE,
+            filter,
+        };
+        let producer = time(runs.min(3), || {
+            write_store(&path, desc, &sample, &mut |_, _| {}).expect("writes");
+        });
+        row(
+            "store writer, voxel producer (write_store)",
+            &name,
+            threads,
+            producer,
+        );
+    }
+    // Best effort: the file is in the temporary directory anyway.
+    let _ = std::fs::remove_file(&path);
 }

@@ -10,8 +10,7 @@ mod common;
 
 use common::{env_u32, median};
 use glam::{UVec3, Vec3};
-use mixvol::bricks::{BrickGrid, DownsampleFilter};
-use mixvol::cache::Level;
+use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::optics::{SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::Transition;

@@ -29,8 +29,7 @@ mod common;
 
 use common::{env_u32, median};
 use glam::{IVec3, UVec3, Vec3};
-use mixvol::bricks::DownsampleFilter;
-use mixvol::cache::Level;
+use mixvol::bricks::{request_plan, DownsampleFilter, Level};
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::lod::{
     cull_bricks, select_levels, BrickGeometry, CullParams, LodView, SelectionOptions, TfCullTable,
@@ -41,7 +40,7 @@ use mixvol::reference::Transition;
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, ClipPlanes, RenderSettings};
 use mixvol::store::{
-    request_plan, write_store, write_store_from_volume, BrickStreamer, StoreDesc, StreamerConfig,
+    write_store, write_store_from_volume, BrickStreamer, StoreDesc, StreamerConfig,
 };
 use mixvol::volume::{load_raw, RawDescriptor, ScalarType};
 use std::io::Write;

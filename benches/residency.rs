@@ -16,8 +16,8 @@
 //! tables.
 
 use glam::{Quat, UVec3, Vec3};
-use mixvol::bricks::{build_bricks, BrickGrid, DownsampleFilter};
-use mixvol::cache::{BrickCache, CacheGeometry, CacheUpdate, Level};
+use mixvol::bricks::{build_bricks, BrickGrid, DownsampleFilter, Level};
+use mixvol::cache::{BrickCache, CacheGeometry, CacheUpdate};
 use mixvol::lod::{
     cull_bricks, slots_needed, BrickGeometry, CullParams, FovFilter, LodSelector, LodView,
     SelectionOptions, TfCullTable,

@@ -1,6 +1,7 @@
 //! The façade: a volume, a transfer function and a camera in, an image and its timing out.
 
-use crate::cache::{BrickCache, Level};
+use crate::bricks::Level;
+use crate::cache::BrickCache;
 pub use crate::embed::{MixedConfig, ResidencyReport, VolumeSource};
 use crate::embed::{PassDesc, PassTarget, TargetLoad, VolumePass};
 use crate::error::{Error, Result};

@@ -3,17 +3,17 @@
 //! `BrickCache::update` -> tables, checked against `docs/cache-layout.md`.
 //!
 //! Every scenario also replays the upload lists into a CPU copy of the cache image (packed bricks
-//! from the `BrickStore`) and reads every owned voxel and every low-res sample of every resident
+//! from the `PackedBricks`) and reads every owned voxel and every low-res sample of every resident
 //! brick back through its layout entry, so the upload list, the packed data and the layout table
 //! have to agree. CPU only.
 
 use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{
-    build_bricks, low_res_level, quantize_to, BrickGrid, BrickStore, DownsampleFilter, LowResLevel,
+    build_bricks, low_res_level, quantize_to, BrickGrid, DownsampleFilter, Level, LowResLevel,
+    PackedBricks,
 };
 use mixvol::cache::{
-    compute_neighbour_bits, BrickCache, CacheError, CacheGeometry, CacheUpdate, Level, Residency,
-    EMPTY,
+    compute_neighbour_bits, BrickCache, CacheError, CacheGeometry, CacheUpdate, Residency, EMPTY,
 };
 use mixvol::lod::{
     cull_bricks, screen_space_error, slots_needed, BrickGeometry, CullParams, LodError,
@@ -95,7 +95,7 @@ impl CacheImage {
     }
 
     /// Applies an update: packs each listed brick from the store, as the GPU backend does.
-    fn apply(&mut self, update: &CacheUpdate, store: &BrickStore) {
+    fn apply(&mut self, update: &CacheUpdate, store: &PackedBricks) {
         for upload in &update.uploads {
             let packed = match upload.level {
                 Level::Hi => store.hi_res_brick(upload.brick as usize),
@@ -136,7 +136,7 @@ impl CacheImage {
 struct Pipeline {
     volume: Volume,
     grid: BrickGrid,
-    store: BrickStore,
+    store: PackedBricks,
     level: LowResLevel,
     geometry: BrickGeometry,
     active: Vec<bool>,

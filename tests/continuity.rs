@@ -11,8 +11,8 @@ mod common;
 
 use common::Rng;
 use glam::{UVec3, Vec3};
-use mixvol::bricks::{BrickGrid, DownsampleFilter};
-use mixvol::cache::{BrickCache, CacheGeometry, Level};
+use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
+use mixvol::cache::{BrickCache, CacheGeometry};
 use mixvol::reference::{sample_mixed, sample_volume, ReferenceCache, Transition};
 use mixvol::volume::{ScalarType, Volume, VoxelData};
 

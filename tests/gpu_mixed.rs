@@ -7,8 +7,7 @@ mod common;
 use common::Rng;
 
 use glam::{UVec3, Vec3};
-use mixvol::bricks::{BrickGrid, DownsampleFilter};
-use mixvol::cache::Level;
+use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::{self, sample_mixed, ReferenceCache, Transition};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};

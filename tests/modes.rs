@@ -12,8 +12,7 @@ mod common;
 
 use common::Rng;
 use glam::{UVec3, Vec3, Vec4};
-use mixvol::bricks::{BrickGrid, DownsampleFilter};
-use mixvol::cache::Level;
+use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
 use mixvol::optics::{ClassificationTable, SamplingModel, TfPreset, TransferFunction};
 use mixvol::reference::{self, RayProgram, ReferenceCache, Transition};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};

@@ -199,11 +199,9 @@ fn the_opaque_wall_stays_opaque_only_with_extinction_based_sampling() {
 #[test]
 fn rgba_volumes_through_the_brick_cache_match_the_reference() {
     use common::Rng;
-    use mixvol::bricks::{BrickGrid, DownsampleFilter};
-    use mixvol::cache::Level;
+    use mixvol::bricks::{BrickGrid, DownsampleFilter, Level, RgbaBrickSource};
     use mixvol::reference::{ReferenceCache, Transition};
     use mixvol::renderer::MixedConfig;
-    use mixvol::store::RgbaBrickSource;
     use mixvol::volume::ScalarType;
 
     const N: u32 = 8;

@@ -3,15 +3,14 @@
 
 use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{
-    brick_value_ranges_for_storage, pack_hi_res_brick, pack_low_res_brick, quantize_to, BrickGrid,
-    DownsampleFilter, ValueRange,
+    brick_value_ranges_for_storage, fallback_levels, pack_hi_res_brick, pack_low_res_brick,
+    quantize_to, request_plan, BrickGrid, BrickSource, DownsampleFilter, Level, ValueRange,
+    VolumeBrickSource,
 };
-use mixvol::cache::Level;
 use mixvol::store::format::{self, HEADER_SIZE};
 use mixvol::store::{
-    fallback_levels, request_plan, write_store, write_store_from_volume, write_store_with_threads,
-    BrickSource, BrickStore, BrickStreamer, StoreDesc, StoreError, StreamerConfig,
-    VolumeBrickSource,
+    write_store, write_store_from_volume, write_store_with_threads, BrickStore, BrickStreamer,
+    StoreDesc, StoreError, StreamerConfig,
 };
 use mixvol::volume::{ScalarType, Volume, VoxelData};
 use std::path::PathBuf;
@@ -120,6 +119,32 @@ fn rows_split_into_several_chunks_stay_identical() {
     write_store_from_volume(&path, &volume, 64, DownsampleFilter::BSpline4).unwrap();
     assert_matches_reference(&path, &volume, 64, DownsampleFilter::BSpline4);
     std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
+fn producer_windows_of_split_rows_equal_the_reference_packers() {
+    // The producer path evaluates a window per chunk (write_store_from_volume reads the volume in
+    // place); n = 64 splits the 8-brick rows into several chunks, so windows start mid-volume.
+    for (scalar, filter) in [
+        (ScalarType::U8, DownsampleFilter::BSpline4),
+        (ScalarType::U16, DownsampleFilter::Mean2),
+        (ScalarType::F32, DownsampleFilter::Box4),
+    ] {
+        let dims = UVec3::new(450, 3, 70);
+        let volume = random_volume(dims, scalar, 41);
+        let desc = StoreDesc {
+            dims,
+            brick_size: 64,
+            scalar,
+            spacing: volume.spacing(),
+            filter,
+        };
+        let sample = |p: IVec3| volume.value(p.x as u32, p.y as u32, p.z as u32);
+        let path = temp_path(&format!("producer-{scalar:?}"));
+        write_store_with_threads(&path, desc, &sample, 2, &mut |_, _| {}).unwrap();
+        assert_matches_reference(&path, &volume, 64, filter);
+        std::fs::remove_file(&path).unwrap();
+    }
 }
 
 #[test]

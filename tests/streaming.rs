@@ -5,12 +5,11 @@
 mod common;
 
 use glam::UVec3;
-use mixvol::bricks::DownsampleFilter;
-use mixvol::cache::Level;
+use mixvol::bricks::{request_plan, DownsampleFilter, Level};
 use mixvol::reference::Transition;
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings};
-use mixvol::store::{request_plan, write_store_from_volume, BrickStreamer, StreamerConfig};
+use mixvol::store::{write_store_from_volume, BrickStreamer, StreamerConfig};
 use mixvol::volume::{ScalarType, SyntheticField};
 use std::sync::Arc;
 use std::time::Duration;

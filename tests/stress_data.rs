@@ -13,8 +13,7 @@ mod stress_util;
 
 use common::Rng;
 use glam::{UVec3, Vec3, Vec4};
-use mixvol::bricks::BrickGrid;
-use mixvol::cache::Level;
+use mixvol::bricks::{BrickGrid, Level};
 use mixvol::optics::{TfPreset, TransferFunction, TF_SIZE};
 use mixvol::reference::{self, Transition};
 use mixvol::renderer::{Renderer, VolumeSource};

@@ -17,8 +17,7 @@ mod stress_util;
 
 use common::Rng;
 use glam::{UVec3, Vec3, Vec4};
-use mixvol::bricks::BrickGrid;
-use mixvol::cache::Level;
+use mixvol::bricks::{BrickGrid, Level};
 use mixvol::optics::{TfPreset, TransferFunction, TF_SIZE};
 use mixvol::reference::Transition;
 use mixvol::renderer::VolumeSource;

@@ -25,8 +25,8 @@ mod stress_util;
 
 use common::Rng;
 use glam::{IVec3, UVec3, Vec3};
-use mixvol::bricks::{BrickGrid, DownsampleFilter};
-use mixvol::cache::{BrickCache, CacheGeometry, Level};
+use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
+use mixvol::cache::{BrickCache, CacheGeometry};
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::{
     brick_of, sample_mixed, sample_volume, MixedVolume, ReferenceCache, Transition,

@@ -12,6 +12,7 @@
 //! (clamp-to-edge on the low-res grid), so low-res bricks that reach past the volume (partial bricks)
 //! repeat the last valid sample, just like hi-res bricks repeat the last voxel.
 
+use super::taps::AxisTaps;
 use super::BrickError;
 use crate::volume::Volume;
 use glam::{IVec3, UVec3};
@@ -312,40 +313,36 @@ fn by_slabs<T>(dims: UVec3, mut block: impl FnMut(IVec3, UVec3) -> Vec<T>) -> Ve
     out
 }
 
-/// The taps of one axis for a block: a window of hi-res indices and, per output sample, taps
-/// `(index into the window, weight)`.
-struct AxisTaps {
+/// One axis of a block: a window of hi-res indices and, per output sample, its taps `(index into
+/// the window, weight)` (the indices from the shared [`AxisTaps`] table).
+struct BlockAxis {
     window_start: u32,
     window_len: usize,
     taps: Vec<Vec<(usize, f32)>>,
 }
 
-impl AxisTaps {
+impl BlockAxis {
     fn new(d: u32, filter: DownsampleFilter, k_min: i64, count: u32) -> Self {
-        let absolute: Vec<Vec<(i64, f32)>> = (0..i64::from(count))
-            .map(|j| {
-                let k = clamp_low_res(k_min + j, d);
-                filter
-                    .taps()
-                    .iter()
-                    .map(|&(offset, w)| (clamp_hi_res(2 * k + offset, d), w))
-                    .collect()
-            })
+        let axis = AxisTaps::new(d, filter);
+        let weights = filter.taps();
+        let rows: Vec<&[usize]> = (0..i64::from(count))
+            .map(|j| axis.row(clamp_low_res(k_min + j, d) as usize))
             .collect();
-        let indices = || absolute.iter().flatten().map(|&(i, _)| i);
+        let indices = || rows.iter().flat_map(|row| row.iter().copied());
         let start = indices().min().unwrap_or(0);
         let end = indices().max().map_or(start, |i| i + 1);
-        let taps = absolute
+        let taps = rows
             .iter()
             .map(|row| {
                 row.iter()
-                    .map(|&(i, w)| ((i - start) as usize, w))
+                    .zip(weights)
+                    .map(|(&i, &(_, w))| (i - start, w))
                     .collect()
             })
             .collect();
         Self {
             window_start: start as u32,
-            window_len: (end - start) as usize,
+            window_len: end - start,
             taps,
         }
     }
@@ -353,12 +350,12 @@ impl AxisTaps {
 
 /// A separable filtering job: the taps of each axis for one block of low-res samples.
 struct BlockPlan {
-    axes: [AxisTaps; 3],
+    axes: [BlockAxis; 3],
 }
 
 impl BlockPlan {
     fn new(dims: UVec3, filter: DownsampleFilter, k_min: IVec3, size: UVec3) -> Self {
-        let axis = |a: usize| AxisTaps::new(dims[a], filter, i64::from(k_min[a]), size[a]);
+        let axis = |a: usize| BlockAxis::new(dims[a], filter, i64::from(k_min[a]), size[a]);
         Self {
             axes: [axis(0), axis(1), axis(2)],
         }

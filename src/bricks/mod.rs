@@ -8,16 +8,28 @@
 //! - low-res sample `k` sits at the even position `2k` (see [`filters`]).
 //!
 //! [`BrickGrid`] describes the subdivision, [`brick_value_ranges`] computes the per-brick min/max
-//! used for culling, [`filters`] builds the low-res level and [`packing`] lays bricks out for upload.
-//! [`build`] does all of that for every brick at once, in parallel ([`build_bricks`]).
+//! used for culling, [`filters`] builds the low-res level and [`packing`] lays bricks out for upload:
+//! these are the reference functions, simple and per brick. [`kernel`] does all of that for a box
+//! of bricks at once, bit for bit as the reference does, and is what everything that bricks a
+//! volume calls; [`build`] runs it over every brick of an in-memory volume in parallel
+//! ([`build_bricks`]). [`source`] is where a renderer gets packed bricks from ([`BrickSource`]),
+//! per [`Level`].
 
 pub mod build;
 pub mod filters;
+pub mod kernel;
+pub mod level;
 pub mod packing;
+pub mod source;
+mod taps;
 
 pub use build::{
-    available_threads, build_bricks, build_bricks_with_threads, build_low_res_level, BrickStore,
+    available_threads, build_bricks, build_bricks_with_threads, build_low_res_level,
+    build_value_ranges, PackedBricks,
 };
+pub use kernel::{BrickBox, BrickKernel, PackOutputs, TexelsMut, VoxelWindow};
+pub use level::Level;
+pub use source::{fallback_levels, request_plan, BrickSource, RgbaBrickSource, VolumeBrickSource};
 
 pub use filters::{
     downsample_rgba_extinction, downsample_rgba_opacity, low_res_block, low_res_dims,
@@ -25,7 +37,7 @@ pub use filters::{
 };
 pub use packing::{
     hi_res_brick_extent, low_res_brick_extent, pack_hi_res_brick, pack_low_res_brick, quantize_to,
-    subslot_offset, SUBSLOTS_PER_SLOT,
+    subslot_offset, SUB_SLOTS_PER_SLOT,
 };
 
 use crate::volume::{ScalarType, Volume};
@@ -77,6 +89,24 @@ pub enum BrickError {
         expected: usize,
         /// Texels supplied.
         actual: usize,
+    },
+    /// A voxel window does not fit the volume, its data or the bricks asked for.
+    #[error("voxel window at {origin:?} of {extent:?} voxels {reason}")]
+    InvalidWindow {
+        /// The window's first voxel.
+        origin: [u32; 3],
+        /// The window's voxels per axis.
+        extent: [u32; 3],
+        /// What is wrong.
+        reason: String,
+    },
+    /// An output buffer handed to the kernel has the wrong length or texel type.
+    #[error("kernel output `{output}` {reason}")]
+    OutputMismatch {
+        /// The output at fault (`hi`, `lo`, `ranges`).
+        output: &'static str,
+        /// What is wrong.
+        reason: String,
     },
     /// The packed bricks of a grid would not fit in the address space.
     #[error("{bricks} packed bricks of size {brick_size} do not fit in memory")]

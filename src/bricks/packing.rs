@@ -20,7 +20,7 @@ use crate::volume::{ScalarType, Volume};
 use glam::{IVec3, UVec3};
 
 /// Low-res bricks per `(n+2)^3` slot.
-pub const SUBSLOTS_PER_SLOT: u32 = 8;
+pub const SUB_SLOTS_PER_SLOT: u32 = 8;
 
 /// Texels per axis of a packed hi-res brick: `n + 2`.
 pub const fn hi_res_brick_extent(brick_size: u32) -> u32 {
@@ -249,7 +249,7 @@ mod tests {
             let sub = low_res_brick_extent(n);
             assert_eq!(2 * sub, slot);
             let mut hits = vec![0u8; (slot * slot * slot) as usize];
-            for s in 0..SUBSLOTS_PER_SLOT {
+            for s in 0..SUB_SLOTS_PER_SLOT {
                 let o = subslot_offset(n, s);
                 for z in 0..sub {
                     for y in 0..sub {

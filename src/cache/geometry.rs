@@ -1,8 +1,10 @@
 //! Geometry of the brick cache image: slot size, cache extent, slot and sub-slot origins
 //! (`docs/cache-layout.md`, "Cache image").
 
-use super::{CacheError, Residency, SUB_SLOTS_PER_SLOT};
-use crate::bricks::{hi_res_brick_extent, low_res_brick_extent, subslot_offset, MAX_BRICK_SIZE};
+use super::{CacheError, Residency};
+use crate::bricks::{
+    hi_res_brick_extent, low_res_brick_extent, subslot_offset, MAX_BRICK_SIZE, SUB_SLOTS_PER_SLOT,
+};
 use glam::UVec3;
 use std::cmp::Reverse;
 

@@ -9,8 +9,9 @@
 //! - [`CacheGeometry`]: brick size `n`, cache extent `C` (a power of two per axis, chosen by
 //!   [`CacheGeometry::choose`] within `maxImageDimension3D` and a byte budget), `(n+2)^3` slots and
 //!   their eight `(n/2+1)^3` sub-slots.
-//! - [`Level`] (`Hi`, `Lo`, `Absent`) is what the LOD selector wants per brick; [`Residency`] is
-//!   where the cache put it (slot, or slot and sub-slot).
+//! - [`Level`] (`Hi`, `Lo`, `Absent`; defined beside the bricks, [`crate::bricks::Level`]) is
+//!   what the LOD selector wants per brick; [`Residency`] is where the cache put it (slot, or slot
+//!   and sub-slot).
 //! - [`BrickCache::update`] turns a wanted-level vector into a new residency and a
 //!   [`CacheUpdate`]: the minimal [`BrickUpload`] list, the evicted bricks and whether the tables
 //!   changed.
@@ -72,27 +73,7 @@ pub use tables::{
     EMPTY, NEIGHBOUR_COUNT,
 };
 
-/// Sub-slots (low-res bricks) per slot.
-pub const SUB_SLOTS_PER_SLOT: u32 = crate::bricks::SUBSLOTS_PER_SLOT;
-
-/// The resolution level the LOD selector wants for a brick.
-#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]
-pub enum Level {
-    /// Level 0: the full-resolution brick, `(n+2)^3` texels, one whole slot.
-    Hi,
-    /// Level 1: the half-resolution brick, `(n/2+1)^3` texels, one sub-slot.
-    Lo,
-    /// Not drawn (culled or not resident); no cache storage.
-    #[default]
-    Absent,
-}
-
-impl Level {
-    /// True for `Hi` and `Lo`.
-    pub fn is_resident(self) -> bool {
-        self != Level::Absent
-    }
-}
+use crate::bricks::Level;
 
 /// Where a brick lives in the cache.
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]

@@ -3,8 +3,8 @@
 //! [`crate::cache`].
 
 use super::tables::{brick_neighbour_bits, layout_entry, EMPTY};
-use super::{CacheError, CacheGeometry, Level, Residency, SUB_SLOTS_PER_SLOT};
-use crate::bricks::BrickGrid;
+use super::{CacheError, CacheGeometry, Residency};
+use crate::bricks::{BrickGrid, Level, SUB_SLOTS_PER_SLOT};
 use slotmap::{new_key_type, SlotMap};
 use std::cmp::Reverse;
 use std::collections::BTreeSet;

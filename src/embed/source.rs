@@ -3,8 +3,10 @@
 //! the pipeline variant and the parameter block.
 
 use super::VolumePass;
-use crate::bricks::DownsampleFilter;
-use crate::cache::{BrickCache, CacheGeometry, Level};
+use crate::bricks::{
+    fallback_levels, BrickSource, DownsampleFilter, Level, RgbaBrickSource, VolumeBrickSource,
+};
+use crate::cache::{BrickCache, CacheGeometry};
 use crate::error::{Error, Result};
 use crate::gpu::{Access, TimestampPool};
 use crate::gpu::{CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image, ImageDesc};
@@ -12,7 +14,6 @@ use crate::gpu::{RaycastVariant, StagingUpload};
 use crate::optics::SamplingModel;
 use crate::reference::Transition;
 use crate::scene::{Camera, RayFeatures, RaycastParams, RenderSettings};
-use crate::store::{fallback_levels, BrickSource, RgbaBrickSource, VolumeBrickSource};
 use crate::volume::{RgbaVolume, ScalarType, Volume};
 use ash::vk;
 use glam::UVec3;

@@ -14,7 +14,7 @@ use super::shared_defs::{
     PROBE_BINDING_NEIGHBOUR_TABLE, PROBE_BINDING_POINTS, PROBE_BINDING_VALUES, PROBE_GROUP_SIZE,
 };
 use super::upload::{record_image_readback, CopyRegion, StagingUpload};
-use crate::cache::SUB_SLOTS_PER_SLOT;
+use crate::bricks::SUB_SLOTS_PER_SLOT;
 use crate::error::{Error, Result};
 use crate::volume::ScalarType;
 use ash::vk;

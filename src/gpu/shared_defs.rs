@@ -7,7 +7,7 @@
 //!   belong to and are only referenced here: the clip-plane limit
 //!   ([`crate::scene::MAX_CLIP_PLANES`]), the iso bisection count
 //!   ([`crate::reference::ISO_BISECTIONS`]), the words of a reverse-table entry
-//!   ([`crate::cache::SUB_SLOTS_PER_SLOT`]), the transfer-function table size
+//!   ([`crate::bricks::SUB_SLOTS_PER_SLOT`]), the transfer-function table size
 //!   ([`crate::optics::TF_SIZE`]) and the ray-direction epsilon
 //!   ([`crate::scene::RAY_DIR_EPSILON`]).
 //! - **Blocks** the shaders read (the uniform parameter block [`crate::scene::RaycastParams`],
@@ -85,7 +85,7 @@ pub fn defines() -> Vec<(&'static str, String)> {
         ),
         (
             "SUB_SLOTS_PER_SLOT",
-            crate::cache::SUB_SLOTS_PER_SLOT.to_string(),
+            crate::bricks::SUB_SLOTS_PER_SLOT.to_string(),
         ),
     ];
     for (name, value) in [

@@ -9,8 +9,9 @@
 //! 2. [`selection`]: every active brick is drawn at least low-res; a screen-space error ranking
 //!    promotes bricks to hi-res while the cache budget `#Hi + ceil(#Lo / 8) <= slots` holds
 //!    (Beyer et al. 2008), optionally restricted by LaMar et al.'s (1999) distance and
-//!    field-of-view filters. [`select_levels`] / [`LodSelector`] yield one [`Level`] per brick
-//!    (`Absent` for culled bricks), the input of the cache layout (`docs/cache-layout.md`).
+//!    field-of-view filters. [`select_levels`] / [`LodSelector`] yield one
+//!    [`Level`](crate::bricks::Level) per brick (`Absent` for culled bricks), the input of the
+//!    cache layout (`docs/cache-layout.md`).
 //!
 //! [`BrickGeometry`] places the brick grid in world space ([`crate::scene::volume_box`]) and
 //! [`LodView`] holds the camera as both passes need it. Everything here is CPU-only.
@@ -27,6 +28,6 @@ pub use error::LodError;
 pub use geometry::{BrickGeometry, LodView, ViewProjection};
 pub use selection::{
     check_level_rule, check_level_rule_with, level_number, max_hi_bricks, screen_space_error,
-    select_levels, slots_needed, DistanceFilter, FovFilter, Level, LodSelector, SelectionOptions,
-    SelectionSummary, LO_BRICKS_PER_SLOT,
+    select_levels, slots_needed, DistanceFilter, FovFilter, LodSelector, SelectionOptions,
+    SelectionSummary,
 };

@@ -48,17 +48,13 @@
 //! = 1) every assignment satisfies it trivially; [`check_level_rule`] verifies it for any
 //! assignment so that it keeps being checked once more levels exist.
 //!
-//! The output is one [`Level`] (the cache's own type, [`crate::cache::Level`]) per brick.
+//! The output is one [`Level`] ([`crate::bricks::Level`], what the cache stores) per brick.
 
 use super::error::LodError;
 use super::geometry::{BrickGeometry, LodView, ViewProjection};
-use crate::bricks::{BrickGrid, ValueRange};
-pub use crate::cache::Level;
+use crate::bricks::{BrickGrid, Level, ValueRange, SUB_SLOTS_PER_SLOT};
 use glam::{IVec3, Vec3};
 use std::cmp::Ordering;
-
-/// Low-res bricks per cache slot (a split slot holds eight sub-slots).
-pub const LO_BRICKS_PER_SLOT: usize = crate::bricks::SUBSLOTS_PER_SLOT as usize;
 
 /// The level number of `level` (0 = finest: `Hi` = 0, `Lo` = 1), `None` for
 /// [`Level::Absent`]; what [`check_level_rule`] compares.
@@ -72,7 +68,7 @@ pub fn level_number(level: Level) -> Option<u32> {
 
 /// Slots needed by `hi` hi-res and `lo` low-res bricks: `hi + ceil(lo / 8)`.
 pub fn slots_needed(hi: usize, lo: usize) -> usize {
-    hi + lo.div_ceil(LO_BRICKS_PER_SLOT)
+    hi + lo.div_ceil(SUB_SLOTS_PER_SLOT as usize)
 }
 
 /// The largest number `h <= candidates` of `active` bricks that can be hi-res with the rest
@@ -318,7 +314,7 @@ impl LodSelector {
             }
         }
         let active_count = active.iter().filter(|&&a| a).count();
-        let needed = active_count.div_ceil(LO_BRICKS_PER_SLOT);
+        let needed = active_count.div_ceil(SUB_SLOTS_PER_SLOT as usize);
         if needed > options.slots {
             return Err(LodError::BudgetTooSmall {
                 active: active_count,

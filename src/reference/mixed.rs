@@ -480,8 +480,8 @@ impl ReferenceCache {
         storage: crate::volume::ScalarType,
         transition: Transition,
     ) -> crate::Result<Self> {
-        use crate::bricks::{pack_hi_res_brick, pack_low_res_brick, quantize_to};
-        use crate::cache::{Level, Residency};
+        use crate::bricks::{pack_hi_res_brick, pack_low_res_brick, quantize_to, Level};
+        use crate::cache::Residency;
         let grid = cache.grid();
         let geometry = cache.geometry();
         let mut image = CacheImage::new(geometry.extent());

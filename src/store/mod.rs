@@ -17,27 +17,26 @@
 //!   RAM and reads one brick level with one positioned read ([`BrickStore::read_brick`]).
 //! - [`BrickStreamer`] loads the bricks a renderer asks for on a background thread, in priority
 //!   order, into an LRU RAM cache bounded by a byte budget; it never blocks the caller on disk.
-//! - [`BrickSource`] is what a renderer packs bricks from: the streamer, or [`VolumeBrickSource`]
-//!   (an in-memory volume, packed on demand). [`fallback_levels`] turns the levels the LOD
-//!   selector wants into levels whose bytes are available right now (a missing hi-res brick falls
-//!   back to its low-res version), so the renderer never waits for the disk.
+//! - The streamer is a [`BrickSource`](crate::bricks::BrickSource), what a renderer packs bricks
+//!   from (the in-memory sources live beside the bricks, in [`crate::bricks::source`]);
+//!   [`fallback_levels`](crate::bricks::fallback_levels) turns the levels the LOD selector wants
+//!   into levels whose bytes are available right now (a missing hi-res brick falls back to its
+//!   low-res version), so the renderer never waits for the disk.
 
 pub mod format;
 pub mod reader;
-pub mod source;
 pub mod streamer;
 pub mod writer;
 
 pub use format::{StoreHeader, FORMAT_VERSION, HEADER_SIZE, MAGIC};
 pub use reader::BrickStore;
-pub use source::{fallback_levels, request_plan, BrickSource, RgbaBrickSource, VolumeBrickSource};
 pub use streamer::{BrickStreamer, StreamStats, StreamerConfig};
 pub use writer::{
     write_store, write_store_from_volume, write_store_from_volume_with_progress,
-    write_store_with_threads, ProgressBar, StoreDesc, WriteSummary,
+    write_store_with_threads, StoreDesc, WriteSummary,
 };
 
-use crate::cache::Level;
+use crate::bricks::Level;
 use std::path::PathBuf;
 use std::sync::Arc;
 

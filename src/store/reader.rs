@@ -5,8 +5,7 @@ use super::format::{
     RANGE_ENTRY_BYTES,
 };
 use super::{Result, StoreError};
-use crate::bricks::{BrickGrid, DownsampleFilter, ValueRange};
-use crate::cache::Level;
+use crate::bricks::{BrickGrid, DownsampleFilter, Level, ValueRange};
 use crate::volume::ScalarType;
 use glam::Vec3;
 use std::fs::File;
@@ -15,7 +14,7 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
 /// An open, validated brick store file (the on-disk counterpart of the in-memory
-/// [`crate::bricks::BrickStore`]).
+/// [`crate::bricks::PackedBricks`]).
 ///
 /// Holds the header, the per-brick value ranges and the offset table in RAM (24 bytes per
 /// brick); brick texels stay on disk until [`BrickStore::read_brick`] reads one level of one brick

@@ -5,7 +5,7 @@
 //! - **Wanted set.** [`BrickStreamer::request`] replaces the wanted set with a list of
 //!   `(brick, level, priority)`, ordered by descending priority (stable: equal priorities keep the
 //!   caller's order; NaN counts as lowest; duplicates keep their highest priority). The caller
-//!   computes the priority (LOD error, tie-broken by distance; [`super::request_plan`] builds a
+//!   computes the priority (LOD error, tie-broken by distance; [`crate::bricks::request_plan`] builds a
 //!   request from wanted levels). It never blocks on disk: it only takes a short lock.
 //! - **Loading.** One background thread loads the wanted levels that are not in RAM, strictly in
 //!   priority order, one positioned read each, without holding the lock during the read.
@@ -26,7 +26,7 @@
 //! - **Pins.** A level that [`BrickSource::brick_bytes`] or [`BrickSource::is_loaded`] reported
 //!   present stays cached until the next [`BrickStreamer::request`] (which releases all pins;
 //!   an unchanged request too). So within a frame — request, then
-//!   [`fallback_levels`](super::fallback_levels), then the cache update and its uploads — every
+//!   [`fallback_levels`](crate::bricks::fallback_levels), then the cache update and its uploads — every
 //!   level the fallback chose still has its bytes when the upload asks for them. Pinned levels
 //!   count against the budget like any other; the loader waits rather than evict them.
 //! - **Lowering the budget** ([`BrickStreamer::set_ram_budget`]) evicts at once, in the same
@@ -40,10 +40,8 @@
 //! Bytes handed out are `Arc<[u8]>` clones: a level evicted while a caller still holds its `Arc`
 //! stays allocated until the caller drops it (the budget counts the cache's own references).
 
-use super::source::BrickSource;
 use super::{BrickStore, Result, StoreError};
-use crate::bricks::{BrickGrid, DownsampleFilter, ValueRange};
-use crate::cache::Level;
+use crate::bricks::{BrickGrid, BrickSource, DownsampleFilter, Level, ValueRange};
 use crate::volume::ScalarType;
 use glam::Vec3;
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};

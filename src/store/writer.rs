@@ -4,16 +4,18 @@
 //! which are consecutive in linear brick order and therefore one contiguous byte range of the
 //! file (the canonical layout stores brick `i` at `data_offset + i * (hi + lo)`). A worker
 //! evaluates the voxel producer on the chunk's window (its bricks' voxels, the one-voxel border
-//! and the filter's reach: `n*L + 8` by `(n + 8)^2` voxels for `L` bricks), builds the hi-res and
-//! low-res bricks and their value ranges from it, and writes the chunk with one positioned write.
-//! Chunks are as long as a window of [`CHUNK_WINDOW_BYTES`] allows (at least one brick), so the
-//! writer's memory is about `threads * 2.5 * CHUNK_WINDOW_BYTES` whatever the volume size. The
-//! table of value ranges and the header are written last, into `<path>.partial`, which is then
-//! renamed to `path`: a crashed write never leaves a file that opens.
+//! and the filter's reach: `n*L + 8` by `(n + 8)^2` voxels for `L` bricks, as
+//! [`BrickKernel::window_for`] gives it), quantised to the storage type, hands it to the bricking
+//! kernel ([`BrickKernel::pack_window`]) for the hi-res and low-res bricks and their value ranges,
+//! and writes the chunk with one positioned write. Chunks are as long as a window of
+//! [`CHUNK_WINDOW_BYTES`] allows (at least one brick), so the writer's memory is about
+//! `threads * 2.5 * CHUNK_WINDOW_BYTES` whatever the volume size. An in-memory volume
+//! ([`write_store_from_volume`]) needs no window: the kernel reads the volume itself. The table of
+//! value ranges and the header are written last, into `<path>.partial`, which is then renamed to
+//! `path`: a crashed write never leaves a file that opens.
 //!
-//! The arithmetic is the reference's ([`crate::bricks::pack_hi_res_brick`],
-//! [`crate::bricks::pack_low_res_brick`] via the separable `low_res_block`, `f64` accumulation in
-//! tap order rounded to `f32` after each axis, [`crate::bricks::quantize_to`], and
+//! The kernel's arithmetic is the reference's ([`crate::bricks::pack_hi_res_brick`],
+//! [`crate::bricks::pack_low_res_brick`], [`crate::bricks::quantize_to`] and
 //! [`crate::bricks::brick_value_ranges_for_storage`]), so a store written from a [`Volume`] holds
 //! exactly the bytes and ranges those functions produce.
 
@@ -22,11 +24,14 @@ use super::format::{
     finish_checksum, StoreHeader,
 };
 use super::{Result, StoreError};
-use crate::bricks::{BrickGrid, DownsampleFilter, ValueRange};
-use crate::volume::{ScalarType, Volume};
+use crate::bricks::kernel::texel::Texel;
+use crate::bricks::{
+    BrickBox, BrickError, BrickGrid, BrickKernel, DownsampleFilter, PackOutputs, TexelsMut,
+    ValueRange, VoxelWindow,
+};
+use crate::volume::{ScalarType, Volume, VoxelData};
 use glam::{IVec3, UVec3, Vec3};
 use std::fs::{File, OpenOptions};
-use std::io::Write as _;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -74,62 +79,6 @@ impl WriteSummary {
     }
 }
 
-/// A textual progress bar on stderr (`label [#####-----]  50.0%  512/1024 bricks  3.1 s`),
-/// redrawn in place when the displayed per-mille value changes; silent when disabled.
-#[derive(Clone, Debug)]
-pub struct ProgressBar {
-    label: String,
-    enabled: bool,
-    start: Instant,
-    last_permille: Option<u64>,
-}
-
-impl ProgressBar {
-    /// Width of the bar in characters.
-    const WIDTH: u64 = 40;
-
-    /// A bar labelled `label`, drawn only when `enabled`.
-    pub fn new(label: &str, enabled: bool) -> Self {
-        Self {
-            label: label.to_string(),
-            enabled,
-            start: Instant::now(),
-            last_permille: None,
-        }
-    }
-
-    /// Reports `done` of `total` units; ends the line when `done == total`.
-    pub fn update(&mut self, done: u64, total: u64) {
-        if !self.enabled {
-            return;
-        }
-        let permille = (done.min(total) * 1000).checked_div(total).unwrap_or(1000);
-        if self.last_permille == Some(permille) {
-            return;
-        }
-        self.last_permille = Some(permille);
-        let filled = (permille * Self::WIDTH / 1000) as usize;
-        let bar = format!(
-            "{}{}",
-            "#".repeat(filled),
-            "-".repeat(Self::WIDTH as usize - filled)
-        );
-        let mut err = std::io::stderr().lock();
-        // Progress output is best effort: a closed stderr must not fail the write.
-        let _ = write!(
-            err,
-            "\r{} [{bar}] {:5.1}%  {done}/{total} bricks  {:.1} s",
-            self.label,
-            permille as f64 / 10.0,
-            self.start.elapsed().as_secs_f64()
-        );
-        if done >= total {
-            let _ = writeln!(err);
-        }
-        let _ = err.flush();
-    }
-}
-
 /// Writes a brick store at `path` from the voxel producer `sample` on all cores
 /// ([`crate::bricks::available_threads`]); see [`write_store_with_threads`].
 pub fn write_store(
@@ -163,6 +112,26 @@ pub fn write_store_with_threads(
     path: &Path,
     desc: StoreDesc,
     sample: &(dyn Fn(IVec3) -> f32 + Sync),
+    threads: usize,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<WriteSummary> {
+    write_with(path, desc, Voxels::Producer(sample), threads, progress)
+}
+
+/// Where the voxels come from.
+#[derive(Copy, Clone)]
+enum Voxels<'a> {
+    /// A producer, evaluated on each chunk's window.
+    Producer(&'a (dyn Fn(IVec3) -> f32 + Sync)),
+    /// An in-memory volume of the store's dimensions and scalar type, read in place.
+    Volume(&'a Volume),
+}
+
+/// [`write_store_with_threads`] from `voxels`.
+fn write_with(
+    path: &Path,
+    desc: StoreDesc,
+    voxels: Voxels<'_>,
     threads: usize,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<WriteSummary> {
@@ -203,7 +172,7 @@ pub fn write_store_with_threads(
     let result = (|| {
         file.set_len(header.file_size).map_err(io("set length"))?;
         let (ranges, value_range) = write_bricks(
-            &file, &grid, &desc, &header, sample, threads, progress, &partial,
+            &file, &grid, &desc, &header, voxels, threads, progress, &partial,
         )?;
         header.value_range = value_range;
         let offsets: Vec<[u64; 2]> = (0..header.brick_count)
@@ -259,7 +228,9 @@ pub fn write_store_from_volume(
     write_store_from_volume_with_progress(path, volume, brick_size, filter, &mut |_, _| {})
 }
 
-/// [`write_store_from_volume`] with a progress callback (see [`ProgressBar`]).
+/// [`write_store_from_volume`] with a progress callback `progress(done, total)` (brick counts,
+/// called on the calling thread after every chunk). The kernel reads the volume in place (no
+/// window is evaluated).
 pub fn write_store_from_volume_with_progress(
     path: &Path,
     volume: &Volume,
@@ -274,8 +245,8 @@ pub fn write_store_from_volume_with_progress(
         spacing: volume.spacing(),
         filter,
     };
-    let sample = |p: IVec3| volume.value(p.x as u32, p.y as u32, p.z as u32);
-    write_store(path, desc, &sample, progress)
+    let threads = crate::bricks::available_threads();
+    write_with(path, desc, Voxels::Volume(volume), threads, progress)
 }
 
 /// `<path>.partial`, where the store is assembled before it is renamed into place.
@@ -337,7 +308,7 @@ fn write_bricks(
     grid: &BrickGrid,
     desc: &StoreDesc,
     header: &StoreHeader,
-    sample: &(dyn Fn(IVec3) -> f32 + Sync),
+    voxels: Voxels<'_>,
     threads: usize,
     progress: &mut dyn FnMut(u64, u64),
     path: &Path,
@@ -359,7 +330,7 @@ fn write_bricks(
     }
     let total = header.brick_count as u64;
     let mut ranges = vec![ValueRange::EMPTY; header.brick_count as usize];
-    let mut voxels = ValueRange::EMPTY;
+    let mut value_range = ValueRange::EMPTY;
     let next = AtomicUsize::new(0);
     let abort = AtomicBool::new(false);
     let mut first_error = None;
@@ -375,7 +346,7 @@ fn write_bricks(
                     let Some(chunk) = chunks.get(next.fetch_add(1, Ordering::Relaxed)) else {
                         break;
                     };
-                    let done = worker.build(chunk, sample).and_then(|()| {
+                    let done = worker.build(chunk, voxels).and_then(|()| {
                         let first =
                             grid.linear_index(UVec3::new(chunk.bx0, chunk.by, chunk.bz)) as u32;
                         let offset = canonical_brick_offset(header, first);
@@ -405,8 +376,8 @@ fn write_bricks(
                 Ok(chunk) => {
                     let first = chunk.first as usize;
                     ranges[first..first + chunk.ranges.len()].copy_from_slice(&chunk.ranges);
-                    voxels.include(chunk.voxels.min);
-                    voxels.include(chunk.voxels.max);
+                    value_range.include(chunk.voxels.min);
+                    value_range.include(chunk.voxels.max);
                     done += chunk.ranges.len() as u64;
                     progress(done, total);
                 }
@@ -420,95 +391,40 @@ fn write_bricks(
     if let Some(e) = first_error {
         return Err(e);
     }
-    Ok((ranges, voxels))
-}
-
-/// Per-axis indexing of one chunk: window of clamped hi-res indices, hi-res texel indices and
-/// low-res taps into the window.
-struct AxisPlan {
-    /// First global voxel index of the window.
-    start: i64,
-    /// Window length.
-    len: usize,
-    /// Window index of hi-res texel `p` for `p` in `0 .. n*bricks + 2` (global voxel
-    /// `n*b0 - 1 + p`, clamped).
-    hi: Vec<usize>,
-    /// Per low-res sample `k = n*b0/2 - 1 + s` (`s` in `0 .. n*bricks/2 + 3`): taps `(window
-    /// index, weight)` in the filter's tap order.
-    taps: Vec<Vec<(usize, f32)>>,
-}
-
-impl AxisPlan {
-    fn new(d: u32, n: u32, b0: u32, b1: u32, filter: DownsampleFilter) -> Self {
-        let last = i64::from(d) - 1;
-        let kmax = i64::from(d.div_ceil(2));
-        let (n64, b0, b1) = (i64::from(n), i64::from(b0), i64::from(b1));
-        let hi_abs: Vec<i64> = (n64 * b0 - 1..=n64 * b1)
-            .map(|p| p.clamp(0, last))
-            .collect();
-        let taps_abs: Vec<Vec<(i64, f32)>> = (n64 * b0 / 2 - 1..=n64 * b1 / 2 + 1)
-            .map(|k| {
-                let kc = k.clamp(0, kmax);
-                filter
-                    .taps()
-                    .iter()
-                    .map(|&(o, w)| ((2 * kc + o).clamp(0, last), w))
-                    .collect()
-            })
-            .collect();
-        let all = || {
-            hi_abs
-                .iter()
-                .copied()
-                .chain(taps_abs.iter().flatten().map(|&(i, _)| i))
-        };
-        let start = all().min().unwrap_or(0);
-        let end = all().max().unwrap_or(0);
-        Self {
-            start,
-            len: (end - start + 1) as usize,
-            hi: hi_abs.iter().map(|&i| (i - start) as usize).collect(),
-            taps: taps_abs
-                .iter()
-                .map(|row| {
-                    row.iter()
-                        .map(|&(i, w)| ((i - start) as usize, w))
-                        .collect()
-                })
-                .collect(),
-        }
+    if let Voxels::Volume(volume) = voxels {
+        let (min, max) = volume.value_range();
+        value_range = ValueRange { min, max };
     }
+    Ok((ranges, value_range))
 }
 
-/// One worker's reusable buffers.
+/// One worker's kernel and reusable buffers.
 struct Worker {
-    dims: UVec3,
-    n: u32,
-    scalar: ScalarType,
-    filter: DownsampleFilter,
-    window: Vec<f32>,
-    pass_x: Vec<f32>,
-    pass_y: Vec<f32>,
-    low: Vec<f32>,
-    /// The chunk's bytes: per brick hi then lo.
+    kernel: BrickKernel,
+    /// The chunk's window of quantised voxels (producer only).
+    window: VoxelData,
+    hi: VoxelData,
+    lo: VoxelData,
+    /// The chunk's bytes: per brick hi then lo, little-endian texels.
     out: Vec<u8>,
     /// The chunk's per-brick ranges.
     ranges: Vec<ValueRange>,
-    /// Raw min/max of the chunk's (quantised) voxels.
+    /// Raw min/max of the chunk's window (of quantised voxels; producer only).
     voxels: ValueRange,
 }
 
 impl Worker {
     fn new(grid: &BrickGrid, desc: &StoreDesc) -> Self {
+        let empty = || match desc.scalar {
+            ScalarType::U8 => VoxelData::U8(Vec::new()),
+            ScalarType::U16 => VoxelData::U16(Vec::new()),
+            ScalarType::F32 => VoxelData::F32(Vec::new()),
+        };
         Self {
-            dims: grid.dims(),
-            n: grid.brick_size(),
-            scalar: desc.scalar,
-            filter: desc.filter,
-            window: Vec::new(),
-            pass_x: Vec::new(),
-            pass_y: Vec::new(),
-            low: Vec::new(),
+            kernel: BrickKernel::new(grid, desc.filter, desc.scalar),
+            window: empty(),
+            hi: empty(),
+            lo: empty(),
             out: Vec::new(),
             ranges: Vec::new(),
             voxels: ValueRange::EMPTY,
@@ -516,162 +432,101 @@ impl Worker {
     }
 
     /// Builds the chunk's bytes into `out` and its ranges into `ranges`.
-    fn build(&mut self, chunk: &Chunk, sample: &(dyn Fn(IVec3) -> f32 + Sync)) -> Result<()> {
-        let (n, f) = (self.n, self.filter);
-        let ax = AxisPlan::new(self.dims.x, n, chunk.bx0, chunk.bx1, f);
-        let ay = AxisPlan::new(self.dims.y, n, chunk.by, chunk.by + 1, f);
-        let az = AxisPlan::new(self.dims.z, n, chunk.bz, chunk.bz + 1, f);
-        self.gather(&ax, &ay, &az, sample)?;
-        self.filter_passes(&ax, &ay, &az);
-        self.pack(chunk, &ax, &ay, &az);
-        Ok(())
-    }
-
-    /// Evaluates the (quantised) producer on the window.
-    fn gather(
-        &mut self,
-        ax: &AxisPlan,
-        ay: &AxisPlan,
-        az: &AxisPlan,
-        sample: &(dyn Fn(IVec3) -> f32 + Sync),
-    ) -> Result<()> {
-        self.window.clear();
-        self.window.reserve(ax.len * ay.len * az.len);
-        // The normalised value of every u8 level, exactly as `VoxelData::normalized` computes it.
-        let u8_levels: [f32; 256] = std::array::from_fn(|b| b as f32 / 255.0);
-        for z in 0..az.len as i64 {
-            for y in 0..ay.len as i64 {
-                for x in 0..ax.len as i64 {
-                    let p = IVec3::new(
-                        (ax.start + x) as i32,
-                        (ay.start + y) as i32,
-                        (az.start + z) as i32,
-                    );
-                    let raw = sample(p);
-                    let v = match self.scalar {
-                        ScalarType::U8 => u8_levels[unorm(raw, 255.0) as usize],
-                        ScalarType::U16 => unorm(raw, 65535.0) as f32 / 65535.0,
-                        ScalarType::F32 => {
-                            if !raw.is_finite() {
-                                return Err(StoreError::NonFiniteSample {
-                                    voxel: p.to_array(),
-                                    value: raw,
-                                });
-                            }
-                            raw
-                        }
-                    };
-                    self.window.push(v);
-                }
-            }
-        }
-        Ok(())
-    }
-
-    /// The separable low-res filter over the window: x, then y, then z, `f64` accumulation in tap
-    /// order rounded to `f32` after each axis (the reference `low_res_block` arithmetic).
-    fn filter_passes(&mut self, ax: &AxisPlan, ay: &AxisPlan, az: &AxisPlan) {
-        let (wx, wy, wz) = (ax.len, ay.len, az.len);
-        let (cx, cy, cz) = (ax.taps.len(), ay.taps.len(), az.taps.len());
-        let window = &self.window;
-        self.pass_x.clear();
-        for zy in 0..wz * wy {
-            let row = &window[zy * wx..(zy + 1) * wx];
-            for taps in &ax.taps {
-                self.pass_x.push(weighted(taps, |i| row[i]));
-            }
-        }
-        let px = &self.pass_x;
-        self.pass_y.clear();
-        for z in 0..wz {
-            for taps in &ay.taps {
-                for x in 0..cx {
-                    self.pass_y
-                        .push(weighted(taps, |i| px[x + cx * (i + wy * z)]));
-                }
-            }
-        }
-        let py = &self.pass_y;
-        self.low.clear();
-        for taps in &az.taps {
-            for y in 0..cy {
-                for x in 0..cx {
-                    self.low.push(weighted(taps, |i| py[x + cx * (y + cy * i)]));
-                }
-            }
-        }
-        debug_assert_eq!(self.low.len(), cx * cy * cz);
-    }
-
-    /// Cuts the chunk's bricks from the window and the low-res block.
-    fn pack(&mut self, chunk: &Chunk, ax: &AxisPlan, ay: &AxisPlan, az: &AxisPlan) {
-        let n = self.n as usize;
-        let (wx, wy) = (ax.len, ay.len);
-        let (cx, cy) = (ax.taps.len(), ay.taps.len());
-        let e_hi = n + 2;
-        let e_lo = n / 2 + 1;
-        self.out.clear();
+    fn build(&mut self, chunk: &Chunk, voxels: Voxels<'_>) -> Result<()> {
+        let bricks = BrickBox::run(chunk.bx0..chunk.bx1, chunk.by, chunk.bz);
+        let count = bricks.count();
+        let n = self.kernel.grid().brick_size() as usize;
+        let (hi_len, lo_len) = ((n + 2).pow(3), (n / 2 + 1).pow(3));
+        resize(&mut self.hi, count * hi_len);
+        resize(&mut self.lo, count * lo_len);
         self.ranges.clear();
-        // Every voxel is a hi-res texel of the brick owning it (and texels are only voxels), so
-        // the union of the hi-res texel ranges is the range of the chunk's voxels.
+        self.ranges.resize(count, ValueRange::EMPTY);
         self.voxels = ValueRange::EMPTY;
-        for i in 0..(chunk.bx1 - chunk.bx0) as usize {
-            let mut raw = ValueRange::EMPTY;
-            for &z in &az.hi[..e_hi] {
-                for &y in &ay.hi[..e_hi] {
-                    let row = &self.window[wx * (y + wy * z)..];
-                    for &x in &ax.hi[n * i..n * i + e_hi] {
-                        let v = row[x];
-                        grow(&mut raw, v);
-                        push_texel(&mut self.out, v, self.scalar);
-                    }
-                }
+        let window = match voxels {
+            Voxels::Producer(sample) => {
+                let (origin, extent) = self.kernel.window_for(&bricks).map_err(internal)?;
+                self.voxels = match &mut self.window {
+                    VoxelData::U8(buf) => gather(buf, origin, extent, sample)?,
+                    VoxelData::U16(buf) => gather(buf, origin, extent, sample)?,
+                    VoxelData::F32(buf) => gather(buf, origin, extent, sample)?,
+                };
+                VoxelWindow::new(&self.window, origin, extent).map_err(internal)?
             }
-            grow(&mut self.voxels, raw.min);
-            grow(&mut self.voxels, raw.max);
-            // Low-res block index s = n*i/2 + 1 + j holds the brick's texel j.
-            let base = n * i / 2;
-            for z in 1..=e_lo {
-                for y in 1..=e_lo {
-                    let row = &self.low[cx * (y + cy * z)..];
-                    for &v in &row[base + 1..base + 1 + e_lo] {
-                        push_texel(&mut self.out, v, self.scalar);
-                    }
-                }
+            Voxels::Volume(volume) => VoxelWindow::of_volume(volume),
+        };
+        let out = PackOutputs {
+            hi: Some(TexelsMut::of(&mut self.hi)),
+            lo: Some(TexelsMut::of(&mut self.lo)),
+            ranges: Some(&mut self.ranges),
+            level: false,
+        };
+        self.kernel
+            .pack_window(&window, &bricks, out)
+            .map_err(internal)?;
+        self.out.clear();
+        match (&self.hi, &self.lo) {
+            (VoxelData::U8(hi), VoxelData::U8(lo)) => interleave(&mut self.out, hi, lo, count),
+            (VoxelData::U16(hi), VoxelData::U16(lo)) => interleave(&mut self.out, hi, lo, count),
+            (VoxelData::F32(hi), VoxelData::F32(lo)) => interleave(&mut self.out, hi, lo, count),
+            _ => {
+                return Err(internal(BrickError::OutputMismatch {
+                    output: "lo",
+                    reason: "hi-res and low-res buffers differ in storage type".into(),
+                }))
             }
-            // Range window: low-res samples s in [n*i/2, n*i/2 + n/2 + 2] (k in [n*b/2 - 1,
-            // n*b/2 + n/2 + 1], positions [n*b - 2, n*(b+1) + 2]).
-            for z in 0..e_lo + 2 {
-                for y in 0..e_lo + 2 {
-                    let row = &self.low[cx * (y + cy * z)..];
-                    for &v in &row[base..base + e_lo + 2] {
-                        grow(&mut raw, v);
-                    }
+        }
+        Ok(())
+    }
+}
+
+/// A kernel error: the writer handed it something inconsistent (a bug, never the caller's input).
+fn internal(e: BrickError) -> StoreError {
+    StoreError::InvalidDesc {
+        field: "brick",
+        message: e.to_string(),
+    }
+}
+
+/// Resizes `data` to `len` texels (contents unspecified).
+fn resize(data: &mut VoxelData, len: usize) {
+    match data {
+        VoxelData::U8(v) => v.resize(len, 0),
+        VoxelData::U16(v) => v.resize(len, 0),
+        VoxelData::F32(v) => v.resize(len, 0.0),
+    }
+}
+
+/// Evaluates the producer on the window `origin .. origin + extent` (inside the volume), quantised
+/// to `T` as [`crate::bricks::quantize_to`] does; returns the min/max of the quantised values.
+/// `F32` windows reject NaN and infinities.
+fn gather<T: Texel>(
+    buf: &mut Vec<T>,
+    origin: UVec3,
+    extent: UVec3,
+    sample: &(dyn Fn(IVec3) -> f32 + Sync),
+) -> Result<ValueRange> {
+    buf.clear();
+    buf.reserve(extent.x as usize * extent.y as usize * extent.z as usize);
+    let mut range = ValueRange::EMPTY;
+    let origin = origin.as_ivec3();
+    for z in 0..extent.z as i32 {
+        for y in 0..extent.y as i32 {
+            for x in 0..extent.x as i32 {
+                let p = origin + IVec3::new(x, y, z);
+                let raw = sample(p);
+                if !T::UNORM && !raw.is_finite() {
+                    return Err(StoreError::NonFiniteSample {
+                        voxel: p.to_array(),
+                        value: raw,
+                    });
                 }
+                let texel = T::from_normalized(raw);
+                grow(&mut range, texel.normalized());
+                buf.push(texel);
             }
-            self.ranges.push(stored_range(raw, self.scalar));
         }
     }
-}
-
-/// `sum weight * value(index)` accumulated in `f64` in tap order, rounded to `f32`.
-#[inline]
-fn weighted(taps: &[(usize, f32)], value: impl Fn(usize) -> f32) -> f32 {
-    let mut acc = 0.0_f64;
-    for &(i, w) in taps {
-        acc += f64::from(w) * f64::from(value(i));
-    }
-    acc as f32
-}
-
-/// `round(clamp(v, 0, 1) * max)` with ties away from zero, NaN to 0: exactly the
-/// [`crate::bricks::quantize_to`] conversion (`f32::round`), without the libm call. For
-/// `0 <= x <= 65535`, `x - trunc(x)` is exact, so comparing it with 0.5 rounds exactly.
-#[inline]
-fn unorm(v: f32, max: f32) -> u32 {
-    let x = v.clamp(0.0, 1.0) * max;
-    let whole = x as u32; // saturating: NaN becomes 0
-    whole + u32::from(x - whole as f32 >= 0.5)
+    Ok(range)
 }
 
 /// `ValueRange::include` for values known not to be NaN.
@@ -685,73 +540,25 @@ fn grow(range: &mut ValueRange, v: f32) {
     }
 }
 
-/// Appends `v` as a little-endian texel of `scalar` (what `quantize_to` gives on little-endian).
+/// Appends brick `i`'s hi-res then low-res texels for every brick, as little-endian bytes.
+fn interleave<T: Texel>(out: &mut Vec<u8>, hi: &[T], lo: &[T], count: usize) {
+    let (hi_len, lo_len) = (hi.len() / count, lo.len() / count);
+    out.reserve(std::mem::size_of_val(hi) + std::mem::size_of_val(lo));
+    for (hi, lo) in hi.chunks_exact(hi_len).zip(lo.chunks_exact(lo_len)) {
+        extend_le(out, hi);
+        extend_le(out, lo);
+    }
+}
+
+/// Appends `texels` as little-endian bytes (their native bytes on little-endian hosts).
 #[inline]
-fn push_texel(out: &mut Vec<u8>, v: f32, scalar: ScalarType) {
-    match scalar {
-        ScalarType::U8 => out.push(unorm(v, 255.0) as u8),
-        ScalarType::U16 => out.extend_from_slice(&(unorm(v, 65535.0) as u16).to_le_bytes()),
-        ScalarType::F32 => out.extend_from_slice(&v.to_le_bytes()),
-    }
-}
-
-/// The range the reference's per-value `include_stored` gives for raw values spanning `raw`:
-/// rounding each value down and up to the storage grid is monotone, so only the ends matter.
-fn stored_range(raw: ValueRange, scalar: ScalarType) -> ValueRange {
-    let levels = match scalar {
-        ScalarType::U8 => 255.0_f32,
-        ScalarType::U16 => 65535.0,
-        ScalarType::F32 => return raw,
-    };
-    let down = |v: f32| (v.clamp(0.0, 1.0) * levels).floor() / levels;
-    let up = |v: f32| (v.clamp(0.0, 1.0) * levels).ceil() / levels;
-    ValueRange {
-        min: down(raw.min).min(up(raw.min)),
-        max: up(raw.max).max(down(raw.max)),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::bricks::quantize_to;
-
-    #[test]
-    fn fast_unorm_matches_quantize_to_bit_for_bit() {
-        let mut values = vec![
-            0.0,
-            -0.0,
-            1.0,
-            -1.0,
-            2.0,
-            f32::NAN,
-            f32::INFINITY,
-            f32::NEG_INFINITY,
-            f32::MIN_POSITIVE,
-        ];
-        for levels in [255.0_f32, 65535.0] {
-            for k in 0..=levels as u32 {
-                for x in [k as f32 - 0.5, k as f32 + 0.5, k as f32] {
-                    let v = x / levels;
-                    // The neighbouring floats (v is positive or zero here).
-                    let b = v.to_bits();
-                    values.extend([v, f32::from_bits(b + 1), f32::from_bits(b.max(1) - 1)]);
-                }
-            }
-        }
-        let mut state = 0x9E37_79B9_7F4A_7C15_u64;
-        for _ in 0..1_000_000 {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            values.push(f32::from_bits(state as u32 & 0x3FFF_FFFF));
-        }
-        let u8s = quantize_to(&values, ScalarType::U8);
-        let u16s = quantize_to(&values, ScalarType::U16);
-        for (i, &v) in values.iter().enumerate() {
-            assert_eq!(unorm(v, 255.0) as u8, u8s[i], "u8 {v:e}");
-            let w = u16::from_ne_bytes([u16s[2 * i], u16s[2 * i + 1]]);
-            assert_eq!(unorm(v, 65535.0) as u16, w, "u16 {v:e}");
+fn extend_le<T: Texel>(out: &mut Vec<u8>, texels: &[T]) {
+    let bytes: &[u8] = bytemuck::cast_slice(texels);
+    if cfg!(target_endian = "little") {
+        out.extend_from_slice(bytes);
+    } else {
+        for texel in bytes.chunks_exact(std::mem::size_of::<T>()) {
+            out.extend(texel.iter().rev());
         }
     }
 }

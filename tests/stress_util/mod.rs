@@ -5,8 +5,8 @@
 
 use crate::common;
 use glam::{UVec3, Vec3, Vec4};
-use mixvol::bricks::{BrickGrid, DownsampleFilter};
-use mixvol::cache::{BrickCache, CacheGeometry, Level};
+use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
+use mixvol::cache::{BrickCache, CacheGeometry};
 use mixvol::optics::TransferFunction;
 use mixvol::reference::{self, ReferenceCache, Transition};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};

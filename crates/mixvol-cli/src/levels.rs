@@ -2,7 +2,7 @@
 
 use crate::args::LevelsArg;
 use mixvol::bricks::BrickGrid;
-use mixvol::cache::Level;
+use mixvol::bricks::Level;
 
 /// The level of every brick of `grid` under `pattern`, in linear brick order.
 pub fn level_pattern(grid: &BrickGrid, pattern: LevelsArg) -> Vec<Level> {

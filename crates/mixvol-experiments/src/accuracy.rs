@@ -6,8 +6,8 @@
 
 use crate::chart::draw_text;
 use glam::Vec4;
+use mixvol::bricks::Level;
 use mixvol::bricks::{brick_value_ranges, BrickGrid, DownsampleFilter};
-use mixvol::cache::Level;
 use mixvol::embed::MixedConfig;
 use mixvol::gpu::GpuContext;
 use mixvol::lod::{

@@ -1,12 +1,16 @@
 //! Where a renderer gets packed brick bytes from, and how it copes with bricks not loaded yet.
+//!
+//! [`BrickSource`] is the supplier: the store's streamer
+//! ([`BrickStreamer`](crate::store::BrickStreamer), from disk) or the in-memory sources here
+//! ([`VolumeBrickSource`], [`RgbaBrickSource`], packed on demand by the [kernel](super::kernel)).
+//! Its errors are [`StoreError`]s, the streamer's failures included.
 
-use super::{Result, StoreError};
-use crate::bricks::{
-    brick_value_ranges_for_storage, pack_hi_res_brick, pack_low_res_brick, quantize_to, BrickGrid,
-    DownsampleFilter, ValueRange,
-};
-use crate::cache::Level;
+use super::build::{available_threads, build_value_ranges};
+use super::kernel::{BrickBox, BrickKernel, PackOutputs, TexelsMut, VoxelWindow};
+use super::packing::{hi_res_brick_extent, low_res_brick_extent};
+use super::{BrickError, BrickGrid, DownsampleFilter, Level, ValueRange};
 use crate::optics::SamplingModel;
+use crate::store::{Result, StoreError};
 use crate::volume::{RgbaVolume, ScalarType, Volume, VoxelData};
 use glam::Vec3;
 use std::sync::Arc;
@@ -76,8 +80,8 @@ pub trait BrickSource: Send + Sync {
 /// still needs its bytes here (for re-uploads: compaction moves, border restores): keep the
 /// bricks you draw in the streamer's wanted set so that their bytes stay in RAM.
 ///
-/// With a [`super::BrickStreamer`], every level this function reports drawable stays loaded until
-/// the next [`super::BrickStreamer::request`] (it is pinned), so the uploads that follow in the
+/// With a [`crate::store::BrickStreamer`], every level this function reports drawable stays loaded until
+/// the next [`crate::store::BrickStreamer::request`] (it is pinned), so the uploads that follow in the
 /// same frame always find their bytes.
 pub fn fallback_levels(wanted: &[Level], source: &dyn BrickSource) -> Vec<Level> {
     wanted
@@ -100,7 +104,7 @@ pub fn fallback_levels(wanted: &[Level], source: &dyn BrickSource) -> Vec<Level>
 /// `priority[brick]` (the caller's LOD error, tie-broken by distance; equal priorities keep brick
 /// order). Missing or NaN priorities count as lowest.
 ///
-/// The returned priorities are ranks (`len - position`), so [`super::BrickStreamer::request`]
+/// The returned priorities are ranks (`len - position`), so [`crate::store::BrickStreamer::request`]
 /// keeps exactly this order.
 pub fn request_plan(wanted: &[Level], priority: &[f32]) -> Vec<(u32, Level, f32)> {
     let p = |i: usize| match priority.get(i) {
@@ -231,8 +235,9 @@ impl BrickSource for RgbaBrickSource {
 }
 
 /// An in-memory volume as a [`BrickSource`]: every brick is always available, packed on demand
-/// with [`crate::bricks::pack_hi_res_brick`] / [`crate::bricks::pack_low_res_brick`] and
-/// [`crate::bricks::quantize_to`] (the volume's scalar type is the storage type).
+/// by the [kernel](super::kernel) straight from the volume (the bytes are what
+/// [`crate::bricks::pack_hi_res_brick`] / [`crate::bricks::pack_low_res_brick`] and
+/// [`crate::bricks::quantize_to`] give; the volume's scalar type is the storage type).
 #[derive(Clone, Debug)]
 pub struct VolumeBrickSource {
     volume: Arc<Volume>,
@@ -244,15 +249,12 @@ pub struct VolumeBrickSource {
 
 impl VolumeBrickSource {
     /// Bricks `volume` into `brick_size`^3 bricks with low-res level `filter` (computes the value
-    /// ranges up front).
+    /// ranges up front, on all cores).
     pub fn new(volume: Arc<Volume>, brick_size: u32, filter: DownsampleFilter) -> Result<Self> {
-        let invalid = |e: crate::bricks::BrickError| StoreError::InvalidDesc {
-            field: "brick_size",
-            message: e.to_string(),
-        };
-        let grid = BrickGrid::new(volume.dims(), brick_size).map_err(invalid)?;
-        let ranges = brick_value_ranges_for_storage(&volume, &grid, filter, volume.scalar_type())
-            .map_err(invalid)?;
+        let grid = BrickGrid::new(volume.dims(), brick_size).map_err(invalid("brick_size"))?;
+        let storage = volume.scalar_type();
+        let ranges = build_value_ranges(&volume, &grid, filter, storage, available_threads())
+            .map_err(invalid("brick_size"))?;
         let (min, max) = volume.value_range();
         Ok(Self {
             volume,
@@ -266,6 +268,14 @@ impl VolumeBrickSource {
     /// The volume.
     pub fn volume(&self) -> &Arc<Volume> {
         &self.volume
+    }
+}
+
+/// Maps a bricking error to [`StoreError::InvalidDesc`] naming `field`.
+fn invalid(field: &'static str) -> impl Fn(BrickError) -> StoreError {
+    move |e| StoreError::InvalidDesc {
+        field,
+        message: e.to_string(),
     }
 }
 
@@ -299,17 +309,35 @@ impl BrickSource for VolumeBrickSource {
         if brick >= count {
             return Err(StoreError::BrickOutOfRange { brick, count });
         }
-        let coords = self.grid.brick_coords(brick as usize);
-        let values = match level {
-            Level::Hi => pack_hi_res_brick(&self.volume, &self.grid, coords),
-            Level::Lo => pack_low_res_brick(&self.volume, &self.grid, self.filter, coords),
+        let n = self.grid.brick_size();
+        let extent = match level {
+            Level::Hi => hi_res_brick_extent(n),
+            Level::Lo => low_res_brick_extent(n),
             Level::Absent => return Err(StoreError::AbsentLevel { brick }),
-        }
-        .map_err(|e| StoreError::InvalidDesc {
-            field: "brick",
-            message: e.to_string(),
-        })?;
-        Ok(Some(quantize_to(&values, self.volume.scalar_type()).into()))
+        };
+        let storage = self.volume.scalar_type();
+        let texels = (extent as usize).pow(3);
+        let mut packed = match storage {
+            ScalarType::U8 => VoxelData::U8(vec![0; texels]),
+            ScalarType::U16 => VoxelData::U16(vec![0; texels]),
+            ScalarType::F32 => VoxelData::F32(vec![0.0; texels]),
+        };
+        let texels = Some(TexelsMut::of(&mut packed));
+        let out = match level {
+            Level::Hi => PackOutputs {
+                hi: texels,
+                ..PackOutputs::default()
+            },
+            _ => PackOutputs {
+                lo: texels,
+                ..PackOutputs::default()
+            },
+        };
+        let bricks = BrickBox::single(self.grid.brick_coords(brick as usize));
+        BrickKernel::new(&self.grid, self.filter, storage)
+            .pack_window(&VoxelWindow::of_volume(&self.volume), &bricks, out)
+            .map_err(invalid("brick"))?;
+        Ok(Some(packed.as_bytes().into()))
     }
 
     fn is_loaded(&self, brick: u32, level: Level) -> bool {

@@ -1,0 +1,21 @@
+//! The resolution level of one brick: what the LOD selector wants, what the brick cache stores and
+//! what a [`BrickSource`](super::BrickSource) packs.
+
+/// The resolution level the LOD selector wants for a brick.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Level {
+    /// Level 0: the full-resolution brick, `(n+2)^3` texels, one whole slot.
+    Hi,
+    /// Level 1: the half-resolution brick, `(n/2+1)^3` texels, one sub-slot.
+    Lo,
+    /// Not drawn (culled or not resident); no cache storage.
+    #[default]
+    Absent,
+}
+
+impl Level {
+    /// True for `Hi` and `Lo`.
+    pub fn is_resident(self) -> bool {
+        self != Level::Absent
+    }
+}

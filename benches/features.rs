@@ -13,8 +13,8 @@ use glam::{UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::optics::{SamplingModel, TfPreset, TransferFunction};
-use mixvol::reference::Transition;
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
+use mixvol::scene::Transition;
 use mixvol::scene::{
     Camera, ClipPlane, ClipPlanes, Reconstruction, RenderMode, RenderSettings, Shading,
 };

@@ -36,8 +36,8 @@ use mixvol::lod::{
     ValueCulling,
 };
 use mixvol::optics::{TfPreset, TransferFunction};
-use mixvol::reference::Transition;
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
+use mixvol::scene::Transition;
 use mixvol::scene::{Camera, ClipPlanes, RenderSettings};
 use mixvol::store::{
     write_store, write_store_from_volume, BrickStreamer, StoreDesc, StreamerConfig,

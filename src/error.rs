@@ -53,6 +53,9 @@ pub enum Error {
     /// Culling or level selection was given unusable input.
     #[error(transparent)]
     Lod(#[from] crate::lod::LodError),
+    /// A brick source could not deliver a brick.
+    #[error(transparent)]
+    Source(#[from] crate::bricks::SourceError),
     /// The brick store could not be written, read or streamed.
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),

@@ -10,7 +10,7 @@ use crate::gpu::{
     RaycastVariant, Submitter,
 };
 use crate::optics::TransferFunction;
-use crate::reference::Transition;
+use crate::scene::Transition;
 use crate::scene::{Camera, RaycastParams, RenderSettings};
 use ash::vk;
 use glam::{Vec3, Vec4};
@@ -245,7 +245,7 @@ impl Renderer {
             ));
         };
         let bytes = state.gpu.read_back(&mut self.submitter)?;
-        Ok(crate::reference::dequantize(&bytes, state.source.scalar()))
+        Ok(crate::bricks::dequantize(&bytes, state.source.scalar()))
     }
 
     /// The pipeline variants built so far (each compiled once, then reused).

@@ -17,6 +17,19 @@ use glam::{Mat4, UVec3, Vec3, Vec4};
 /// GLSL): keeps axis-parallel rays finite.
 pub const RAY_DIR_EPSILON: f32 = 1e-20;
 
+/// Bisection steps of the iso-surface refinement (then one secant step): 2^-10 of a sample step
+/// (passed to GLSL as a macro).
+pub const ISO_BISECTIONS: u32 = 10;
+
+/// How transitions between resolution levels are reconstructed.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+pub enum Transition {
+    /// C0 blend in the half-voxel band of hi-res bricks next to low-res bricks (needs the fixup).
+    Smooth,
+    /// Plain trilinear fetch everywhere, original duplicated borders: the baseline.
+    Discontinuous,
+}
+
 /// Default opacity at which a ray stops (early ray termination).
 pub const DEFAULT_EARLY_TERMINATION: f32 = 0.99;
 

@@ -13,7 +13,8 @@ use common::Rng;
 use glam::{UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
 use mixvol::cache::{BrickCache, CacheGeometry};
-use mixvol::reference::{sample_mixed, sample_volume, ReferenceCache, Transition};
+use mixvol::reference::{sample_mixed, sample_volume, ReferenceCache};
+use mixvol::scene::Transition;
 use mixvol::volume::{ScalarType, Volume, VoxelData};
 
 const N: u32 = 8;

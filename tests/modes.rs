@@ -14,8 +14,9 @@ use common::Rng;
 use glam::{UVec3, Vec3, Vec4};
 use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
 use mixvol::optics::{ClassificationTable, SamplingModel, TfPreset, TransferFunction};
-use mixvol::reference::{self, RayProgram, ReferenceCache, Transition};
+use mixvol::reference::{self, RayProgram, ReferenceCache};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
+use mixvol::scene::Transition;
 use mixvol::scene::{
     Camera, ClipPlane, ClipPlanes, RayFeatures, Reconstruction, RenderMode, RenderSettings, Shading,
 };

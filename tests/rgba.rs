@@ -200,8 +200,9 @@ fn the_opaque_wall_stays_opaque_only_with_extinction_based_sampling() {
 fn rgba_volumes_through_the_brick_cache_match_the_reference() {
     use common::Rng;
     use mixvol::bricks::{BrickGrid, DownsampleFilter, Level, RgbaBrickSource};
-    use mixvol::reference::{ReferenceCache, Transition};
+    use mixvol::reference::ReferenceCache;
     use mixvol::renderer::MixedConfig;
+    use mixvol::scene::Transition;
     use mixvol::volume::ScalarType;
 
     const N: u32 = 8;

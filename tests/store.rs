@@ -4,8 +4,8 @@
 use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{
     brick_value_ranges_for_storage, fallback_levels, pack_hi_res_brick, pack_low_res_brick,
-    quantize_to, request_plan, BrickGrid, BrickSource, DownsampleFilter, Level, ValueRange,
-    VolumeBrickSource,
+    quantize_to, request_plan, BrickGrid, BrickSource, DownsampleFilter, Level, SourceError,
+    ValueRange, VolumeBrickSource,
 };
 use mixvol::store::format::{self, HEADER_SIZE};
 use mixvol::store::{
@@ -699,11 +699,11 @@ fn requests_validate_dedupe_and_order_ties_stably() {
     ));
     assert!(matches!(
         streamer.brick_bytes(600, Level::Hi),
-        Err(StoreError::BrickOutOfRange { .. })
+        Err(SourceError::BrickOutOfRange { .. })
     ));
     assert!(matches!(
         streamer.brick_bytes(0, Level::Absent),
-        Err(StoreError::AbsentLevel { .. })
+        Err(SourceError::AbsentLevel { .. })
     ));
     streamer
         .request(&[
@@ -802,10 +802,13 @@ fn failed_loads_are_reported_not_retried_and_drop_joins() {
     settle(&streamer);
     assert!(streamer.brick_bytes(0, Level::Hi).unwrap().is_some());
     match streamer.brick_bytes(511, Level::Hi) {
-        Err(StoreError::Load {
+        Err(SourceError::Load {
             brick: 511, source, ..
         }) => {
-            assert!(matches!(*source, StoreError::Io { .. }))
+            assert!(matches!(
+                source.downcast_ref::<StoreError>(),
+                Some(StoreError::Io { .. })
+            ))
         }
         other => panic!("{other:?}"),
     }

@@ -6,8 +6,8 @@ mod common;
 
 use glam::UVec3;
 use mixvol::bricks::{request_plan, DownsampleFilter, Level};
-use mixvol::reference::Transition;
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
+use mixvol::scene::Transition;
 use mixvol::scene::{Camera, RenderSettings};
 use mixvol::store::{write_store_from_volume, BrickStreamer, StreamerConfig};
 use mixvol::volume::{ScalarType, SyntheticField};

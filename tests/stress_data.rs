@@ -15,8 +15,9 @@ use common::Rng;
 use glam::{UVec3, Vec3, Vec4};
 use mixvol::bricks::{BrickGrid, Level};
 use mixvol::optics::{TfPreset, TransferFunction, TF_SIZE};
-use mixvol::reference::{self, Transition};
+use mixvol::reference;
 use mixvol::renderer::{Renderer, VolumeSource};
+use mixvol::scene::Transition;
 use mixvol::scene::{Camera, RaycastParams, RenderSettings};
 use mixvol::volume::{
     load_raw, RawDescriptor, ScalarType, SyntheticField, Volume, VolumeError, VoxelData,

@@ -28,10 +28,9 @@ use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
 use mixvol::cache::{BrickCache, CacheGeometry};
 use mixvol::optics::{TfPreset, TransferFunction};
-use mixvol::reference::{
-    brick_of, sample_mixed, sample_volume, MixedVolume, ReferenceCache, Transition,
-};
+use mixvol::reference::{brick_of, sample_mixed, sample_volume, MixedVolume, ReferenceCache};
 use mixvol::renderer::{MixedConfig, VolumeSource};
+use mixvol::scene::Transition;
 use mixvol::scene::{volume_box, Camera, RenderSettings};
 use mixvol::volume::{ScalarType, Volume};
 use std::sync::Arc;

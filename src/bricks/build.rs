@@ -16,10 +16,11 @@
 //! ranges need (one sample layer beyond its own part on each side), so the samples on the layers
 //! shared with the neighbouring rows are computed twice.
 
-use super::filters::{low_res_dims, max_low_res_index, DownsampleFilter, LowResLevel};
+use super::filters::{low_res_dims, max_low_res_index, LowResLevel};
 use super::kernel::texel::Texel;
 use super::kernel::{BrickBox, BrickKernel, PackOutputs, VoxelWindow};
 use super::packing::{hi_res_brick_extent, low_res_brick_extent};
+use super::taps::DownsampleFilter;
 use super::{BrickError, BrickGrid, ValueRange};
 use crate::volume::{ScalarType, Volume, VoxelData};
 use glam::UVec3;

@@ -12,7 +12,7 @@
 //! (clamp-to-edge on the low-res grid), so low-res bricks that reach past the volume (partial bricks)
 //! repeat the last valid sample, just like hi-res bricks repeat the last voxel.
 
-use super::taps::AxisTaps;
+use super::taps::{AxisTaps, DownsampleFilter};
 use super::BrickError;
 use crate::volume::Volume;
 use glam::{IVec3, UVec3};
@@ -21,66 +21,6 @@ use glam::{IVec3, UVec3};
 /// before converting to an extinction coefficient, so a fully opaque texel maps to the finite
 /// `tau * d0 = -ln(ALPHA_EPSILON) ≈ 13.8` instead of infinity.
 pub const ALPHA_EPSILON: f32 = 1e-6;
-
-/// A separable downsampling filter producing the low-res sample at position `2k`.
-#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]
-pub enum DownsampleFilter {
-    /// Mean of hi-res indices `2k-1` and `2k` per axis (the 2x2x2 mean of Beyer et al. §3.1),
-    /// i.e. the two voxels at `2k ∓ 0.5`. Reproduces linear functions exactly.
-    #[default]
-    Mean2,
-    /// LaMar et al. 1999 subsampling `B_k = A_{2k}`: the single voxel of index `2k` (position
-    /// `2k + 0.5`), no averaging. The sample is therefore biased by half a hi-res voxel towards `+`
-    /// on each axis: a linear ramp `f(p)` comes out as `f(2k + 0.5)` at position `2k`.
-    LaMarSubsample,
-    /// Kraus' 4-tap box `1/4 (1 1 1 1)` over indices `2k-2 ..= 2k+1`, the best 4-tap compromise for
-    /// trilinear reconstruction. Reproduces linear functions exactly.
-    Box4,
-    /// Kraus' `1/64 (13 19 19 13)` over indices `2k-2 ..= 2k+1`, matched to quadratic B-spline
-    /// reconstruction. Reproduces linear functions exactly.
-    BSpline4,
-}
-
-const MEAN2_TAPS: [(i64, f32); 2] = [(-1, 0.5), (0, 0.5)];
-const LAMAR_TAPS: [(i64, f32); 1] = [(0, 1.0)];
-const BOX4_TAPS: [(i64, f32); 4] = [(-2, 0.25), (-1, 0.25), (0, 0.25), (1, 0.25)];
-const BSPLINE4_TAPS: [(i64, f32); 4] = [
-    (-2, 13.0 / 64.0),
-    (-1, 19.0 / 64.0),
-    (0, 19.0 / 64.0),
-    (1, 13.0 / 64.0),
-];
-
-impl DownsampleFilter {
-    /// Every filter, for tests and option lists.
-    pub const ALL: [DownsampleFilter; 4] = [
-        DownsampleFilter::Mean2,
-        DownsampleFilter::LaMarSubsample,
-        DownsampleFilter::Box4,
-        DownsampleFilter::BSpline4,
-    ];
-
-    /// The 1D taps `(offset from index 2k, weight)`; the weights sum to one.
-    pub fn taps(self) -> &'static [(i64, f32)] {
-        match self {
-            DownsampleFilter::Mean2 => &MEAN2_TAPS,
-            DownsampleFilter::LaMarSubsample => &LAMAR_TAPS,
-            DownsampleFilter::Box4 => &BOX4_TAPS,
-            DownsampleFilter::BSpline4 => &BSPLINE4_TAPS,
-        }
-    }
-
-    /// Parses `mean2`, `lamar`, `box4` or `bspline4` (case-insensitive).
-    pub fn parse(name: &str) -> Option<Self> {
-        match name.to_ascii_lowercase().as_str() {
-            "mean2" | "mean" | "box2" => Some(DownsampleFilter::Mean2),
-            "lamar" | "subsample" | "lamar-subsample" => Some(DownsampleFilter::LaMarSubsample),
-            "box4" => Some(DownsampleFilter::Box4),
-            "bspline4" | "bspline" => Some(DownsampleFilter::BSpline4),
-            _ => None,
-        }
-    }
-}
 
 /// Largest valid low-res index per axis: `K = ceil(dims / 2)` (see the module docs).
 pub fn max_low_res_index(dims: UVec3) -> UVec3 {

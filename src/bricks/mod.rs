@@ -29,15 +29,18 @@ pub use build::{
 };
 pub use kernel::{BrickBox, BrickKernel, PackOutputs, TexelsMut, VoxelWindow};
 pub use level::Level;
-pub use source::{fallback_levels, request_plan, BrickSource, RgbaBrickSource, VolumeBrickSource};
+pub use source::{
+    fallback_levels, request_plan, BrickSource, RgbaBrickSource, SourceError, VolumeBrickSource,
+};
+pub use taps::DownsampleFilter;
 
 pub use filters::{
     downsample_rgba_extinction, downsample_rgba_opacity, low_res_block, low_res_dims,
-    low_res_level, low_res_value, max_low_res_index, DownsampleFilter, LowResLevel, RgbaLevel,
+    low_res_level, low_res_value, max_low_res_index, LowResLevel, RgbaLevel,
 };
 pub use packing::{
-    hi_res_brick_extent, low_res_brick_extent, pack_hi_res_brick, pack_low_res_brick, quantize_to,
-    subslot_offset, SUB_SLOTS_PER_SLOT,
+    dequantize, hi_res_brick_extent, low_res_brick_extent, pack_hi_res_brick, pack_low_res_brick,
+    quantize_to, subslot_offset, SUB_SLOTS_PER_SLOT,
 };
 
 use crate::volume::{ScalarType, Volume};

@@ -14,7 +14,8 @@
 //! All packed bricks are `Vec<f32>` of normalised values, x fastest; [`quantize_to`] converts them to
 //! the bytes of a storage format.
 
-use super::filters::{low_res_block, DownsampleFilter};
+use super::filters::low_res_block;
+use super::taps::DownsampleFilter;
 use super::{BrickError, BrickGrid};
 use crate::volume::{ScalarType, Volume};
 use glam::{IVec3, UVec3};
@@ -100,6 +101,19 @@ pub fn quantize_to(values: &[f32], scalar: ScalarType) -> Vec<u8> {
 /// `round(clamp(v, 0, 1) * max)`; NaN becomes 0 (saturating float-to-int casts).
 fn unorm(v: f32, max: f32) -> f32 {
     (v.clamp(0.0, 1.0) * max).round()
+}
+
+/// Normalised values of texel bytes in the storage format (what the GPU's UNORM/SFLOAT read
+/// gives): the inverse of [`quantize_to`] on values it produced.
+pub fn dequantize(bytes: &[u8], storage: ScalarType) -> Vec<f32> {
+    match storage {
+        ScalarType::U8 => bytes.iter().map(|&b| f32::from(b) / 255.0).collect(),
+        ScalarType::U16 => bytes
+            .chunks_exact(2)
+            .map(|c| f32::from(u16::from_ne_bytes([c[0], c[1]])) / 65535.0)
+            .collect(),
+        ScalarType::F32 => bytemuck::pod_collect_to_vec(bytes),
+    }
 }
 
 #[cfg(test)]

@@ -3,17 +3,57 @@
 //! [`BrickSource`] is the supplier: the store's streamer
 //! ([`BrickStreamer`](crate::store::BrickStreamer), from disk) or the in-memory sources here
 //! ([`VolumeBrickSource`], [`RgbaBrickSource`], packed on demand by the [kernel](super::kernel)).
-//! Its errors are [`StoreError`]s, the streamer's failures included.
+//! Its errors are [`SourceError`]s: a brick it does not have, or a load that failed in its
+//! backend (the streamer's [`crate::store::StoreError`] is kept as the source).
 
 use super::build::{available_threads, build_value_ranges};
 use super::kernel::{BrickBox, BrickKernel, PackOutputs, TexelsMut, VoxelWindow};
 use super::packing::{hi_res_brick_extent, low_res_brick_extent};
 use super::{BrickError, BrickGrid, DownsampleFilter, Level, ValueRange};
+use crate::error::Result;
 use crate::optics::SamplingModel;
-use crate::store::{Result, StoreError};
 use crate::volume::{RgbaVolume, ScalarType, Volume, VoxelData};
 use glam::Vec3;
 use std::sync::Arc;
+
+/// Why a [`BrickSource`] cannot deliver a brick, or an in-memory source cannot be built.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum SourceError {
+    /// The brick index is beyond the grid.
+    #[error("brick {brick} is out of range: the grid has {count} bricks")]
+    BrickOutOfRange {
+        /// The brick index asked for.
+        brick: u32,
+        /// Bricks in the grid.
+        count: u32,
+    },
+    /// `Level::Absent` has no bytes.
+    #[error("brick {brick}: the absent level has no bytes")]
+    AbsentLevel {
+        /// The brick index asked for.
+        brick: u32,
+    },
+    /// The input of an in-memory source is unusable.
+    #[error("invalid {field}: {message}")]
+    InvalidInput {
+        /// What is wrong (`"brick_size"`, `"rgba volume"`, ...).
+        field: &'static str,
+        /// Why.
+        message: String,
+    },
+    /// Loading the brick failed in the source's backend (it is not retried until the backend
+    /// is told to, e.g. [`crate::store::BrickStreamer::clear_failures`]).
+    #[error("brick {brick} ({level:?}) failed to load: {source}")]
+    Load {
+        /// The brick index.
+        brick: u32,
+        /// The level.
+        level: Level,
+        /// The backend's error (a [`crate::store::StoreError`] for the streamer).
+        #[source]
+        source: Arc<dyn std::error::Error + Send + Sync>,
+    },
+}
 
 /// A supplier of packed brick bytes for the brick cache.
 ///
@@ -57,7 +97,7 @@ pub trait BrickSource: Send + Sync {
 
     /// The packed bytes of `brick` at `level` if they are available now, `Ok(None)` if they are
     /// not loaded yet. Errors: brick out of range, `Level::Absent`, or a load that failed.
-    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>>;
+    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>, SourceError>;
 
     /// True when [`BrickSource::brick_bytes`] would return bytes now.
     fn is_loaded(&self, brick: u32, level: Level) -> bool {
@@ -152,7 +192,7 @@ impl RgbaBrickSource {
         model: SamplingModel,
         brick_size: u32,
         filter: DownsampleFilter,
-    ) -> Result<Self> {
+    ) -> Result<Self, SourceError> {
         let channels = Self::channel_volumes(volume, model)?;
         let [r, g, b, a] =
             channels.map(|v| VolumeBrickSource::new(Arc::new(v), brick_size, filter));
@@ -164,7 +204,10 @@ impl RgbaBrickSource {
 
     /// The four weighted channels of `volume` for `model` as f32 volumes (what the CPU reference
     /// builds its per-channel caches from).
-    pub fn channel_volumes(volume: &RgbaVolume, model: SamplingModel) -> Result<[Volume; 4]> {
+    pub fn channel_volumes(
+        volume: &RgbaVolume,
+        model: SamplingModel,
+    ) -> Result<[Volume; 4], SourceError> {
         let weighted = volume.weighted(model);
         let channel = |c: usize| {
             Volume::new(
@@ -172,7 +215,7 @@ impl RgbaBrickSource {
                 volume.spacing(),
                 VoxelData::F32(weighted.iter().map(|v| v[c]).collect()),
             )
-            .map_err(|e| StoreError::InvalidDesc {
+            .map_err(|e| SourceError::InvalidInput {
                 field: "rgba volume",
                 message: e.to_string(),
             })
@@ -215,7 +258,7 @@ impl BrickSource for RgbaBrickSource {
         self.channels[3].value_range()
     }
 
-    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>> {
+    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>, SourceError> {
         let mut parts = Vec::with_capacity(4);
         for c in &self.channels {
             match c.brick_bytes(brick, level)? {
@@ -250,7 +293,11 @@ pub struct VolumeBrickSource {
 impl VolumeBrickSource {
     /// Bricks `volume` into `brick_size`^3 bricks with low-res level `filter` (computes the value
     /// ranges up front, on all cores).
-    pub fn new(volume: Arc<Volume>, brick_size: u32, filter: DownsampleFilter) -> Result<Self> {
+    pub fn new(
+        volume: Arc<Volume>,
+        brick_size: u32,
+        filter: DownsampleFilter,
+    ) -> Result<Self, SourceError> {
         let grid = BrickGrid::new(volume.dims(), brick_size).map_err(invalid("brick_size"))?;
         let storage = volume.scalar_type();
         let ranges = build_value_ranges(&volume, &grid, filter, storage, available_threads())
@@ -271,9 +318,9 @@ impl VolumeBrickSource {
     }
 }
 
-/// Maps a bricking error to [`StoreError::InvalidDesc`] naming `field`.
-fn invalid(field: &'static str) -> impl Fn(BrickError) -> StoreError {
-    move |e| StoreError::InvalidDesc {
+/// Maps a bricking error to [`SourceError::InvalidInput`] naming `field`.
+fn invalid(field: &'static str) -> impl Fn(BrickError) -> SourceError {
+    move |e| SourceError::InvalidInput {
         field,
         message: e.to_string(),
     }
@@ -304,16 +351,16 @@ impl BrickSource for VolumeBrickSource {
         self.value_range
     }
 
-    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>> {
+    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>, SourceError> {
         let count = self.ranges.len() as u32;
         if brick >= count {
-            return Err(StoreError::BrickOutOfRange { brick, count });
+            return Err(SourceError::BrickOutOfRange { brick, count });
         }
         let n = self.grid.brick_size();
         let extent = match level {
             Level::Hi => hi_res_brick_extent(n),
             Level::Lo => low_res_brick_extent(n),
-            Level::Absent => return Err(StoreError::AbsentLevel { brick }),
+            Level::Absent => return Err(SourceError::AbsentLevel { brick }),
         };
         let storage = self.volume.scalar_type();
         let texels = (extent as usize).pow(3);

@@ -1,11 +1,72 @@
-//! The taps of the separable downsampling filter along one axis: for every low-res sample `k` of
-//! the axis, the clamped hi-res indices its filter taps read (`DESIGN.md` §1, [`super::filters`]).
+//! The separable downsampling filters ([`DownsampleFilter`]: the taps `(offset, weight)` that make
+//! the low-res sample at `2k`) and their taps along one axis ([`AxisTaps`]): for every low-res
+//! sample `k` of the axis, the clamped hi-res indices its filter taps read (`DESIGN.md` §1,
+//! [`super::filters`]).
 //!
 //! One table serves the reference ([`super::low_res_block`]) and the kernel
 //! ([`super::kernel`]), so both read exactly the same voxels for every sample.
 
-use super::filters::DownsampleFilter;
 use std::ops::Range;
+
+/// A separable downsampling filter producing the low-res sample at position `2k`.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]
+pub enum DownsampleFilter {
+    /// Mean of hi-res indices `2k-1` and `2k` per axis (the 2x2x2 mean of Beyer et al. §3.1),
+    /// i.e. the two voxels at `2k ∓ 0.5`. Reproduces linear functions exactly.
+    #[default]
+    Mean2,
+    /// LaMar et al. 1999 subsampling `B_k = A_{2k}`: the single voxel of index `2k` (position
+    /// `2k + 0.5`), no averaging. The sample is therefore biased by half a hi-res voxel towards `+`
+    /// on each axis: a linear ramp `f(p)` comes out as `f(2k + 0.5)` at position `2k`.
+    LaMarSubsample,
+    /// Kraus' 4-tap box `1/4 (1 1 1 1)` over indices `2k-2 ..= 2k+1`, the best 4-tap compromise for
+    /// trilinear reconstruction. Reproduces linear functions exactly.
+    Box4,
+    /// Kraus' `1/64 (13 19 19 13)` over indices `2k-2 ..= 2k+1`, matched to quadratic B-spline
+    /// reconstruction. Reproduces linear functions exactly.
+    BSpline4,
+}
+
+const MEAN2_TAPS: [(i64, f32); 2] = [(-1, 0.5), (0, 0.5)];
+const LAMAR_TAPS: [(i64, f32); 1] = [(0, 1.0)];
+const BOX4_TAPS: [(i64, f32); 4] = [(-2, 0.25), (-1, 0.25), (0, 0.25), (1, 0.25)];
+const BSPLINE4_TAPS: [(i64, f32); 4] = [
+    (-2, 13.0 / 64.0),
+    (-1, 19.0 / 64.0),
+    (0, 19.0 / 64.0),
+    (1, 13.0 / 64.0),
+];
+
+impl DownsampleFilter {
+    /// Every filter, for tests and option lists.
+    pub const ALL: [DownsampleFilter; 4] = [
+        DownsampleFilter::Mean2,
+        DownsampleFilter::LaMarSubsample,
+        DownsampleFilter::Box4,
+        DownsampleFilter::BSpline4,
+    ];
+
+    /// The 1D taps `(offset from index 2k, weight)`; the weights sum to one.
+    pub fn taps(self) -> &'static [(i64, f32)] {
+        match self {
+            DownsampleFilter::Mean2 => &MEAN2_TAPS,
+            DownsampleFilter::LaMarSubsample => &LAMAR_TAPS,
+            DownsampleFilter::Box4 => &BOX4_TAPS,
+            DownsampleFilter::BSpline4 => &BSPLINE4_TAPS,
+        }
+    }
+
+    /// Parses `mean2`, `lamar`, `box4` or `bspline4` (case-insensitive).
+    pub fn parse(name: &str) -> Option<Self> {
+        match name.to_ascii_lowercase().as_str() {
+            "mean2" | "mean" | "box2" => Some(DownsampleFilter::Mean2),
+            "lamar" | "subsample" | "lamar-subsample" => Some(DownsampleFilter::LaMarSubsample),
+            "box4" => Some(DownsampleFilter::Box4),
+            "bspline4" | "bspline" => Some(DownsampleFilter::BSpline4),
+            _ => None,
+        }
+    }
+}
 
 /// The taps of one axis of the separable filter, for the low-res samples `0..=K` of an axis of
 /// `d` voxels (`K = ceil(d / 2)`).

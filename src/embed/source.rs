@@ -12,7 +12,7 @@ use crate::gpu::{Access, TimestampPool};
 use crate::gpu::{CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image, ImageDesc};
 use crate::gpu::{RaycastVariant, StagingUpload};
 use crate::optics::SamplingModel;
-use crate::reference::Transition;
+use crate::scene::Transition;
 use crate::scene::{Camera, RayFeatures, RaycastParams, RenderSettings};
 use crate::volume::{RgbaVolume, ScalarType, Volume};
 use ash::vk;

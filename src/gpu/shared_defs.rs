@@ -6,7 +6,7 @@
 //!   `MAX_CLIP_PLANES`, ...) and never writes the number by hand. Some live with the code they
 //!   belong to and are only referenced here: the clip-plane limit
 //!   ([`crate::scene::MAX_CLIP_PLANES`]), the iso bisection count
-//!   ([`crate::reference::ISO_BISECTIONS`]), the words of a reverse-table entry
+//!   ([`crate::scene::ISO_BISECTIONS`]), the words of a reverse-table entry
 //!   ([`crate::bricks::SUB_SLOTS_PER_SLOT`]), the transfer-function table size
 //!   ([`crate::optics::TF_SIZE`]) and the ray-direction epsilon
 //!   ([`crate::scene::RAY_DIR_EPSILON`]).
@@ -79,10 +79,7 @@ pub fn defines() -> Vec<(&'static str, String)> {
             format!("{:e}", crate::scene::RAY_DIR_EPSILON),
         ),
         ("MAX_CLIP_PLANES", crate::scene::MAX_CLIP_PLANES.to_string()),
-        (
-            "ISO_BISECTIONS",
-            crate::reference::ISO_BISECTIONS.to_string(),
-        ),
+        ("ISO_BISECTIONS", crate::scene::ISO_BISECTIONS.to_string()),
         (
             "SUB_SLOTS_PER_SLOT",
             crate::bricks::SUB_SLOTS_PER_SLOT.to_string(),

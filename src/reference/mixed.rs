@@ -28,16 +28,8 @@
 //! trap). The warp survives as the low-res read of the border (`u' = (u + 1/2) / 2` on a trapezoid
 //! cell, any `u'` on a triangle cell, whose two border texels both hold the apex).
 
+use crate::scene::Transition;
 use glam::{BVec3, IVec3, UVec3, Vec3};
-
-/// How transitions between resolution levels are reconstructed.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
-pub enum Transition {
-    /// C0 blend in the half-voxel band of hi-res bricks next to low-res bricks (needs the fixup).
-    Smooth,
-    /// Plain trilinear fetch everywhere, original duplicated borders: the baseline.
-    Discontinuous,
-}
 
 /// A CPU copy of the 3D brick cache image (normalised values, x fastest).
 #[derive(Clone, Debug, PartialEq)]
@@ -480,7 +472,9 @@ impl ReferenceCache {
         storage: crate::volume::ScalarType,
         transition: Transition,
     ) -> crate::Result<Self> {
-        use crate::bricks::{pack_hi_res_brick, pack_low_res_brick, quantize_to, Level};
+        use crate::bricks::{
+            dequantize, pack_hi_res_brick, pack_low_res_brick, quantize_to, Level,
+        };
         use crate::cache::Residency;
         let grid = cache.grid();
         let geometry = cache.geometry();
@@ -539,19 +533,6 @@ impl ReferenceCache {
             bricks: self.bricks,
             brick_size: self.brick_size,
         }
-    }
-}
-
-/// Normalised values of texel bytes in the storage format (what the GPU's UNORM/SFLOAT read gives).
-pub fn dequantize(bytes: &[u8], storage: crate::volume::ScalarType) -> Vec<f32> {
-    use crate::volume::ScalarType;
-    match storage {
-        ScalarType::U8 => bytes.iter().map(|&b| f32::from(b) / 255.0).collect(),
-        ScalarType::U16 => bytes
-            .chunks_exact(2)
-            .map(|c| f32::from(u16::from_ne_bytes([c[0], c[1]])) / 65535.0)
-            .collect(),
-        ScalarType::F32 => bytemuck::pod_collect_to_vec(bytes),
     }
 }
 

@@ -8,16 +8,17 @@ mod sampling;
 
 pub use camera::{clip_ray, depth_limit, generate_ray, intersect_box, safe_inverse, Ray};
 pub use mixed::{
-    active_axes, band, band_bounds, brick_of, dequantize, feature_touches_low_res, fixup_brick,
-    fixup_value, low_res_border_coord, neighbour_bit, sample_hi_res_transition, sample_in_brick,
-    sample_mixed, CacheImage, MixedVolume, ReferenceCache, Transition, FIXUP_PRECEDENCE,
+    active_axes, band, band_bounds, brick_of, feature_touches_low_res, fixup_brick, fixup_value,
+    low_res_border_coord, neighbour_bit, sample_hi_res_transition, sample_in_brick, sample_mixed,
+    CacheImage, MixedVolume, ReferenceCache, FIXUP_PRECEDENCE,
 };
-pub use modes::{RayProgram, RayState, ISO_BISECTIONS};
+pub use modes::{RayProgram, RayState};
 pub use sampling::{sample_rgba_volume, sample_tricubic, sample_volume, tricubic_taps};
 
 use crate::error::Result;
 use crate::optics::preintegration::PreintegrationTable;
 use crate::optics::{ClassificationTable, SamplingModel, TransferFunction};
+use crate::scene::Transition;
 use crate::scene::{RayFeatures, RaycastParams, RenderSettings};
 use crate::volume::{RgbaVolume, Volume};
 use glam::{Vec2, Vec3, Vec4};

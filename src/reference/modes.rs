@@ -5,11 +5,8 @@
 use super::sampling::sample_tricubic;
 use crate::optics::preintegration::PreintegrationTable;
 use crate::optics::{composite, correct_opacity, sample_colour, tf_position, ClassificationTable};
-use crate::scene::{ModeKind, RayFeatures, RaycastParams};
+use crate::scene::{ModeKind, RayFeatures, RaycastParams, ISO_BISECTIONS};
 use glam::{Vec3, Vec4};
-
-/// Bisection steps of the iso-surface refinement (then one secant step): 2^-10 of a sample step.
-pub const ISO_BISECTIONS: u32 = 10;
 
 /// Everything a ray's samples are interpreted with: the features (the GLSL variant), the
 /// classification table (the TF texture), the optional pre-integration table and the

@@ -15,11 +15,12 @@
 //! [`parse_header`] and [`parse_tables`] validate every field with checked arithmetic and name the
 //! field at fault in [`StoreError::Format`]; they never panic on any input.
 
-use super::{Result, StoreError};
+use super::StoreError;
 use crate::bricks::{
     hi_res_brick_extent, low_res_brick_extent, BrickGrid, DownsampleFilter, ValueRange,
     MAX_BRICK_SIZE,
 };
+use crate::error::Result;
 use crate::volume::ScalarType;
 use glam::{UVec3, Vec3};
 use std::path::Path;
@@ -328,7 +329,7 @@ pub(crate) fn format_error(path: &Path, field: &'static str, message: String) ->
 /// `lo_brick_bytes`, `ranges_offset`, `offsets_offset`, `data_offset`, `file_size` (against the
 /// layout and `actual_len`), `value_range`, `reserved`. The checksum is checked by
 /// [`parse_tables`] once the tables are read.
-pub fn parse_header(bytes: &[u8], actual_len: u64, path: &Path) -> Result<StoreHeader> {
+pub fn parse_header(bytes: &[u8], actual_len: u64, path: &Path) -> Result<StoreHeader, StoreError> {
     let err = |field: &'static str, message: String| format_error(path, field, message);
     if bytes.len() < MAGIC.len() || bytes[..MAGIC.len()] != MAGIC {
         return Err(err(
@@ -570,7 +571,7 @@ pub fn parse_tables(
     ranges_bytes: &[u8],
     offsets_bytes: &[u8],
     path: &Path,
-) -> Result<StoreTables> {
+) -> Result<StoreTables, StoreError> {
     let err = |field: &'static str, message: String| format_error(path, field, message);
     let count = header.brick_count as usize;
     if ranges_bytes.len() as u64 != count as u64 * RANGE_ENTRY_BYTES

@@ -36,9 +36,7 @@ pub use writer::{
     write_store_with_threads, StoreDesc, WriteSummary,
 };
 
-use crate::bricks::Level;
 use std::path::PathBuf;
-use std::sync::Arc;
 
 /// Errors from writing, opening, reading and streaming brick stores.
 #[derive(Debug, thiserror::Error)]
@@ -95,22 +93,7 @@ pub enum StoreError {
         /// The brick index given.
         brick: u32,
     },
-    /// The streamer's loader thread failed to load a brick (it is not retried until the brick is
-    /// requested again after [`BrickStreamer::clear_failures`]).
-    #[error("brick {brick} ({level:?}) failed to load: {source}")]
-    Load {
-        /// The brick index.
-        brick: u32,
-        /// The level.
-        level: Level,
-        /// The original error.
-        #[source]
-        source: Arc<StoreError>,
-    },
     /// The streamer's loader thread could not be started.
     #[error("cannot start the brick loader thread: {0}")]
     Thread(#[source] std::io::Error),
 }
-
-/// Result with [`StoreError`].
-pub type Result<T, E = StoreError> = std::result::Result<T, E>;

@@ -4,8 +4,9 @@ use super::format::{
     format_error, parse_header, parse_tables, StoreHeader, HEADER_SIZE, OFFSET_ENTRY_BYTES,
     RANGE_ENTRY_BYTES,
 };
-use super::{Result, StoreError};
+use super::StoreError;
 use crate::bricks::{BrickGrid, DownsampleFilter, Level, ValueRange};
+use crate::error::Result;
 use crate::volume::ScalarType;
 use glam::Vec3;
 use std::fs::File;
@@ -33,7 +34,7 @@ impl BrickStore {
     /// Opens the store at `path` and validates its header and tables (see
     /// [`super::format::parse_header`] and [`super::format::parse_tables`]): any inconsistency is a
     /// [`StoreError::Format`] naming the field, an OS failure a [`StoreError::Io`].
-    pub fn open(path: impl AsRef<Path>) -> Result<Self> {
+    pub fn open(path: impl AsRef<Path>) -> Result<Self, StoreError> {
         let path = path.as_ref().to_path_buf();
         let io = |action: &'static str| {
             let p = path.clone();
@@ -128,7 +129,7 @@ impl BrickStore {
     }
 
     /// Absolute file offset of `brick` at `level`, after checking both.
-    pub fn level_offset(&self, brick: u32, level: Level) -> Result<u64> {
+    pub fn level_offset(&self, brick: u32, level: Level) -> Result<u64, StoreError> {
         let entry = self
             .offsets
             .get(brick as usize)
@@ -146,7 +147,7 @@ impl BrickStore {
     /// Reads `brick` at `level`: `(n+2)^3` (Hi) or `(n/2+1)^3` (Lo) texels of the storage type, x
     /// fastest, native-endian (what [`crate::bricks::quantize_to`] returns), with one positioned
     /// read.
-    pub fn read_brick(&self, brick: u32, level: Level) -> Result<Vec<u8>> {
+    pub fn read_brick(&self, brick: u32, level: Level) -> Result<Vec<u8>, StoreError> {
         let mut out = vec![0u8; self.level_bytes(level)];
         self.read_brick_into(brick, level, &mut out)?;
         Ok(out)
@@ -154,7 +155,12 @@ impl BrickStore {
 
     /// [`BrickStore::read_brick`] into `out`, which must be exactly
     /// [`BrickStore::level_bytes`]`(level)` long.
-    pub fn read_brick_into(&self, brick: u32, level: Level, out: &mut [u8]) -> Result<()> {
+    pub fn read_brick_into(
+        &self,
+        brick: u32,
+        level: Level,
+        out: &mut [u8],
+    ) -> Result<(), StoreError> {
         let offset = self.level_offset(brick, level)?;
         if out.len() != self.level_bytes(level) {
             return Err(StoreError::Io {

@@ -33,15 +33,16 @@
 //!   order and then pinned levels too; only a read already in flight can then push the total over
 //!   the new budget, once.
 //! - **Failures.** A level whose read fails is not retried: [`BrickSource::brick_bytes`] returns
-//!   [`StoreError::Load`] for it until [`BrickStreamer::clear_failures`].
+//!   [`SourceError::Load`] for it until [`BrickStreamer::clear_failures`].
 //! - **Shutdown.** Dropping the streamer stops the loader (after the read in flight, if any) and
 //!   joins it.
 //!
 //! Bytes handed out are `Arc<[u8]>` clones: a level evicted while a caller still holds its `Arc`
 //! stays allocated until the caller drops it (the budget counts the cache's own references).
 
-use super::{BrickStore, Result, StoreError};
-use crate::bricks::{BrickGrid, BrickSource, DownsampleFilter, Level, ValueRange};
+use super::{BrickStore, StoreError};
+use crate::bricks::{BrickGrid, BrickSource, DownsampleFilter, Level, SourceError, ValueRange};
+use crate::error::Result;
 use crate::volume::ScalarType;
 use glam::Vec3;
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
@@ -382,7 +383,7 @@ impl std::fmt::Debug for BrickStreamer {
 
 impl BrickStreamer {
     /// Starts streaming from `store` with an empty wanted set.
-    pub fn new(store: BrickStore, config: StreamerConfig) -> Result<Self> {
+    pub fn new(store: BrickStore, config: StreamerConfig) -> Result<Self, StoreError> {
         let shared = Arc::new(Shared {
             store,
             state: Mutex::new(State::new(
@@ -404,7 +405,7 @@ impl BrickStreamer {
     }
 
     /// Opens the store at `path` and starts streaming from it.
-    pub fn open(path: impl AsRef<Path>, config: StreamerConfig) -> Result<Self> {
+    pub fn open(path: impl AsRef<Path>, config: StreamerConfig) -> Result<Self, StoreError> {
         Self::new(BrickStore::open(path)?, config)
     }
 
@@ -416,7 +417,7 @@ impl BrickStreamer {
     /// Replaces the wanted set with `wanted` (`(brick, level, priority)`, higher priority loads
     /// first; see the [module docs](self)). `Level::Absent` entries are ignored. Never blocks on
     /// disk. Errors (and changes nothing) when a brick index is outside the grid.
-    pub fn request(&self, wanted: &[(u32, Level, f32)]) -> Result<()> {
+    pub fn request(&self, wanted: &[(u32, Level, f32)]) -> Result<(), StoreError> {
         let count = self.shared.store.brick_count();
         if let Some(&(brick, ..)) = wanted.iter().find(|(b, ..)| *b >= count) {
             return Err(StoreError::BrickOutOfRange { brick, count });
@@ -573,20 +574,20 @@ impl BrickSource for BrickStreamer {
         self.shared.store.value_range()
     }
 
-    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>> {
+    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>, SourceError> {
         let count = self.shared.store.brick_count();
         if brick >= count {
-            return Err(StoreError::BrickOutOfRange { brick, count });
+            return Err(SourceError::BrickOutOfRange { brick, count });
         }
         if level == Level::Absent {
-            return Err(StoreError::AbsentLevel { brick });
+            return Err(SourceError::AbsentLevel { brick });
         }
         let mut state = self.shared.lock();
         if let Some(bytes) = state.touch((brick, level)) {
             return Ok(Some(bytes));
         }
         match state.failed.get(&(brick, level)) {
-            Some(e) => Err(StoreError::Load {
+            Some(e) => Err(SourceError::Load {
                 brick,
                 level,
                 source: e.clone(),
@@ -668,7 +669,7 @@ fn load_loop(shared: &Shared) {
 }
 
 /// Reads one level into a freshly allocated shared buffer (one allocation, no copy).
-fn read_shared(store: &BrickStore, (brick, level): Key) -> Result<Arc<[u8]>> {
+fn read_shared(store: &BrickStore, (brick, level): Key) -> Result<Arc<[u8]>, StoreError> {
     let mut bytes: Arc<[u8]> = std::iter::repeat_n(0u8, store.level_bytes(level)).collect();
     let buffer = Arc::get_mut(&mut bytes).expect("a fresh Arc is unique");
     store.read_brick_into(brick, level, buffer)?;

@@ -23,12 +23,13 @@ use super::format::{
     canonical_brick_offset, canonical_header, encode_header, encode_offsets, encode_ranges,
     finish_checksum, StoreHeader,
 };
-use super::{Result, StoreError};
+use super::StoreError;
 use crate::bricks::kernel::texel::Texel;
 use crate::bricks::{
     BrickBox, BrickError, BrickGrid, BrickKernel, DownsampleFilter, PackOutputs, TexelsMut,
     ValueRange, VoxelWindow,
 };
+use crate::error::Result;
 use crate::volume::{ScalarType, Volume, VoxelData};
 use glam::{IVec3, UVec3, Vec3};
 use std::fs::{File, OpenOptions};
@@ -86,7 +87,7 @@ pub fn write_store(
     desc: StoreDesc,
     sample: &(dyn Fn(IVec3) -> f32 + Sync),
     progress: &mut dyn FnMut(u64, u64),
-) -> Result<WriteSummary> {
+) -> Result<WriteSummary, StoreError> {
     write_store_with_threads(
         path,
         desc,
@@ -114,7 +115,7 @@ pub fn write_store_with_threads(
     sample: &(dyn Fn(IVec3) -> f32 + Sync),
     threads: usize,
     progress: &mut dyn FnMut(u64, u64),
-) -> Result<WriteSummary> {
+) -> Result<WriteSummary, StoreError> {
     write_with(path, desc, Voxels::Producer(sample), threads, progress)
 }
 
@@ -134,7 +135,7 @@ fn write_with(
     voxels: Voxels<'_>,
     threads: usize,
     progress: &mut dyn FnMut(u64, u64),
-) -> Result<WriteSummary> {
+) -> Result<WriteSummary, StoreError> {
     let start = Instant::now();
     let grid = check_desc(&desc)?;
     let mut header = canonical_header(
@@ -224,7 +225,7 @@ pub fn write_store_from_volume(
     volume: &Volume,
     brick_size: u32,
     filter: DownsampleFilter,
-) -> Result<WriteSummary> {
+) -> Result<WriteSummary, StoreError> {
     write_store_from_volume_with_progress(path, volume, brick_size, filter, &mut |_, _| {})
 }
 
@@ -237,7 +238,7 @@ pub fn write_store_from_volume_with_progress(
     brick_size: u32,
     filter: DownsampleFilter,
     progress: &mut dyn FnMut(u64, u64),
-) -> Result<WriteSummary> {
+) -> Result<WriteSummary, StoreError> {
     let desc = StoreDesc {
         dims: volume.dims(),
         brick_size,
@@ -256,7 +257,7 @@ fn partial_path(path: &Path) -> PathBuf {
     path.with_file_name(name)
 }
 
-fn check_desc(desc: &StoreDesc) -> Result<BrickGrid> {
+fn check_desc(desc: &StoreDesc) -> Result<BrickGrid, StoreError> {
     if desc.dims.min_element() == 0 {
         return Err(StoreError::InvalidDesc {
             field: "dims",
@@ -312,7 +313,7 @@ fn write_bricks(
     threads: usize,
     progress: &mut dyn FnMut(u64, u64),
     path: &Path,
-) -> Result<(Vec<ValueRange>, ValueRange)> {
+) -> Result<(Vec<ValueRange>, ValueRange), StoreError> {
     let n = grid.brick_size();
     let b = grid.bricks_per_axis();
     let per_brick_window = n as usize * (n as usize + 8).pow(2) * 4;
@@ -336,7 +337,7 @@ fn write_bricks(
     let mut first_error = None;
     progress(0, total);
     std::thread::scope(|scope| {
-        let (tx, rx) = mpsc::channel::<Result<ChunkDone>>();
+        let (tx, rx) = mpsc::channel::<Result<ChunkDone, StoreError>>();
         for _ in 0..threads.min(chunks.len()) {
             let tx = tx.clone();
             let (chunks, next, abort) = (&chunks, &next, &abort);
@@ -432,7 +433,7 @@ impl Worker {
     }
 
     /// Builds the chunk's bytes into `out` and its ranges into `ranges`.
-    fn build(&mut self, chunk: &Chunk, voxels: Voxels<'_>) -> Result<()> {
+    fn build(&mut self, chunk: &Chunk, voxels: Voxels<'_>) -> Result<(), StoreError> {
         let bricks = BrickBox::run(chunk.bx0..chunk.bx1, chunk.by, chunk.bz);
         let count = bricks.count();
         let n = self.kernel.grid().brick_size() as usize;
@@ -504,7 +505,7 @@ fn gather<T: Texel>(
     origin: UVec3,
     extent: UVec3,
     sample: &(dyn Fn(IVec3) -> f32 + Sync),
-) -> Result<ValueRange> {
+) -> Result<ValueRange, StoreError> {
     buf.clear();
     buf.reserve(extent.x as usize * extent.y as usize * extent.z as usize);
     let mut range = ValueRange::EMPTY;

@@ -4,8 +4,8 @@ use crate::parse::{parse_floats, parse_scalar, parse_tf, parse_uvec3, parse_vec3
 use clap::{Args, ValueEnum};
 use glam::{UVec3, Vec3};
 use mixvol::optics::{SamplingModel, TfPreset};
-use mixvol::reference::Transition;
 use mixvol::renderer::MixedConfig;
+use mixvol::scene::Transition;
 use mixvol::scene::{
     Camera, ClipPlane, ClipPlanes, Projection, Reconstruction, RenderMode, RenderSettings, Shading,
 };

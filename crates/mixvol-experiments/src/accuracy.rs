@@ -15,8 +15,8 @@ use mixvol::lod::{
     ValueCulling,
 };
 use mixvol::optics::TransferFunction;
-use mixvol::reference::Transition;
 use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
+use mixvol::scene::Transition;
 use mixvol::scene::{Camera, ClipPlanes, RenderSettings};
 use mixvol::volume::Volume;
 use mixvol::Result;

@@ -41,9 +41,9 @@ pub(crate) mod texel;
 #[cfg(test)]
 mod tests;
 
-use super::filters::DownsampleFilter;
 use super::packing::{hi_res_brick_extent, low_res_brick_extent};
 use super::taps::AxisTaps;
+use super::taps::DownsampleFilter;
 use super::{BrickError, BrickGrid, ValueRange};
 use crate::volume::{ScalarType, Volume, VoxelData};
 use glam::UVec3;

@@ -4,8 +4,8 @@
 use super::rows::{combine_rows, filter_row, Weights};
 use super::texel::{copy_clamped_row, Texel};
 use super::{AxisNeeds, BrickBox, LowResBlock, Scratch};
-use crate::bricks::filters::DownsampleFilter;
 use crate::bricks::taps::AxisTaps;
+use crate::bricks::taps::DownsampleFilter;
 use crate::bricks::{include_stored, BrickGrid, ValueRange};
 use crate::volume::ScalarType;
 use std::ops::Range;

@@ -1,4 +1,4 @@
-// Classification, opacity correction and compositing. Mirrors src/optics.rs function by function.
+// Classification, opacity correction and compositing. Mirrors src/optics/mod.rs function by function.
 #ifndef OPTICS_GLSL
 #define OPTICS_GLSL
 

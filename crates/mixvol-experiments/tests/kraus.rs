@@ -10,7 +10,7 @@
 
 use glam::{DVec2, Vec3, Vec4};
 use mixvol_experiments::kraus::{
-    deviation, exact, figure1, integrate, run, wall, KrausOptions, KrausReport, Model, Ray,
+    deviation, exact, figure1, integrate, run, wall, GridRay, KrausOptions, KrausReport, Model,
     ReferenceDistance, RgbaGrid, Row, Vertex,
 };
 use std::sync::OnceLock;
@@ -302,7 +302,7 @@ fn two_colours_converge_to_the_exact_integral() {
     let red = Vertex::new(Vec3::X, 2.0).unwrap();
     let blue = Vertex::new(Vec3::Z, 1.0).unwrap();
     let grid = RgbaGrid::new(4, 1, vec![Vertex::EMPTY, red, blue, Vertex::EMPTY]).unwrap();
-    let ray = Ray::new(DVec2::ZERO, DVec2::X, 3.0).unwrap();
+    let ray = GridRay::new(DVec2::ZERO, DVec2::X, 3.0).unwrap();
     let e = exact(&grid, &ray).unwrap();
     assert!(e.error_estimate < 1e-8, "{e:?}");
     // Red is in front: more red than blue reaches the camera, and nothing is green.

@@ -164,13 +164,13 @@ impl RgbaGrid {
 /// A straight ray through a grid: samples and the exact integral run from `origin` (the camera
 /// side, composited first) over `length` units along the unit `direction`.
 #[derive(Copy, Clone, Debug, PartialEq)]
-pub struct Ray {
+pub struct GridRay {
     origin: DVec2,
     direction: DVec2,
     length: f64,
 }
 
-impl Ray {
+impl GridRay {
     /// A ray from `origin` along `direction` (normalised here; must be non-zero) for `length`
     /// units (finite, > 0).
     pub fn new(origin: DVec2, direction: DVec2, length: f64) -> Result<Self> {
@@ -302,7 +302,7 @@ fn check_distance(d: f32) -> Result<()> {
 /// Samples `ray` every `d` units at `t = phase + k d` (every integer `k` with `0 <= t <= length`)
 /// with `model` and composites front to back. Returns the accumulator: premultiplied colour and
 /// opacity.
-pub fn integrate(grid: &RgbaGrid, ray: &Ray, model: Model, d: f32, phase: f64) -> Result<Vec4> {
+pub fn integrate(grid: &RgbaGrid, ray: &GridRay, model: Model, d: f32, phase: f64) -> Result<Vec4> {
     check_distance(d)?;
     model.check()?;
     if !phase.is_finite() {
@@ -353,7 +353,7 @@ pub struct Exact {
     pub steps: usize,
 }
 
-fn integrate_fine(grid: &RgbaGrid, ray: &Ray, steps: usize) -> [f64; 4] {
+fn integrate_fine(grid: &RgbaGrid, ray: &GridRay, steps: usize) -> [f64; 4] {
     let h = ray.length / steps as f64;
     let (mut transmittance, mut colour) = (1.0f64, [0.0f64; 3]);
     for i in 0..steps {
@@ -375,7 +375,7 @@ fn integrate_fine(grid: &RgbaGrid, ray: &Ray, steps: usize) -> [f64; 4] {
 /// The ground truth of a ray: the emission-absorption integral of the continuous model,
 /// integrated with [`EXACT_STEPS_PER_UNIT`] midpoint segments per unit and with twice as many; the
 /// finer result is returned, their difference is the error estimate.
-pub fn exact(grid: &RgbaGrid, ray: &Ray) -> Result<Exact> {
+pub fn exact(grid: &RgbaGrid, ray: &GridRay) -> Result<Exact> {
     let coarse = (ray.length * EXACT_STEPS_PER_UNIT).ceil();
     if coarse > 5e7 {
         return Err(Error::InvalidInput(format!(
@@ -405,7 +405,7 @@ pub struct Setup {
     /// The pre-classified grid.
     pub grid: RgbaGrid,
     /// The ray, origin on the camera side.
-    pub ray: Ray,
+    pub ray: GridRay,
     /// Distance along the ray of the filled vertex (column) the phase `r` is measured from.
     pub vertex_t: f64,
     /// The closed-form exact result (premultiplied colour and opacity, black background):
@@ -434,7 +434,7 @@ pub fn figure1(tau_max: f32) -> Result<Setup> {
     let vertices = row.iter().chain(row.iter()).copied().collect();
     Ok(Setup {
         grid: RgbaGrid::new(5, 2, vertices)?,
-        ray: Ray::new(DVec2::new(0.0, 0.5), DVec2::X, 4.0)?,
+        ray: GridRay::new(DVec2::new(0.0, 0.5), DVec2::X, 4.0)?,
         vertex_t: 2.0,
         exact: closed_form(tau_max),
     })
@@ -448,7 +448,7 @@ pub fn wall(tau: f32) -> Result<Setup> {
     let e = Vertex::EMPTY;
     Ok(Setup {
         grid: RgbaGrid::new(5, 1, vec![e, e, f, e, e])?,
-        ray: Ray::new(DVec2::ZERO, DVec2::X, 4.0)?,
+        ray: GridRay::new(DVec2::ZERO, DVec2::X, 4.0)?,
         vertex_t: 2.0,
         exact: closed_form(tau),
     })
@@ -542,7 +542,7 @@ mod tests {
         let mut s = figure1(4.0).unwrap();
         let base = integrate(&s.grid, &s.ray, Model::OPACITY, 0.7, 2.3).unwrap();
         for y in [0.0, 0.1, 0.9, 1.0] {
-            s.ray = Ray::new(DVec2::new(0.0, y), DVec2::X, 4.0).unwrap();
+            s.ray = GridRay::new(DVec2::new(0.0, y), DVec2::X, 4.0).unwrap();
             let got = integrate(&s.grid, &s.ray, Model::OPACITY, 0.7, 2.3).unwrap();
             assert!(
                 (got - base).abs().max_element() < 1e-6,
@@ -592,10 +592,10 @@ mod tests {
         assert!(RgbaGrid::new(1, 1, vec![bad]).is_err());
         assert!(figure1(f32::NAN).is_err());
         assert!(wall(-2.0).is_err());
-        assert!(Ray::new(DVec2::ZERO, DVec2::ZERO, 1.0).is_err());
-        assert!(Ray::new(DVec2::ZERO, DVec2::X, 0.0).is_err());
-        assert!(Ray::new(DVec2::ZERO, DVec2::new(f64::NAN, 1.0), 1.0).is_err());
-        assert!(Ray::new(DVec2::new(f64::INFINITY, 0.0), DVec2::X, 1.0).is_err());
+        assert!(GridRay::new(DVec2::ZERO, DVec2::ZERO, 1.0).is_err());
+        assert!(GridRay::new(DVec2::ZERO, DVec2::X, 0.0).is_err());
+        assert!(GridRay::new(DVec2::ZERO, DVec2::new(f64::NAN, 1.0), 1.0).is_err());
+        assert!(GridRay::new(DVec2::new(f64::INFINITY, 0.0), DVec2::X, 1.0).is_err());
         let s = figure1(1.0).unwrap();
         for d in [0.0, -1.0, f32::NAN, f32::INFINITY, 1e-9] {
             assert!(
@@ -610,7 +610,7 @@ mod tests {
             assert!(integrate(&s.grid, &s.ray, m, 0.5, 0.0).is_err(), "d0={d0}");
         }
         assert!(deviation(&s, Model::OPACITY, 0.5, s.exact, 0).is_err());
-        let long = Ray::new(DVec2::ZERO, DVec2::X, 1e12).unwrap();
+        let long = GridRay::new(DVec2::ZERO, DVec2::X, 1e12).unwrap();
         assert!(exact(&s.grid, &long).is_err());
         let options = KrausOptions {
             distances: vec![0.5, f32::NAN],

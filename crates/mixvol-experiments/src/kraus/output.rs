@@ -72,7 +72,7 @@ impl KrausReport {
             String::from("# Kraus experiments: opacity-based vs extinction-based sampling\n\n");
         out.push_str(&format!(
             "Regenerate: `{COMMAND}` (CPU only, deterministic; writes `kraus.md`, `kraus.csv`, `kraus.png`). \
-             The harness is `src/kraus.rs`; the assertions on these numbers are in `tests/kraus.rs`.\n\n"
+             The harness is `crates/mixvol-experiments/src/kraus/`; the assertions on these numbers are in `crates/mixvol-experiments/tests/kraus.rs`.\n\n"
         ));
         out.push_str(
             "Set-up (Kraus & Bürger, \"Interpolating and Downsampling RGBA Volume Data\", §3.5-3.6): \

@@ -786,3 +786,53 @@ fn a_hundred_thousand_bricks() {
     let per_frame = start.elapsed() / 4;
     eprintln!("{bricks} bricks: {per_frame:?} per frame (incl. checks)");
 }
+
+#[test]
+fn a_brick_source_drives_the_plan_like_fallback_levels() {
+    // An in-memory source has every level loaded: once settled the drawn levels are what
+    // `fallback_levels` makes of the wanted ones (here: the wanted levels themselves).
+    use crate::bricks::{fallback_levels, DownsampleFilter, VolumeBrickSource};
+    use crate::volume::{marschner_lobb, ScalarType};
+    use std::sync::Arc;
+    let volume = marschner_lobb(UVec3::splat(32), ScalarType::U16).unwrap();
+    let source = VolumeBrickSource::new(Arc::new(volume), 8, DownsampleFilter::default()).unwrap();
+    let grid = source.grid();
+    let geometry = BrickGeometry::new(grid, source.spacing()).unwrap();
+    let view = LodView::new(&Camera::default_view(), 200, 150).unwrap();
+    let bytes_per_texel = PlanBudget::bytes_per_texel_of(&source);
+    assert_eq!(bytes_per_texel, 2);
+    let b = PlanBudget {
+        slots: 20,
+        upload_bytes_per_frame: 5 * upload_bytes(Level::Hi, 8, bytes_per_texel),
+        bytes_per_texel,
+        ram_bytes: None,
+    };
+    let settings = RenderSettings::default();
+    let cull = cull_params(
+        &settings,
+        &TransferFunction::preset(TfPreset::Fire),
+        (0.0, 1.0),
+    )
+    .unwrap();
+    let input = frame(&geometry, &view, source.value_ranges(), &cull, b);
+    let mut planner = ResidencyPlanner::new(PlanOptions::default());
+    let loaded = |brick: u32, level: Level| source.is_loaded(brick, level);
+    let mut prev = vec![Level::Absent; grid.brick_count()];
+    for _ in 0..30 {
+        let plan = planner.plan_frame_with_source(&input, &source).unwrap();
+        check_frame(&input, &prev, plan, &loaded);
+        prev = plan.draw.clone();
+    }
+    let plan = planner.last_plan();
+    assert!(plan.report.is_settled());
+    assert_eq!(plan.draw, fallback_levels(&plan.wanted, &source));
+    assert_eq!(plan.report.waiting_for_source, 0);
+    assert!(plan.report.drawn_hi > 0 && plan.report.slots_used <= 20);
+    // Every upload's bytes come from the source at the size the plan counted.
+    let (brick, level) = (0..grid.brick_count() as u32)
+        .map(|i| (i, plan.draw[i as usize]))
+        .find(|&(_, l)| l == Level::Hi)
+        .unwrap();
+    let bytes = source.brick_bytes(brick, level).unwrap().unwrap();
+    assert_eq!(bytes.len() as u64, upload_bytes(level, 8, bytes_per_texel));
+}

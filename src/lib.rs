@@ -14,6 +14,8 @@
 //! - [`embed`]: the volume pass recorded into a host engine's command buffers.
 //! - [`renderer`]: the offscreen façade that turns a volume + scene into an image.
 //! - [`store`]: the on-disk brick store (preprocessing) and background brick streaming.
+//! - [`plan`]: camera-driven residency planning: the levels to draw and load each frame under
+//!   cache, upload and RAM budgets.
 #![warn(
     missing_docs,
     unsafe_op_in_unsafe_fn,
@@ -27,6 +29,7 @@ pub mod error;
 pub mod gpu;
 pub mod lod;
 pub mod optics;
+pub mod plan;
 pub mod reference;
 pub mod renderer;
 pub mod scene;

@@ -56,6 +56,9 @@ pub enum Error {
     /// A brick source could not deliver a brick.
     #[error(transparent)]
     Source(#[from] crate::bricks::SourceError),
+    /// The residency planner was given unusable input.
+    #[error(transparent)]
+    Plan(#[from] crate::plan::PlanError),
     /// The brick store could not be written, read or streamed.
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),

@@ -104,16 +104,6 @@ pub enum PlanError {
     },
 }
 
-impl From<PlanError> for crate::Error {
-    fn from(e: PlanError) -> Self {
-        match e {
-            PlanError::Lod(e) => crate::Error::Lod(e),
-            PlanError::Cache(e) => crate::Error::Cache(e),
-            e @ PlanError::InvalidInput { .. } => crate::Error::InvalidInput(e.to_string()),
-        }
-    }
-}
-
 /// The culling criteria of `settings`: iso-surface mode culls by the iso-value; direct volume
 /// rendering by the transfer function `tf` seen through `window` (the value window the frame is
 /// classified with: [`RenderSettings::value_window`] or the volume's default); MIP and MIDA keep

@@ -643,7 +643,7 @@ fn bad_inputs_are_typed_errors_and_keep_the_previous_plan() {
         assert!(matches!(err, PlanError::InvalidInput { .. }));
         assert!(matches!(
             crate::Error::from(err),
-            crate::Error::InvalidInput(_)
+            crate::Error::Plan(PlanError::InvalidInput { .. })
         ));
     }
     // A different grid starts from nothing resident.

@@ -2,7 +2,7 @@
 
 use crate::bricks::Level;
 use crate::cache::BrickCache;
-pub use crate::embed::{MixedConfig, ResidencyReport, VolumeSource};
+pub use crate::embed::{FrameReport, MixedConfig, ResidencyConfig, ResidencyReport, VolumeSource};
 use crate::embed::{PassDesc, PassTarget, TargetLoad, VolumePass};
 use crate::error::{Error, Result};
 use crate::gpu::{
@@ -10,6 +10,7 @@ use crate::gpu::{
     RaycastVariant, Submitter,
 };
 use crate::optics::TransferFunction;
+use crate::plan::FramePlan;
 use crate::scene::Transition;
 use crate::scene::{Camera, RaycastParams, RenderSettings};
 use ash::vk;
@@ -71,6 +72,9 @@ pub struct Frame {
     pub timing: FrameTiming,
     /// The pipeline variant that drew it.
     pub variant: RaycastVariant,
+    /// The camera-driven residency of this frame ([`VolumePass::update`]): `Some` when the
+    /// renderer planned it (a brick-cache source whose levels the caller did not set).
+    pub residency: Option<FrameReport>,
 }
 
 /// Composites premultiplied pixels over an opaque `background` into 8-bit RGBA.
@@ -125,6 +129,9 @@ pub struct Renderer {
     pass: VolumePass,
     submitter: Submitter,
     format: TargetFormat,
+    /// Whether [`Renderer::render`] plans residency from the camera (brick-cache sources until
+    /// the caller sets levels itself).
+    planned: bool,
     ctx: GpuContext,
 }
 
@@ -162,6 +169,7 @@ impl Renderer {
             pass,
             submitter,
             format,
+            planned: true,
             ctx: ctx.clone(),
         })
     }
@@ -173,10 +181,14 @@ impl Renderer {
     }
 
     /// Draws `source` from now on, replacing any previous source (see
-    /// [`VolumePass::set_source`]). A plain volume is uploaded at once (and waited for); for a
-    /// brick-cache source call [`Renderer::set_levels`] to make bricks resident.
+    /// [`VolumePass::set_source`]). A plain volume is uploaded at once (and waited for). A
+    /// brick-cache source starts with nothing resident; from then on every
+    /// [`Renderer::render`] plans its residency from the camera ([`VolumePass::update`], under
+    /// [`Renderer::set_residency_config`]) until [`Renderer::set_levels`] or
+    /// [`Renderer::stage_levels`] takes over (for tests and fixed patterns).
     pub fn set_source(&mut self, source: VolumeSource<'_>) -> Result<()> {
         self.probe = None;
+        self.planned = true;
         let upload_now = matches!(source, VolumeSource::Volume(_));
         self.pass.set_source(source)?;
         if upload_now {
@@ -192,7 +204,10 @@ impl Renderer {
 
     /// Moves the cache to `levels` (one per brick), uploads the changed bricks (one copy
     /// command, one region each), rewrites the tables and runs the fixup, and waits.
+    /// Renders no longer plan residency from the camera (until the next
+    /// [`Renderer::set_source`] or [`Renderer::set_planned`]).
     pub fn set_levels(&mut self, levels: &[Level]) -> Result<ResidencyReport> {
+        self.planned = false;
         let mut report = self.pass.set_levels(levels)?;
         let start = Instant::now();
         self.flush()?;
@@ -202,8 +217,32 @@ impl Renderer {
 
     /// Stages a residency change without submitting it: the next [`Renderer::render`] records
     /// the uploads and the fixup in its own command buffer (so the frame's timings include them).
+    /// Renders no longer plan residency from the camera, as with [`Renderer::set_levels`].
     pub fn stage_levels(&mut self, levels: &[Level]) -> Result<ResidencyReport> {
+        self.planned = false;
         self.pass.set_levels(levels)
+    }
+
+    /// Whether renders of a brick-cache source plan residency from the camera: on after
+    /// [`Renderer::set_source`], off after [`Renderer::set_levels`]; switching it on plans
+    /// from what is resident.
+    pub fn set_planned(&mut self, planned: bool) {
+        self.planned = planned;
+    }
+
+    /// Whether renders plan residency from the camera (see [`Renderer::set_planned`]).
+    pub fn is_planned(&self) -> bool {
+        self.planned && self.pass.brick_cache().is_some()
+    }
+
+    /// Budgets and tuning of camera-driven residency (see [`VolumePass::set_residency_config`]).
+    pub fn set_residency_config(&mut self, config: ResidencyConfig) {
+        self.pass.set_residency_config(config);
+    }
+
+    /// The last planned frame's plan (see [`VolumePass::last_plan`]).
+    pub fn last_plan(&self) -> Option<&FramePlan> {
+        self.pass.last_plan()
     }
 
     /// Uploads a new transfer function.
@@ -331,6 +370,11 @@ impl Renderer {
         let start = Instant::now();
         // Validate the arguments before creating a target of that size.
         self.pass.params(camera, settings, width, height)?;
+        let residency = if self.is_planned() {
+            Some(self.pass.update(camera, width, height, settings)?)
+        } else {
+            None
+        };
         self.ensure_target(width, height)?;
         let target = self.target.as_ref().expect("created by ensure_target");
         let pass = &mut self.pass;
@@ -388,6 +432,7 @@ impl Renderer {
                 cpu_frame_ms: start.elapsed().as_secs_f64() * 1e3,
             },
             variant: recorded.variant,
+            residency,
         })
     }
 

@@ -250,6 +250,21 @@ pub struct RenderSettings {
 }
 
 impl RenderSettings {
+    /// The value window the transfer function is applied through: [`Self::value_window`] when
+    /// set, else `[0, 1]` for integer volumes (normalised values) and the volume's `value_range`
+    /// for float volumes (a constant float volume classifies inside `[min(v, 0), max(v, 1)]`,
+    /// as an integer volume of that value would, not at TF position 0).
+    pub fn classification_window(&self, is_float: bool, value_range: (f32, f32)) -> (f32, f32) {
+        match self.value_window {
+            Some(window) => window,
+            None if is_float && value_range.1 <= value_range.0 => {
+                (value_range.0.min(0.0), value_range.1.max(1.0))
+            }
+            None if is_float => value_range,
+            None => (0.0, 1.0),
+        }
+    }
+
     /// The effects this scene calls for (what the pipeline variant compiles in).
     pub fn features(&self) -> RayFeatures {
         let mode = match self.mode {
@@ -475,16 +490,7 @@ impl RaycastParams {
                 camera.near, camera.far
             )));
         }
-        let (lo, hi) = match settings.value_window {
-            Some(window) => window,
-            // A constant float volume has an empty range: classify it as an integer volume of
-            // the same value would be, inside [min(lo, 0), max(hi, 1)], not at TF position 0.
-            None if is_float && value_range.1 <= value_range.0 => {
-                (value_range.0.min(0.0), value_range.1.max(1.0))
-            }
-            None if is_float => value_range,
-            None => (0.0, 1.0),
-        };
+        let (lo, hi) = settings.classification_window(is_float, value_range);
         // `1 / (hi - lo)` must be a normal f32: GPUs flush subnormal uniforms to zero (every
         // sample would classify at TF position 0) and an infinite one makes `(v - lo) * inv` NaN;
         // data below 2^-110 in magnitude is flushed by GPU texture filtering.

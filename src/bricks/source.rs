@@ -103,6 +103,16 @@ pub trait BrickSource: Send + Sync {
     fn is_loaded(&self, brick: u32, level: Level) -> bool {
         matches!(self.brick_bytes(brick, level), Ok(Some(_)))
     }
+
+    /// Tells a streaming source what to load next: `(brick, level, priority)`, higher priority
+    /// first, replacing the previous request (as [`crate::store::BrickStreamer::request`]). The
+    /// camera-driven pass calls it once per frame with the planner's requests, after the frame's
+    /// bricks were fetched. Must not block on I/O. The default (for sources that hold every
+    /// level in memory) does nothing.
+    fn request_levels(&self, requests: &[(u32, Level, f32)]) -> Result<(), SourceError> {
+        let _ = requests;
+        Ok(())
+    }
 }
 
 /// The levels to draw now, given the levels the LOD selector wants (one per brick) and what

@@ -35,14 +35,30 @@
 //!   Depth was only read. The pass's own resources need nothing from the host.
 //! - **Changing the source** ([`VolumePass::set_source`]) and dropping the pass require that no
 //!   command buffer recorded by it is still executing.
-//! - **Residency changes** ([`VolumePass::set_levels`]) and transfer-function changes are staged
-//!   on the CPU and recorded by the next [`VolumePass::record`]; they need no wait.
+//! - **Residency changes** and transfer-function changes are staged on the CPU and recorded by
+//!   the next [`VolumePass::record`]; they need no wait. Either the camera drives residency
+//!   ([`VolumePass::update`] once per frame before `record`, with the frame's camera, size and
+//!   settings: it plans under the budgets of [`ResidencyConfig`], fetches and stages the chosen
+//!   bricks and asks the source for what comes next), or the host sets the levels itself
+//!   ([`VolumePass::set_levels`]).
+//!
+//! A frame with camera-driven residency, with `frames_in_flight` slots:
+//! ```text
+//! wait fence[slot]                       // the slot's last frame is done
+//! pass.timings(slot)                     // its GPU times (optional)
+//! pass.update(&camera, w, h, &settings)  // CPU: plan, fetch, stage (FrameReport)
+//! record host commands into cmd
+//! pass.record(cmd, slot, &target, &camera, &settings)
+//! submit cmd with fence[slot]; slot = (slot + 1) % frames_in_flight
+//! ```
 
 mod frames;
+mod residency;
 mod source;
 mod tables;
 
 pub use frames::PassTimings;
+pub use residency::{FrameReport, ResidencyConfig};
 pub use source::{MixedConfig, ResidencyReport, VolumeSource};
 
 use crate::error::{Error, Result};
@@ -117,6 +133,7 @@ pub struct VolumePass {
     pipelines: HashMap<RaycastVariant, RaycastPipeline>,
     pipeline_cache: PipelineCache,
     desc: PassDesc,
+    residency: ResidencyConfig,
     ctx: GpuContext,
 }
 
@@ -157,6 +174,7 @@ impl VolumePass {
             pipelines: HashMap::new(),
             pipeline_cache: PipelineCache::new(shared, cache_data)?,
             desc,
+            residency: ResidencyConfig::default(),
             ctx: ctx.clone(),
         })
     }

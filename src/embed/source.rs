@@ -11,7 +11,9 @@ use crate::error::{Error, Result};
 use crate::gpu::{Access, TimestampPool};
 use crate::gpu::{CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image, ImageDesc};
 use crate::gpu::{RaycastVariant, StagingUpload};
+use crate::lod::BrickGeometry;
 use crate::optics::SamplingModel;
+use crate::plan::ResidencyPlanner;
 use crate::scene::Transition;
 use crate::scene::{Camera, RayFeatures, RaycastParams, RenderSettings};
 use crate::volume::{RgbaVolume, ScalarType, Volume};
@@ -166,8 +168,12 @@ pub(crate) struct MixedState {
     /// resident draws with a variant without that code.
     any_absent: bool,
     /// The sampling model of a pre-classified RGBA source (`None`: scalar data).
-    rgba_model: Option<SamplingModel>,
-    value_range: (f32, f32),
+    pub(super) rgba_model: Option<SamplingModel>,
+    pub(super) value_range: (f32, f32),
+    /// The brick grid in world space (for the planner).
+    pub(super) geometry: BrickGeometry,
+    /// The camera-driven residency planner ([`VolumePass::update`]); remembers what it drew.
+    pub(super) planner: ResidencyPlanner,
 }
 
 /// The source on the GPU.
@@ -389,6 +395,7 @@ impl VolumePass {
             config.transition == Transition::Smooth,
         )?;
         let range = source.value_range();
+        let geometry = BrickGeometry::new(grid, source.spacing())?;
         self.source = Source::Mixed(Box::new(MixedState {
             source,
             config,
@@ -400,6 +407,8 @@ impl VolumePass {
             any_absent: true,
             value_range: (range.min, range.max),
             rgba_model,
+            geometry,
+            planner: ResidencyPlanner::new(self.residency.options),
         }));
         Ok(())
     }
@@ -429,6 +438,21 @@ impl VolumePass {
                 "set_levels needs a brick-cache source (set_source) first".into(),
             ));
         };
+        let (report, levels) = state.stage_levels(wanted)?;
+        // The planner (if the host switches to `update` later) starts from what is drawn now.
+        state.planner.set_drawn(&levels);
+        Ok(report)
+    }
+}
+
+impl MixedState {
+    /// [`VolumePass::set_levels`] on this source: returns the report and the levels drawn (the
+    /// fallbacks of `wanted`).
+    pub(super) fn stage_levels(
+        &mut self,
+        wanted: &[Level],
+    ) -> Result<(ResidencyReport, Vec<Level>)> {
+        let state = self;
         let pack_start = Instant::now();
         let levels = fallback_levels(wanted, &*state.source);
         let fallback_bricks = levels.iter().zip(wanted).filter(|(a, b)| a != b).count();
@@ -475,7 +499,7 @@ impl VolumePass {
         state.any_low_res = current.contains(&Level::Lo);
         state.any_absent = current.contains(&Level::Absent);
         let smooth = state.config.transition == Transition::Smooth;
-        Ok(ResidencyReport {
+        let report = ResidencyReport {
             uploaded_bricks: regions.len(),
             uploaded_bytes: regions.iter().map(|r| r.bytes.len()).sum(),
             hi_bricks: current.iter().filter(|l| **l == Level::Hi).count(),
@@ -484,9 +508,12 @@ impl VolumePass {
             fallback_bricks,
             pack_ms,
             update_ms: 0.0,
-        })
+        };
+        Ok((report, levels))
     }
+}
 
+impl VolumePass {
     /// The pipeline variant the current source draws with, with or without a host depth buffer:
     /// only the effects the scene uses.
     pub fn current_variant(&self, host_depth: bool, features: RayFeatures) -> RaycastVariant {

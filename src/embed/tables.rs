@@ -153,6 +153,11 @@ impl TransferTables {
         Ok(uploaded)
     }
 
+    /// The transfer function the tables are built from.
+    pub(super) fn transfer_function(&self) -> &TransferFunction {
+        &self.tf
+    }
+
     /// The classification table's view.
     pub(super) fn classification_view(&self) -> vk::ImageView {
         self.classification.image.view

@@ -674,6 +674,15 @@ impl GpuContext {
         self.shared.live_allocations.load(Ordering::SeqCst)
     }
 
+    /// Bytes of device memory this crate's live allocations use (sub-allocations through
+    /// gpu-allocator, not counting the unused rest of its memory blocks).
+    pub fn allocated_bytes(&self) -> u64 {
+        self.shared
+            .allocator()
+            .generate_report()
+            .total_allocated_bytes
+    }
+
     /// The ash device, for hosts that record into their own command buffers.
     pub fn device(&self) -> &ash::Device {
         &self.shared.device

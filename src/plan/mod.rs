@@ -371,6 +371,23 @@ impl ResidencyPlanner {
         self.plan = FramePlan::default();
     }
 
+    /// Replaces the drawn levels the next frame stages from with `drawn` (one per brick): for a
+    /// host whose cache ended up other than the last plan said (a brick whose bytes the source
+    /// dropped before they were uploaded is drawn at a fallback), or that set the levels itself.
+    /// When the last plan has another brick count (or there is none), `drawn` also stands in
+    /// for the wanted levels of the previous frame (the hysteresis starts from it).
+    pub fn set_drawn(&mut self, drawn: &[Level]) {
+        if drawn.len() == self.plan.draw.len() && drawn.len() == self.plan.wanted.len() {
+            self.plan.draw.copy_from_slice(drawn);
+        } else {
+            self.plan = FramePlan {
+                draw: drawn.to_vec(),
+                wanted: drawn.to_vec(),
+                ..FramePlan::default()
+            };
+        }
+    }
+
     /// [`ResidencyPlanner::plan_frame`] with what `source` has loaded
     /// ([`BrickSource::is_loaded`]).
     pub fn plan_frame_with_source(

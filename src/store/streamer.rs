@@ -600,6 +600,18 @@ impl BrickSource for BrickStreamer {
         let mut state = self.shared.lock();
         state.touch((brick, level)).is_some()
     }
+
+    fn request_levels(&self, requests: &[(u32, Level, f32)]) -> Result<(), SourceError> {
+        self.request(requests).map_err(|e| match e {
+            StoreError::BrickOutOfRange { brick, count } => {
+                SourceError::BrickOutOfRange { brick, count }
+            }
+            other => SourceError::InvalidInput {
+                field: "requests",
+                message: other.to_string(),
+            },
+        })
+    }
 }
 
 impl Drop for BrickStreamer {

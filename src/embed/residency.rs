@@ -1,0 +1,203 @@
+//! Camera-driven residency in the pass: [`VolumePass::update`] runs the
+//! [`crate::plan::ResidencyPlanner`] for the frame's camera, viewport and settings, fetches and
+//! stages the bricks it chose within the upload budget, and tells the source what to load next.
+//!
+//! One frame, for a brick-cache source:
+//!
+//! 1. culling criteria from the settings and the pass's transfer function
+//!    ([`crate::plan::cull_params`]; pre-classified RGBA sources cull by clip planes only);
+//! 2. the plan ([`crate::plan::ResidencyPlanner::plan_frame_with_source`]) under the budgets:
+//!    the cache's slots, [`ResidencyConfig::upload_bytes_per_frame`] and
+//!    [`ResidencyConfig::ram_bytes`];
+//! 3. the drawn levels are fetched from the source and staged (as [`VolumePass::set_levels`]
+//!    does); a level whose bytes the source dropped since the plan falls back (counted in
+//!    [`FrameReport::fell_back`]) and the planner is told what is drawn instead;
+//! 4. the planner's requests go to the source ([`crate::bricks::BrickSource::request_levels`]),
+//!    after the fetch, so a streamer keeps the drawn levels pinned until then.
+//!
+//! The next [`VolumePass::record`] records the staged uploads and the fixup with the frame.
+//! `update` records nothing and waits for nothing: it is CPU work plus the source's
+//! non-blocking calls.
+
+use super::source::{ResidencyReport, Source};
+use super::VolumePass;
+use crate::bricks::Level;
+use crate::error::{Error, Result};
+use crate::lod::{CullParams, LodView, ValueCulling};
+use crate::plan::{
+    cull_params, FrameInput, FramePlan, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
+};
+use crate::scene::{Camera, RenderSettings};
+use crate::volume::ScalarType;
+use std::time::Instant;
+
+/// Budgets and tuning of camera-driven residency ([`VolumePass::set_residency_config`]). The
+/// GPU cache budget is the brick cache's own ([`super::MixedConfig::cache_budget_bytes`]).
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct ResidencyConfig {
+    /// Bytes of brick level changes uploaded per frame at most (the planner's budget; the
+    /// cache's compaction moves and border restores come on top, see [`crate::plan`]). Should
+    /// hold one hi-res and two low-res bricks, or a still camera may not converge.
+    pub upload_bytes_per_frame: u64,
+    /// RAM budget of a streaming source: the request list is cut to what fits (`None`: all).
+    pub ram_bytes: Option<u64>,
+    /// Planner tuning (error threshold, hysteresis).
+    pub options: PlanOptions,
+}
+
+impl Default for ResidencyConfig {
+    /// 64 MiB of uploads per frame, no RAM cut, the planner's default options.
+    fn default() -> Self {
+        Self {
+            upload_bytes_per_frame: 64 << 20,
+            ram_bytes: None,
+            options: PlanOptions::default(),
+        }
+    }
+}
+
+/// What one [`VolumePass::update`] planned and staged: the per-frame residency report.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FrameReport {
+    /// The planner's counts: culled and dropped bricks, wanted and drawn per level, bricks
+    /// waiting for the source, deferred changes, slots against the slot budget, upload bytes
+    /// against the upload budget, request bytes (after the RAM cut) and the worst screen-space
+    /// error of a brick drawn low-res.
+    pub plan: PlanReport,
+    /// What was fetched and staged: bricks and bytes (compaction moves and border restores
+    /// included), resident hi/lo after the change, bricks the fixup rewrites, pack time.
+    pub residency: ResidencyReport,
+    /// Bricks drawn below the plan because their bytes left the source between planning and
+    /// fetching (the planner draws them from their fallback next frame).
+    pub fell_back: usize,
+    /// Bricks whose wanted level failed to load in the source (drawn at a fallback level, or
+    /// absent when none is loaded).
+    pub source_errors: usize,
+    /// The first of those errors, for the host's log.
+    pub first_source_error: Option<String>,
+    /// Bytes of the GPU cache image.
+    pub cache_bytes: u64,
+    /// CPU time of the plan (culling, level choice, staging decisions), in milliseconds.
+    pub plan_ms: f64,
+    /// CPU time of the whole update (plan, fetch, staging, requests), in milliseconds.
+    pub update_ms: f64,
+}
+
+impl VolumePass {
+    /// Sets the budgets and tuning of [`VolumePass::update`] (kept across sources; the planner
+    /// of the current source restarts with the new options and plans from what is drawn).
+    pub fn set_residency_config(&mut self, config: ResidencyConfig) {
+        self.residency = config;
+        if let Source::Mixed(state) = &mut self.source {
+            state.planner = ResidencyPlanner::new(config.options);
+            // Keep what is resident: the next frame plans from the cache's levels.
+            state.planner.set_drawn(&state.cache.levels());
+        }
+    }
+
+    /// The budgets and tuning of [`VolumePass::update`].
+    pub fn residency_config(&self) -> ResidencyConfig {
+        self.residency
+    }
+
+    /// The last frame's plan of the brick-cache source (`None` for other sources; empty before
+    /// the first [`VolumePass::update`]).
+    pub fn last_plan(&self) -> Option<&FramePlan> {
+        match &self.source {
+            Source::Mixed(state) => Some(state.planner.last_plan()),
+            _ => None,
+        }
+    }
+
+    /// Plans residency for a frame of `camera` at `width` x `height` pixels with `settings`
+    /// (see the [module docs](self)): stages the uploads the next [`VolumePass::record`]
+    /// records and asks the source for what comes next. Call it once per frame before
+    /// `record`, with the same camera, size and settings. Needs a brick-cache source. Records
+    /// nothing and needs no wait (the staged bytes go to the frame slot `record` is given).
+    pub fn update(
+        &mut self,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+        settings: &RenderSettings,
+    ) -> Result<FrameReport> {
+        let start = Instant::now();
+        // Validates camera, size and settings as the frame will.
+        self.params(camera, settings, width, height)?;
+        let config = self.residency;
+        let tf = self.tables.transfer_function();
+        let Source::Mixed(state) = &mut self.source else {
+            return Err(Error::InvalidInput(
+                "update needs a brick-cache source (set_source with Mixed, Bricks or RgbaMixed)"
+                    .into(),
+            ));
+        };
+        let cull = if state.rgba_model.is_some() {
+            // Pre-classified bricks: the transfer function does not apply.
+            CullParams {
+                value: ValueCulling::None,
+                clip: settings.clip_planes,
+            }
+        } else {
+            let is_float = state.source.scalar() == ScalarType::F32;
+            let window = settings.classification_window(is_float, state.value_range);
+            cull_params(settings, tf, window)?
+        };
+        let view = LodView::new(camera, width, height)?;
+        let budget = PlanBudget {
+            slots: state.cache.geometry().slot_count() as usize,
+            upload_bytes_per_frame: config.upload_bytes_per_frame,
+            bytes_per_texel: PlanBudget::bytes_per_texel_of(&*state.source),
+            ram_bytes: config.ram_bytes,
+        };
+        let plan_start = Instant::now();
+        let frame = FrameInput {
+            geometry: &state.geometry,
+            view: &view,
+            ranges: state.source.value_ranges(),
+            cull: &cull,
+            budget,
+        };
+        let plan = state
+            .planner
+            .plan_frame_with_source(&frame, &*state.source)?;
+        let plan_ms = plan_start.elapsed().as_secs_f64() * 1e3;
+        let report = plan.report;
+        let draw = plan.draw.clone();
+        let requests = plan.requests.clone();
+        let (mut source_errors, mut first_source_error) = (0, None);
+        for (brick, (&wanted, &drawn)) in plan.wanted.iter().zip(&plan.draw).enumerate() {
+            if wanted == drawn || wanted == Level::Absent {
+                continue;
+            }
+            if let Err(e) = state.source.brick_bytes(brick as u32, wanted) {
+                source_errors += 1;
+                first_source_error.get_or_insert_with(|| e.to_string());
+            }
+        }
+        let (residency, levels) = state.stage_levels(&draw)?;
+        let fell_back = levels.iter().zip(&draw).filter(|(a, b)| a != b).count();
+        if fell_back > 0 {
+            state.planner.set_drawn(&levels);
+        }
+        state
+            .source
+            .request_levels(&requests)
+            .map_err(Error::Source)?;
+        let extent = state.cache.geometry().extent();
+        let cache_bytes = u64::from(extent.x)
+            * u64::from(extent.y)
+            * u64::from(extent.z)
+            * u64::from(budget.bytes_per_texel);
+        Ok(FrameReport {
+            plan: report,
+            residency,
+            fell_back,
+            source_errors,
+            first_source_error,
+            cache_bytes,
+            plan_ms,
+            update_ms: start.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+}

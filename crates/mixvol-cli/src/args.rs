@@ -87,9 +87,107 @@ pub struct MixedArgs {
     /// Transition reconstruction between resolution levels.
     #[arg(long, value_enum, default_value_t = TransitionArg::Smooth)]
     pub transition: TransitionArg,
-    /// Cache image budget in MiB.
+    /// Cache image budget in MiB (for --levels patterns; --gpu-budget-mb sizes the cache of
+    /// camera-driven residency).
     #[arg(long, default_value_t = 256)]
     pub cache_mb: u64,
+}
+
+/// Camera-driven residency: the budgets the planner draws a volume (or a brick store) under.
+#[derive(Args, Debug)]
+pub struct ResidencyArgs {
+    /// Draw the volume through the brick cache with camera-driven residency, within this many
+    /// MiB of GPU memory for the cache image plus the per-frame upload staging (a brick store
+    /// is always drawn this way; default for stores: 256).
+    #[arg(long)]
+    pub gpu_budget_mb: Option<f64>,
+    /// MiB of brick level changes uploaded per frame at most (default: an eighth of the GPU
+    /// budget).
+    #[arg(long)]
+    pub upload_mb: Option<f64>,
+    /// MiB of RAM for the bricks a brick store streams in.
+    #[arg(long, default_value_t = 512.0)]
+    pub ram_budget_mb: f64,
+    /// Screen-space error (pixels x value range) below which a brick is not refined; 0 refines
+    /// whatever the budget allows.
+    #[arg(long, default_value_t = 0.0)]
+    pub error_threshold: f32,
+}
+
+/// The camera path: one view (the default), a turntable, a dolly or keyframes.
+#[derive(Args, Debug)]
+pub struct PathArgs {
+    /// Render a turntable of N frames around the target (about --up), starting at --eye.
+    #[arg(long, conflicts_with_all = ["dolly", "path"])]
+    pub orbit: Option<u32>,
+    /// Elevation of the orbit in degrees above the plane through the target normal to --up
+    /// (default: the eye's own).
+    #[arg(long, requires = "orbit", allow_hyphen_values = true)]
+    pub elevation: Option<f32>,
+    /// Render N frames moving the eye straight towards the target, to --dolly-to of the
+    /// starting distance.
+    #[arg(long, conflicts_with = "path")]
+    pub dolly: Option<u32>,
+    /// End of the dolly as a fraction of the starting distance.
+    #[arg(long, default_value_t = 0.35)]
+    pub dolly_to: f32,
+    /// Render the keyframed path in this JSON file (eye, target, up, fov per keyframe; see
+    /// the docs of `mixvol render --help`).
+    #[arg(long)]
+    pub path: Option<PathBuf>,
+    /// Folder for a path's frames (frame_0000.png, ...) and its per-frame log (frames.csv,
+    /// frames.json).
+    #[arg(long, default_value = "out/frames")]
+    pub frames_dir: PathBuf,
+    /// For a single view: also write the per-frame log as this CSV (and .json beside it).
+    #[arg(long)]
+    pub frame_log: Option<PathBuf>,
+}
+
+impl PathArgs {
+    /// Whether a path (more than the single view) was asked for.
+    pub fn is_path(&self) -> bool {
+        self.orbit.is_some() || self.dolly.is_some() || self.path.is_some()
+    }
+}
+
+impl ResidencyArgs {
+    /// `(cache budget, upload budget per frame)` in bytes for a GPU budget of `gpu_mb` MiB.
+    pub fn budgets(&self, gpu_mb: f64) -> Result<(u64, u64)> {
+        let mib = |flag: &str, v: f64| {
+            if v.is_finite() && v > 0.0 && v <= 1.0e9 {
+                Ok((v * (1u64 << 20) as f64) as u64)
+            } else {
+                Err(Error::InvalidInput(format!(
+                    "{flag} {v}: expected a positive number of MiB (at most 1e9)"
+                )))
+            }
+        };
+        let gpu = mib("--gpu-budget-mb", gpu_mb)?;
+        let upload = match self.upload_mb {
+            Some(mb) => mib("--upload-mb", mb)?,
+            None => gpu / 8,
+        };
+        if upload >= gpu {
+            return Err(Error::InvalidInput(format!(
+                "--upload-mb {:.3} must stay below --gpu-budget-mb {gpu_mb} (the cache gets the rest)",
+                upload as f64 / (1u64 << 20) as f64
+            )));
+        }
+        Ok((gpu - upload, upload.max(1)))
+    }
+
+    /// The streamer's RAM budget in bytes.
+    pub fn ram_bytes(&self) -> Result<u64> {
+        let v = self.ram_budget_mb;
+        if v.is_finite() && v > 0.0 && v <= 1.0e9 {
+            Ok((v * (1u64 << 20) as f64) as u64)
+        } else {
+            Err(Error::InvalidInput(format!(
+                "--ram-budget-mb {v}: expected a positive number of MiB (at most 1e9)"
+            )))
+        }
+    }
 }
 
 #[derive(Args, Debug)]
@@ -114,8 +212,9 @@ pub enum ProjectionArg {
 #[derive(Args, Debug)]
 pub struct RenderArgs {
     /// Volume to render: a synthetic field (`ml` = Marschner-Lobb, `sphere`, `wall`), a file with
-    /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), or a
-    /// headerless raw file (then --dims, --scalar, --spacing describe it).
+    /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), a brick
+    /// store (streamed from disk under --ram-budget-mb), or a headerless raw file (then --dims,
+    /// --scalar, --spacing describe it).
     #[arg(long, default_value = "ml")]
     pub volume: String,
     /// Dimensions x,y,z: of the synthetic field, or of the raw file.
@@ -156,6 +255,9 @@ pub struct RenderArgs {
     /// Point looked at, x,y,z.
     #[arg(long, default_value = "0,0,0", value_parser = parse_vec3)]
     pub target: Vec3,
+    /// Camera up vector x,y,z (the image's vertical; need not be orthogonal to the view).
+    #[arg(long, default_value = "0,1,0", value_parser = parse_vec3)]
+    pub up: Vec3,
     /// Vertical field of view in degrees (perspective).
     #[arg(long, default_value_t = 35.0)]
     pub fov: f32,
@@ -194,6 +296,10 @@ pub struct RenderArgs {
     pub compare: bool,
     #[command(flatten)]
     pub mixed: MixedArgs,
+    #[command(flatten)]
+    pub residency: ResidencyArgs,
+    #[command(flatten)]
+    pub camera_path: PathArgs,
     #[command(flatten)]
     pub optics: OpticsArgs,
 }
@@ -298,6 +404,7 @@ impl RenderArgs {
         };
         Camera {
             projection,
+            up: self.up,
             ..Camera::perspective(self.eye, self.target, self.fov)
         }
     }

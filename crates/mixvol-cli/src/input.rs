@@ -1,8 +1,9 @@
 //! The volume a command renders: a synthetic field, a file with a header, a chosen OME-Zarr
-//! level, or headerless raw data described by the flags; and the value window.
+//! level, headerless raw data described by the flags, or a brick store; and the value window.
 
 use crate::args::RenderArgs;
 use crate::parse::parse_floats;
+use mixvol::store::{BrickStore, MAGIC};
 use mixvol::volume::formats::{load_zarr_level, FileFormat};
 use mixvol::volume::{load_raw, RawDescriptor, SyntheticField, Volume};
 use mixvol::{Error, Result};
@@ -39,10 +40,57 @@ pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
     )?)
 }
 
-/// The value window from `--window` / `--preset`.
-pub fn window_of(args: &RenderArgs, volume: &Volume) -> Result<Option<(f32, f32)>> {
+/// What `--volume` names: a volume loaded into RAM, or a brick store streamed from disk.
+pub enum Input {
+    /// An in-memory volume (a file, raw data or a synthetic field).
+    Volume(Volume),
+    /// A brick store (`mixvol convert` writes them), opened and validated.
+    Store(BrickStore),
+}
+
+/// True when `path` is a regular file that starts with the brick store's magic bytes.
+pub fn is_brick_store(path: &Path) -> bool {
+    use std::io::Read;
+    // The regular-file check comes first: opening a FIFO would block.
+    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        return false;
+    }
+    let mut magic = [0u8; 8];
+    std::fs::File::open(path)
+        .and_then(|mut f| f.read_exact(&mut magic))
+        .is_ok()
+        && magic == MAGIC
+}
+
+/// Opens `--volume`: a brick store when the file is one, else [`load_volume`].
+pub fn open_input(args: &RenderArgs) -> Result<Input> {
+    let path = Path::new(&args.volume);
+    if is_brick_store(path) {
+        if args.zarr_level.is_some() {
+            return Err(Error::InvalidInput(format!(
+                "--zarr-level applies to OME-Zarr images; '{}' is a brick store",
+                args.volume
+            )));
+        }
+        return Ok(Input::Store(BrickStore::open(path)?));
+    }
+    Ok(Input::Volume(load_volume(args)?))
+}
+
+/// The value window from `--window` / `--preset`; `volume` is `None` for a brick store (whose
+/// histogram is not in RAM: `auto` and the presets' automatic window then need `--window`).
+pub fn window_of(args: &RenderArgs, volume: Option<&Volume>) -> Result<Option<(f32, f32)>> {
+    let auto = || {
+        volume.map(Volume::auto_window).ok_or_else(|| {
+            Error::InvalidInput(format!(
+                "an automatic window (--window auto or --preset) needs the histogram of an \
+                 in-memory volume; '{}' is a brick store: pass --window lo,hi",
+                args.volume
+            ))
+        })
+    };
     match args.window.as_deref() {
-        Some("auto") => Ok(Some(volume.auto_window())),
+        Some("auto") => Ok(Some(auto()?)),
         Some(text) => {
             let [lo, hi] = parse_floats::<2>(text).map_err(|e| {
                 Error::InvalidInput(format!("--window: {e} (expected lo,hi or auto)"))
@@ -54,7 +102,7 @@ pub fn window_of(args: &RenderArgs, volume: &Volume) -> Result<Option<(f32, f32)
             }
             Ok(Some((lo, hi)))
         }
-        None if args.preset.is_some() => Ok(Some(volume.auto_window())),
+        None if args.preset.is_some() => Ok(Some(auto()?)),
         None => Ok(None),
     }
 }

@@ -4,8 +4,10 @@
 
 mod args;
 mod bench;
+mod camera_path;
 mod compare;
 mod files;
+mod frame_log;
 mod input;
 mod junction;
 mod levels;

@@ -1,27 +1,261 @@
-//! `mixvol render`: one volume, one camera, N timed frames, a PNG, and optionally the CPU
-//! reference for comparison.
+//! `mixvol render`: one volume (or brick store) along one view or a camera path, a PNG per
+//! frame, the frame timing, and with camera-driven residency a per-frame residency log; and
+//! optionally the CPU reference for comparison.
 
 use crate::args::RenderArgs;
+use crate::camera_path::{dolly, load_path, orbit};
 use crate::compare::Difference;
 use crate::files::create_parent;
-use crate::input::{load_volume, window_of};
+use crate::frame_log::{write_log, FrameRow};
+use crate::input::{open_input, window_of, Input};
 use crate::levels::level_pattern;
 use crate::stats::Summary;
 use mixvol::bricks::BrickGrid;
 use mixvol::gpu::{ContextDesc, GpuContext, MessageLog};
 use mixvol::optics::TransferFunction;
+use mixvol::plan::PlanOptions;
 use mixvol::reference::{self, ReferenceCache};
-use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
-use mixvol::scene::RenderSettings;
+use mixvol::renderer::{
+    Frame, FrameReport, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource,
+};
+use mixvol::scene::{Camera, RenderSettings};
+use mixvol::store::{BrickStreamer, StreamerConfig};
+use mixvol::volume::Volume;
 use mixvol::{Error, Result};
 use std::sync::Arc;
+use std::time::Duration;
+
+/// Most frames a single view renders while camera-driven residency converges.
+const MAX_CONVERGE_FRAMES: usize = 200;
+
+/// How long a frame waits for a streaming store to load what the plan asked for, while a
+/// single view converges.
+const STREAM_WAIT: Duration = Duration::from_secs(2);
+
+/// What the renderer draws and how its residency is driven.
+pub struct Scene {
+    /// The in-memory volume (absent for a brick store).
+    pub volume: Option<Arc<Volume>>,
+    /// The streamer of a brick store.
+    pub streamer: Option<Arc<BrickStreamer>>,
+    /// Whether the camera drives residency (else a plain texture or a fixed pattern).
+    pub planned: bool,
+    /// The brick-cache configuration, when one is used.
+    pub config: Option<MixedConfig>,
+}
+
+/// The views of `--orbit`, `--dolly`, `--path`, or the single `--eye` view.
+pub fn views(args: &RenderArgs) -> Result<Vec<Camera>> {
+    let base = args.camera();
+    let p = &args.camera_path;
+    if let Some(n) = p.orbit {
+        orbit(&base, n, p.elevation)
+    } else if let Some(n) = p.dolly {
+        dolly(&base, n, p.dolly_to)
+    } else if let Some(file) = &p.path {
+        load_path(file, &base)
+    } else {
+        Ok(vec![base])
+    }
+}
+
+/// Sets the renderer's source from `input` and the flags: a brick store (always camera-driven),
+/// a volume with `--gpu-budget-mb` (camera-driven), with `--levels` (a fixed pattern), or a
+/// plain texture. Prints what it set up.
+pub fn set_up_scene(renderer: &mut Renderer, args: &RenderArgs, input: Input) -> Result<Scene> {
+    let r = &args.residency;
+    let options = PlanOptions {
+        error_threshold: r.error_threshold,
+        ..PlanOptions::default()
+    };
+    if r.gpu_budget_mb.is_some() && args.mixed.levels.is_some() {
+        return Err(Error::InvalidInput(
+            "--levels (a fixed pattern) and --gpu-budget-mb (camera-driven residency) exclude \
+             each other"
+                .into(),
+        ));
+    }
+    match input {
+        Input::Store(store) => {
+            if args.mixed.levels.is_some() {
+                return Err(Error::InvalidInput(
+                    "--levels applies to in-memory volumes; a brick store is drawn with \
+                     camera-driven residency (--gpu-budget-mb)"
+                        .into(),
+                ));
+            }
+            let (cache, upload) = r.budgets(r.gpu_budget_mb.unwrap_or(256.0))?;
+            let ram = r.ram_bytes()?;
+            let header = *store.header();
+            let config = MixedConfig {
+                brick_size: header.brick_size,
+                filter: store.filter(),
+                cache_budget_bytes: cache,
+                transition: args.mixed.transition.transition(),
+            };
+            let streamer = Arc::new(BrickStreamer::new(
+                store,
+                StreamerConfig {
+                    ram_budget_bytes: usize::try_from(ram).unwrap_or(usize::MAX),
+                    record_load_order: false,
+                },
+            )?);
+            renderer.set_residency_config(ResidencyConfig {
+                upload_bytes_per_frame: upload,
+                ram_bytes: Some(ram),
+                options,
+            });
+            renderer.set_source(VolumeSource::Bricks {
+                source: streamer.clone(),
+                config,
+            })?;
+            print_cache(renderer, &config, upload, Some(ram));
+            Ok(Scene {
+                volume: None,
+                streamer: Some(streamer),
+                planned: true,
+                config: Some(config),
+            })
+        }
+        Input::Volume(volume) => {
+            let volume = Arc::new(volume);
+            if let Some(gpu_mb) = r.gpu_budget_mb {
+                let (cache, upload) = r.budgets(gpu_mb)?;
+                let config = MixedConfig {
+                    cache_budget_bytes: cache,
+                    ..args.mixed.config()?
+                };
+                renderer.set_residency_config(ResidencyConfig {
+                    upload_bytes_per_frame: upload,
+                    ram_bytes: None,
+                    options,
+                });
+                renderer.set_source(VolumeSource::Mixed {
+                    volume: volume.clone(),
+                    config,
+                })?;
+                print_cache(renderer, &config, upload, None);
+                return Ok(Scene {
+                    volume: Some(volume),
+                    streamer: None,
+                    planned: true,
+                    config: Some(config),
+                });
+            }
+            let Some(pattern) = args.mixed.levels else {
+                renderer.set_source(VolumeSource::Volume(&volume))?;
+                return Ok(Scene {
+                    volume: Some(volume),
+                    streamer: None,
+                    planned: false,
+                    config: None,
+                });
+            };
+            let config = args.mixed.config()?;
+            renderer.set_source(VolumeSource::Mixed {
+                volume: volume.clone(),
+                config,
+            })?;
+            let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)?;
+            let report = renderer.set_levels(&level_pattern(&grid, pattern))?;
+            println!(
+                "brick cache: {} hi + {} lo bricks of {}^3, {} uploaded ({:.1} MB), {} fixed up; pack {:.1} ms, upload+fixup {:.1} ms",
+                report.hi_bricks,
+                report.lo_bricks,
+                args.mixed.brick_size,
+                report.uploaded_bricks,
+                report.uploaded_bytes as f64 / 1e6,
+                report.fixup_bricks,
+                report.pack_ms,
+                report.update_ms
+            );
+            Ok(Scene {
+                volume: Some(volume),
+                streamer: None,
+                planned: false,
+                config: Some(config),
+            })
+        }
+    }
+}
+
+/// Prints the brick cache a camera-driven scene renders through.
+fn print_cache(renderer: &Renderer, config: &MixedConfig, upload: u64, ram: Option<u64>) {
+    if let Some(cache) = renderer.brick_cache() {
+        let grid = cache.grid();
+        let hi_slots = cache.geometry().slot_count();
+        println!(
+            "camera-driven residency: {} bricks of {}^3, cache of {} slots ({:.1} MB budget; {:.0} % of the bricks fit hi-res), upload budget {:.2} MB/frame{}",
+            grid.brick_count(),
+            config.brick_size,
+            hi_slots,
+            config.cache_budget_bytes as f64 / 1e6,
+            100.0 * (hi_slots as f64 / grid.brick_count().max(1) as f64).min(1.0),
+            upload as f64 / 1e6,
+            ram.map(|r| format!(", RAM budget {:.1} MB", r as f64 / 1e6))
+                .unwrap_or_default()
+        );
+    }
+}
+
+/// One line on the residency of `report`.
+pub fn residency_line(report: &FrameReport) -> String {
+    let p = &report.plan;
+    format!(
+        "residency: {} hi + {} lo drawn, {} wanted but absent, {} culled, {} dropped, {} waiting for the source; {}/{} slots ({:.0} % full, {:.1} MB cache); worst screen-space error {:.3}; planner {:.2} ms{}",
+        p.drawn_hi,
+        p.drawn_lo,
+        p.drawn_absent,
+        p.culled,
+        p.dropped,
+        p.waiting_for_source,
+        p.slots_used,
+        p.slot_budget,
+        100.0 * p.slots_used as f64 / p.slot_budget.max(1) as f64,
+        report.cache_bytes as f64 / 1e6,
+        p.max_drawn_error,
+        report.plan_ms,
+        match &report.first_source_error {
+            Some(e) => format!("; {} bricks failed to load (first: {e})", report.source_errors),
+            None => String::new(),
+        }
+    )
+}
+
+/// Renders one frame and its log row.
+fn frame_row(
+    renderer: &mut Renderer,
+    ctx: &GpuContext,
+    index: usize,
+    camera: &Camera,
+    settings: &RenderSettings,
+    args: &RenderArgs,
+) -> Result<(Frame, FrameRow)> {
+    let frame = renderer.render(camera, settings, args.width, args.height)?;
+    let row = FrameRow::of(index, &frame, ctx.allocated_bytes());
+    Ok((frame, row))
+}
 
 /// Runs `mixvol render`.
 pub fn render(args: &RenderArgs) -> Result<()> {
     if args.frames == 0 {
         return Err(Error::InvalidInput("--frames must be at least 1".into()));
     }
-    let volume = load_volume(args)?;
+    let cameras = views(args)?;
+    let is_path = args.camera_path.is_path();
+    if is_path && args.compare {
+        return Err(Error::InvalidInput(
+            "--compare renders one view; drop --orbit / --dolly / --path".into(),
+        ));
+    }
+    let input = open_input(args)?;
+    if args.compare && matches!(input, Input::Store(_)) {
+        return Err(Error::InvalidInput(
+            "--compare needs the volume in memory for the CPU reference; render the source file \
+             (with --gpu-budget-mb) instead of its brick store"
+                .into(),
+        ));
+    }
     let ctx = GpuContext::new(&ContextDesc {
         validation: args.validation,
         device_name: args.device.clone(),
@@ -37,73 +271,122 @@ pub fn render(args: &RenderArgs) -> Result<()> {
             ""
         }
     );
-    let d = volume.dims();
+    let (dims, scalar, volume_for_window) = match &input {
+        Input::Volume(v) => (v.dims(), v.scalar_type(), Some(v)),
+        Input::Store(s) => (s.grid().dims(), s.scalar(), None),
+    };
     println!(
-        "volume: {} {}x{}x{} {:?}",
+        "volume: {} {}x{}x{} {:?}{}",
         args.volume,
-        d.x,
-        d.y,
-        d.z,
-        volume.scalar_type()
+        dims.x,
+        dims.y,
+        dims.z,
+        scalar,
+        if volume_for_window.is_none() {
+            " (brick store)"
+        } else {
+            ""
+        }
     );
     let tf = TransferFunction::preset(args.preset.unwrap_or(args.tf));
-    let value_window = window_of(args, &volume)?;
+    let value_window = window_of(args, volume_for_window)?;
     if let Some((lo, hi)) = value_window {
         println!("window: [{lo:.4}, {hi:.4}] (normalised values)");
     }
-    let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
-    renderer.set_transfer_function(&tf)?;
-    let volume = Arc::new(volume);
-    let mut reference_cache = None;
-    match args.mixed.levels {
-        None => renderer.set_source(VolumeSource::Volume(&volume))?,
-        Some(pattern) => {
-            let config = args.mixed.config()?;
-            renderer.set_source(VolumeSource::Mixed {
-                volume: volume.clone(),
-                config,
-            })?;
-            let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)?;
-            let levels = level_pattern(&grid, pattern);
-            let report = renderer.set_levels(&levels)?;
-            println!(
-                "brick cache: {} hi + {} lo bricks of {}^3, {} uploaded ({:.1} MB), {} fixed up; pack {:.1} ms, upload+fixup {:.1} ms",
-                report.hi_bricks,
-                report.lo_bricks,
-                args.mixed.brick_size,
-                report.uploaded_bricks,
-                report.uploaded_bytes as f64 / 1e6,
-                report.fixup_bricks,
-                report.pack_ms,
-                report.update_ms
-            );
-            if args.compare {
-                let cache = renderer.brick_cache().expect("mixed volume set");
-                reference_cache = Some(ReferenceCache::build(
-                    &volume,
-                    config.filter,
-                    cache,
-                    volume.scalar_type(),
-                    config.transition,
-                )?);
-            }
-        }
-    }
-    let camera = args.camera();
     let settings = args.optics.apply(RenderSettings {
         samples_per_voxel: args.samples_per_voxel,
         early_termination: args.early_termination,
         value_window,
         ..RenderSettings::default()
     })?;
+    let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
+    renderer.set_transfer_function(&tf)?;
+    let scene = set_up_scene(&mut renderer, args, input)?;
+    if is_path {
+        render_path(&mut renderer, &ctx, &scene, &cameras, &settings, args)?;
+    } else {
+        render_view(
+            &mut renderer,
+            &ctx,
+            &scene,
+            &cameras[0],
+            &settings,
+            &tf,
+            args,
+        )?;
+    }
+    if info.device_type == ash::vk::PhysicalDeviceType::CPU {
+        println!(
+            "  note: {} is a CPU implementation; these times are not GPU times",
+            info.name
+        );
+    }
+    drop(renderer);
+    drop(scene);
+    let log = ctx.message_log();
+    drop(ctx);
+    if args.validation {
+        check_validation(&log, true)?;
+    }
+    Ok(())
+}
+
+/// Renders frames of one view until camera-driven residency has converged (nothing to upload,
+/// nothing the source can still load), at most [`MAX_CONVERGE_FRAMES`]; returns the frames
+/// rendered and whether it converged.
+fn converge(
+    renderer: &mut Renderer,
+    scene: &Scene,
+    camera: &Camera,
+    settings: &RenderSettings,
+    args: &RenderArgs,
+) -> Result<(usize, bool)> {
+    for i in 1..=MAX_CONVERGE_FRAMES {
+        let frame = renderer.render(camera, settings, args.width, args.height)?;
+        let Some(report) = frame.residency else {
+            return Ok((i, true));
+        };
+        let source_done = match &scene.streamer {
+            Some(s) => s.wait_settled(STREAM_WAIT),
+            None => true,
+        };
+        if report.plan.is_settled() && source_done {
+            // Settled and the source has nothing left to load: one more plan would be the same.
+            let again = renderer.render(camera, settings, args.width, args.height)?;
+            if again.residency.is_none_or(|r| r.plan.is_settled()) {
+                return Ok((i + 1, true));
+            }
+        }
+    }
+    Ok((MAX_CONVERGE_FRAMES, false))
+}
+
+/// A single view: converge (camera-driven residency), one warm-up frame, `--frames` timed
+/// frames, the PNG, the timing and residency summary, and the CPU comparison.
+fn render_view(
+    renderer: &mut Renderer,
+    ctx: &GpuContext,
+    scene: &Scene,
+    camera: &Camera,
+    settings: &RenderSettings,
+    tf: &TransferFunction,
+    args: &RenderArgs,
+) -> Result<()> {
+    if scene.planned {
+        let (frames, converged) = converge(renderer, scene, camera, settings, args)?;
+        if converged {
+            println!("residency converged after {frames} frames");
+        } else {
+            println!("residency still changing after {frames} frames (showing the last)");
+        }
+    }
     // Warm-up: llvmpipe compiles shaders at the first draw.
-    let mut frame = renderer.render(&camera, &settings, args.width, args.height)?;
-    let mut gpu = Vec::new();
-    let mut cpu = Vec::new();
-    for _ in 0..args.frames {
-        frame = renderer.render(&camera, &settings, args.width, args.height)?;
-        gpu.extend(frame.timing.gpu_raycast_ms);
-        cpu.push(frame.timing.cpu_frame_ms);
+    let (mut frame, _) = frame_row(renderer, ctx, 0, camera, settings, args)?;
+    let mut rows = Vec::new();
+    for i in 0..args.frames as usize {
+        let (f, row) = frame_row(renderer, ctx, i, camera, settings, args)?;
+        frame = f;
+        rows.push(row);
     }
     create_parent(&args.output)?;
     frame.save_png(&args.output, args.background)?;
@@ -113,10 +396,37 @@ pub fn render(args: &RenderArgs) -> Result<()> {
         args.width,
         args.height
     );
+    print_timing(&rows, "after 1 warm-up");
+    if let Some(report) = &frame.residency {
+        println!("{}", residency_line(report));
+        println!(
+            "gpu memory: {:.1} MB allocated in all (the {:.1} MB cache image and the upload staging within the budget; the render target and its read-back besides)",
+            ctx.allocated_bytes() as f64 / 1e6,
+            report.cache_bytes as f64 / 1e6
+        );
+    }
+    println!("pipeline variant: {:?}", frame.variant);
+    if let Some(log) = &args.camera_path.frame_log {
+        write_log(log, &rows)?;
+        println!("wrote {} (and .json)", log.display());
+    }
+    if args.compare {
+        compare(renderer, scene, camera, settings, tf, args, &frame)?;
+    }
+    Ok(())
+}
+
+/// Prints min / median / max of the CPU frame and GPU ray-cast times of `rows`.
+fn print_timing(rows: &[FrameRow], note: &str) {
+    let cpu: Vec<f64> = rows.iter().map(|r| r.cpu_frame_ms).collect();
+    let gpu: Vec<f64> = rows.iter().filter_map(|r| r.gpu_raycast_ms).collect();
     if let Some(s) = Summary::of(&cpu) {
         println!(
-            "frame timing over {} frames (after 1 warm-up): cpu min {:.2} / median {:.2} / max {:.2} ms",
-            args.frames, s.min, s.median, s.max
+            "frame timing over {} frames ({note}): cpu min {:.2} / median {:.2} / max {:.2} ms",
+            rows.len(),
+            s.min,
+            s.median,
+            s.max
         );
     }
     if let Some(s) = Summary::of(&gpu) {
@@ -125,40 +435,88 @@ pub fn render(args: &RenderArgs) -> Result<()> {
             s.min, s.median, s.max
         );
     }
-    if info.device_type == ash::vk::PhysicalDeviceType::CPU {
+}
+
+/// A camera path: one frame per view, each written as `frame_NNNN.png`, and the per-frame log.
+fn render_path(
+    renderer: &mut Renderer,
+    ctx: &GpuContext,
+    scene: &Scene,
+    cameras: &[Camera],
+    settings: &RenderSettings,
+    args: &RenderArgs,
+) -> Result<()> {
+    let dir = &args.camera_path.frames_dir;
+    create_parent(&dir.join("frame_0000.png"))?;
+    let mut rows = Vec::with_capacity(cameras.len());
+    let mut last = None;
+    for (i, camera) in cameras.iter().enumerate() {
+        let (frame, row) = frame_row(renderer, ctx, i, camera, settings, args)?;
+        frame.save_png(&dir.join(format!("frame_{i:04}.png")), args.background)?;
+        rows.push(row);
+        last = Some(frame);
+    }
+    let csv = dir.join("frames.csv");
+    write_log(&csv, &rows)?;
+    println!(
+        "wrote {} frames as {}/frame_0000.png ... and {} (and .json)",
+        cameras.len(),
+        dir.display(),
+        csv.display()
+    );
+    print_timing(&rows, "first frame included");
+    if scene.planned {
+        let uploaded: f64 = rows.iter().map(|r| r.uploaded_mb).sum();
+        let changed = rows.iter().filter(|r| r.uploaded_bricks > 0).count();
+        let waiting = rows.iter().map(|r| r.waiting).max().unwrap_or(0);
+        let worst = rows.iter().map(|r| r.worst_error).fold(0.0f32, f32::max);
         println!(
-            "  note: {} is a CPU implementation; these times are not GPU times",
-            info.name
+            "residency along the path: {uploaded:.1} MB uploaded in {changed} of {} frames, at most {waiting} bricks waiting, worst screen-space error {worst:.3}",
+            rows.len()
         );
+        if let Some(report) = last.as_ref().and_then(|f| f.residency.as_ref()) {
+            println!("last frame {}", residency_line(report));
+        }
     }
-    println!("pipeline variant: {:?}", frame.variant);
-    if args.compare {
-        let params = renderer.params(&camera, &settings, args.width, args.height)?;
-        let reference = match &reference_cache {
-            Some(cache) => reference::render_mixed_scene(
-                &cache.view(),
-                args.mixed.transition.transition(),
-                &tf,
-                &settings,
-                &params,
-            )?,
-            None => reference::render_scene(&volume, &tf, &settings, &params)?,
-        };
-        let d = Difference::between(&reference, &frame.pixels);
-        println!(
-            "cpu reference: max per-channel difference {:.4} ({:.1}/255), mean {:.2e}, {:.3} % of channels above 1/255",
-            d.max,
-            d.max * 255.0,
-            d.mean,
-            100.0 * d.above_one_step
-        );
-    }
-    drop(renderer);
-    let log = ctx.message_log();
-    drop(ctx);
-    if args.validation {
-        check_validation(&log, true)?;
-    }
+    Ok(())
+}
+
+/// Renders the CPU reference of the frame just drawn and prints the difference.
+fn compare(
+    renderer: &Renderer,
+    scene: &Scene,
+    camera: &Camera,
+    settings: &RenderSettings,
+    tf: &TransferFunction,
+    args: &RenderArgs,
+    frame: &Frame,
+) -> Result<()> {
+    let volume = scene
+        .volume
+        .as_ref()
+        .ok_or_else(|| Error::InvalidInput("--compare needs an in-memory volume".into()))?;
+    let params = renderer.params(camera, settings, args.width, args.height)?;
+    let reference = match (renderer.brick_cache(), &scene.config) {
+        (Some(cache), Some(config)) => {
+            let cache = ReferenceCache::build(
+                volume,
+                config.filter,
+                cache,
+                volume.scalar_type(),
+                config.transition,
+            )?;
+            reference::render_mixed_scene(&cache.view(), config.transition, tf, settings, &params)?
+        }
+        _ => reference::render_scene(volume, tf, settings, &params)?,
+    };
+    let d = Difference::between(&reference, &frame.pixels);
+    println!(
+        "cpu reference: max per-channel difference {:.4} ({:.1}/255), mean {:.2e}, {:.3} % of channels above 1/255",
+        d.max,
+        d.max * 255.0,
+        d.mean,
+        100.0 * d.above_one_step
+    );
     Ok(())
 }
 

@@ -1,9 +1,10 @@
 //! `mixvol bench`: N frames of one scene, min / median / max of every GPU pass (upload, fixup,
-//! ray-cast) and of the CPU frame time, as a table and as JSON.
+//! ray-cast) and of the CPU frame time, as a table and as JSON. With a camera path, a GPU
+//! budget or a brick store it benchmarks camera-driven residency instead (`path_bench`).
 
 use crate::args::BenchArgs;
 use crate::files::write_text;
-use crate::input::load_volume;
+use crate::input::{is_brick_store, load_volume};
 use crate::levels::{level_pattern, swapped};
 use crate::stats::Summary;
 use mixvol::bricks::BrickGrid;
@@ -40,6 +41,12 @@ struct BenchJson<'a> {
 /// Runs `mixvol bench`.
 pub fn bench(args: &BenchArgs) -> Result<()> {
     let r = &args.render;
+    if r.camera_path.is_path()
+        || r.residency.gpu_budget_mb.is_some()
+        || is_brick_store(std::path::Path::new(&r.volume))
+    {
+        return crate::path_bench::bench_path(args);
+    }
     if r.frames == 0 {
         return Err(Error::InvalidInput("--frames must be at least 1".into()));
     }

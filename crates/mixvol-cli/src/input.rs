@@ -8,6 +8,7 @@ use mixvol::volume::formats::{load_zarr_level, FileFormat};
 use mixvol::volume::{load_raw, RawDescriptor, SyntheticField, Volume};
 use mixvol::{Error, Result};
 use std::path::Path;
+use std::sync::Arc;
 
 /// Loads or generates the volume `--volume` names (see `mixvol render --help`).
 pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
@@ -43,7 +44,7 @@ pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
 /// What `--volume` names: a volume loaded into RAM, or a brick store streamed from disk.
 pub enum Input {
     /// An in-memory volume (a file, raw data or a synthetic field).
-    Volume(Volume),
+    Volume(Arc<Volume>),
     /// A brick store (`mixvol convert` writes them), opened and validated.
     Store(BrickStore),
 }
@@ -74,7 +75,7 @@ pub fn open_input(args: &RenderArgs) -> Result<Input> {
         }
         return Ok(Input::Store(BrickStore::open(path)?));
     }
-    Ok(Input::Volume(load_volume(args)?))
+    Ok(Input::Volume(Arc::new(load_volume(args)?)))
 }
 
 /// The value window from `--window` / `--preset`; `volume` is `None` for a brick store (whose

@@ -12,6 +12,7 @@ mod input;
 mod junction;
 mod levels;
 mod parse;
+mod path_bench;
 mod render;
 mod reports;
 mod stats;
@@ -36,7 +37,10 @@ enum Command {
     /// (right), side by side into one PNG.
     Junction(JunctionArgs),
     /// Render a scene for N frames and report min / median / max GPU time per pass (upload,
-    /// fixup, ray-cast) and CPU frame time, as a table and as JSON.
+    /// fixup, ray-cast) and CPU frame time, as a table and as JSON; with --orbit / --dolly /
+    /// --path, --gpu-budget-mb or a brick store: camera-driven residency along the path, smooth
+    /// and discontinuous side by side (frame times, upload+fixup, planner time, frames to
+    /// converge).
     Bench(BenchArgs),
     /// The accuracy-versus-time report of the default scene (Markdown, CSV and a PNG chart).
     Report(ReportArgs),

@@ -18,8 +18,8 @@ use mixvol::reference::{self, ReferenceCache};
 use mixvol::renderer::{
     Frame, FrameReport, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource,
 };
-use mixvol::scene::{Camera, RenderSettings};
-use mixvol::store::{BrickStreamer, StreamerConfig};
+use mixvol::scene::{Camera, RenderSettings, Transition};
+use mixvol::store::{BrickStore, BrickStreamer, StreamerConfig};
 use mixvol::volume::Volume;
 use mixvol::{Error, Result};
 use std::sync::Arc;
@@ -62,7 +62,12 @@ pub fn views(args: &RenderArgs) -> Result<Vec<Camera>> {
 /// Sets the renderer's source from `input` and the flags: a brick store (always camera-driven),
 /// a volume with `--gpu-budget-mb` (camera-driven), with `--levels` (a fixed pattern), or a
 /// plain texture. Prints what it set up.
-pub fn set_up_scene(renderer: &mut Renderer, args: &RenderArgs, input: Input) -> Result<Scene> {
+pub fn set_up_scene(
+    renderer: &mut Renderer,
+    args: &RenderArgs,
+    input: &Input,
+    transition: Transition,
+) -> Result<Scene> {
     let r = &args.residency;
     let options = PlanOptions {
         error_threshold: r.error_threshold,
@@ -86,15 +91,15 @@ pub fn set_up_scene(renderer: &mut Renderer, args: &RenderArgs, input: Input) ->
             }
             let (cache, upload) = r.budgets(r.gpu_budget_mb.unwrap_or(256.0))?;
             let ram = r.ram_bytes()?;
-            let header = *store.header();
             let config = MixedConfig {
-                brick_size: header.brick_size,
+                brick_size: store.header().brick_size,
                 filter: store.filter(),
                 cache_budget_bytes: cache,
-                transition: args.mixed.transition.transition(),
+                transition,
             };
+            // Each scene streams through its own reader of the store.
             let streamer = Arc::new(BrickStreamer::new(
-                store,
+                BrickStore::open(store.path())?,
                 StreamerConfig {
                     ram_budget_bytes: usize::try_from(ram).unwrap_or(usize::MAX),
                     record_load_order: false,
@@ -118,11 +123,12 @@ pub fn set_up_scene(renderer: &mut Renderer, args: &RenderArgs, input: Input) ->
             })
         }
         Input::Volume(volume) => {
-            let volume = Arc::new(volume);
+            let volume = volume.clone();
             if let Some(gpu_mb) = r.gpu_budget_mb {
                 let (cache, upload) = r.budgets(gpu_mb)?;
                 let config = MixedConfig {
                     cache_budget_bytes: cache,
+                    transition,
                     ..args.mixed.config()?
                 };
                 renderer.set_residency_config(ResidencyConfig {
@@ -151,7 +157,10 @@ pub fn set_up_scene(renderer: &mut Renderer, args: &RenderArgs, input: Input) ->
                     config: None,
                 });
             };
-            let config = args.mixed.config()?;
+            let config = MixedConfig {
+                transition,
+                ..args.mixed.config()?
+            };
             renderer.set_source(VolumeSource::Mixed {
                 volume: volume.clone(),
                 config,
@@ -272,7 +281,7 @@ pub fn render(args: &RenderArgs) -> Result<()> {
         }
     );
     let (dims, scalar, volume_for_window) = match &input {
-        Input::Volume(v) => (v.dims(), v.scalar_type(), Some(v)),
+        Input::Volume(v) => (v.dims(), v.scalar_type(), Some(&**v)),
         Input::Store(s) => (s.grid().dims(), s.scalar(), None),
     };
     println!(
@@ -301,7 +310,13 @@ pub fn render(args: &RenderArgs) -> Result<()> {
     })?;
     let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     renderer.set_transfer_function(&tf)?;
-    let scene = set_up_scene(&mut renderer, args, input)?;
+    let scene = set_up_scene(
+        &mut renderer,
+        args,
+        &input,
+        args.mixed.transition.transition(),
+    )?;
+    drop(input);
     if is_path {
         render_path(&mut renderer, &ctx, &scene, &cameras, &settings, args)?;
     } else {

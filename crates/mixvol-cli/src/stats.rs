@@ -1,4 +1,4 @@
-//! Minimum, median and maximum of a timing series: the one summary every command prints.
+//! Minimum, median, 95th percentile and maximum of a timing series: the one summary every command prints.
 
 /// min / median / max of a series of times.
 #[derive(Copy, Clone, Debug, PartialEq)]
@@ -7,6 +7,8 @@ pub struct Summary {
     pub min: f64,
     /// The middle value (the upper one of the two middles for an even count).
     pub median: f64,
+    /// The 95th percentile (nearest rank: the value at rank `ceil(0.95 n)`).
+    pub p95: f64,
     /// The largest value.
     pub max: f64,
 }
@@ -22,6 +24,7 @@ impl Summary {
         Some(Self {
             min: v[0],
             median: v[v.len() / 2],
+            p95: v[(v.len() * 95).div_ceil(100).max(1) - 1],
             max: v[v.len() - 1],
         })
     }
@@ -35,6 +38,9 @@ mod tests {
     fn summary_orders_and_picks_the_middle() {
         let s = Summary::of(&[3.0, 1.0, 2.0, 9.0]).unwrap();
         assert_eq!((s.min, s.median, s.max), (1.0, 3.0, 9.0));
+        assert_eq!(s.p95, 9.0);
+        let ranks: Vec<f64> = (1..=40).map(f64::from).collect();
+        assert_eq!(Summary::of(&ranks).unwrap().p95, 38.0);
         assert_eq!(Summary::of(&[]), None);
     }
 }

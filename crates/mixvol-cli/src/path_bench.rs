@@ -121,9 +121,7 @@ pub fn bench_path(args: &BenchArgs) -> Result<()> {
         // Warm-up at a far view (compiles the variants; llvmpipe compiles at first draw), then
         // start from nothing resident.
         renderer.render(&cameras[0], &settings, r.width, r.height)?;
-        let bricks = renderer
-            .brick_cache()
-            .map_or(0, |c| c.grid().brick_count() as usize);
+        let bricks = renderer.brick_cache().map_or(0, |c| c.grid().brick_count());
         renderer.set_levels(&vec![Level::Absent; bricks])?;
         renderer.set_planned(true);
         runs.push(Run {

@@ -29,6 +29,7 @@ pub mod error;
 pub mod gpu;
 pub mod lod;
 pub mod optics;
+pub mod output;
 pub mod plan;
 pub mod reference;
 pub mod renderer;

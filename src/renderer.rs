@@ -92,13 +92,20 @@ pub fn pixels_to_rgba8(
     })
 }
 
-/// Writes `img` as PNG to `path`.
-pub fn save_png(img: &image::RgbaImage, path: &Path) -> Result<()> {
-    img.save_with_format(path, image::ImageFormat::Png)
-        .map_err(|e| Error::ImageWrite {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        })
+/// Writes `img` as PNG to `path`, atomically ([`crate::output`]): encoded in memory first, and
+/// a failed write leaves any previous file intact.
+pub fn save_png<P>(img: &image::ImageBuffer<P, Vec<u8>>, path: &Path) -> Result<()>
+where
+    P: image::PixelWithColorType<Subpixel = u8>,
+{
+    let fail = |message: String| Error::ImageWrite {
+        path: path.to_path_buf(),
+        message,
+    };
+    let mut png = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut png, image::ImageFormat::Png)
+        .map_err(|e| fail(e.to_string()))?;
+    crate::output::write_file_atomically(path, png.get_ref()).map_err(|e| fail(e.to_string()))
 }
 
 impl Frame {

@@ -3,7 +3,7 @@
 use super::{checked_voxel_count, ScalarType, Volume, VolumeError, VoxelData};
 use glam::{UVec3, Vec3};
 use std::fs::File;
-use std::io::{self, BufWriter, ErrorKind, Read, Seek, SeekFrom, Write};
+use std::io::{self, ErrorKind, Read, Seek, SeekFrom};
 use std::path::Path;
 
 /// Describes a headerless raw file.
@@ -104,18 +104,17 @@ fn read_values<T: bytemuck::Pod>(reader: &mut impl Read, count: usize) -> io::Re
     Ok(values)
 }
 
-/// Writes `volume`'s voxels as a headerless little-endian raw file (storage order, x fastest),
-/// creating or truncating `path`. Dims, type and spacing are not stored; describe them with a
-/// [`RawDescriptor`] to load the file back. Failures give [`VolumeError::Write`].
+/// Writes `volume`'s voxels as a headerless little-endian raw file (storage order, x fastest)
+/// at `path`, atomically ([`crate::output`]: a failed write leaves any previous file intact).
+/// Dims, type and spacing are not stored; describe them with a [`RawDescriptor`] to load the
+/// file back. Failures give [`VolumeError::Write`].
 pub fn save_raw(volume: &Volume, path: &Path) -> Result<(), VolumeError> {
     let write = || -> io::Result<()> {
-        let mut w = BufWriter::new(File::create(path)?);
-        match volume.data() {
-            VoxelData::U8(v) => w.write_all(v)?,
-            VoxelData::U16(v) => v.iter().try_for_each(|x| w.write_all(&x.to_le_bytes()))?,
-            VoxelData::F32(v) => v.iter().try_for_each(|x| w.write_all(&x.to_le_bytes()))?,
-        }
-        w.flush()
+        crate::output::write_atomically_with(path, |w| match volume.data() {
+            VoxelData::U8(v) => w.write_all(v),
+            VoxelData::U16(v) => v.iter().try_for_each(|x| w.write_all(&x.to_le_bytes())),
+            VoxelData::F32(v) => v.iter().try_for_each(|x| w.write_all(&x.to_le_bytes())),
+        })
     };
     write().map_err(|source| VolumeError::Write {
         path: path.to_path_buf(),

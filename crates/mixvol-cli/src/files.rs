@@ -14,10 +14,11 @@ pub fn create_parent(path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Writes `text` to `path` (creating its folder), naming the path on failure.
+/// Writes `text` to `path` (creating its folder) atomically ([`mixvol::output`]: a failed
+/// write leaves any previous file intact), naming the path on failure.
 pub fn write_text(path: &Path, text: &str) -> Result<()> {
     create_parent(path)?;
-    std::fs::write(path, text).map_err(|e| Error::ImageWrite {
+    mixvol::output::write_file_atomically(path, text.as_bytes()).map_err(|e| Error::ImageWrite {
         path: path.to_path_buf(),
         message: e.to_string(),
     })

@@ -1,9 +1,9 @@
 //! The per-frame log of `render` and `bench` along a camera path: GPU upload, fixup and
 //! ray-cast times, CPU frame and planner time, what was uploaded, what is resident, how full
-//! the budgets are, and the worst screen-space error; written as CSV and JSON (each to a
-//! temporary name, then renamed).
+//! the budgets are, and the worst screen-space error; written as CSV and JSON (each
+//! atomically: a temporary name, then renamed).
 
-use crate::files::create_parent;
+use crate::files::write_text;
 use mixvol::renderer::Frame;
 use mixvol::{Error, Result};
 use serde::Serialize;
@@ -136,41 +136,14 @@ pub fn to_csv(rows: &[FrameRow]) -> String {
     out
 }
 
-/// Writes `bytes` to `path` through a temporary file in the same folder and a rename, so a
-/// failed write never leaves a truncated file under `path` (or destroys the previous one).
-pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
-    create_parent(path)?;
-    let fail = |e: std::io::Error| Error::ImageWrite {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    };
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".into());
-    let temp = path.with_file_name(format!(".{name}.partial-{}", std::process::id()));
-    let result = (|| {
-        use std::io::Write;
-        let mut file = std::fs::File::create(&temp)?;
-        file.write_all(bytes)?;
-        file.sync_all()?;
-        std::fs::rename(&temp, path)
-    })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&temp);
-        return Err(fail(e));
-    }
-    Ok(())
-}
-
 /// Writes the rows as `csv_path` and, next to it, the same stem with `.json`.
 pub fn write_log(csv_path: &Path, rows: &[FrameRow]) -> Result<()> {
-    write_atomically(csv_path, to_csv(rows).as_bytes())?;
+    write_text(csv_path, &to_csv(rows))?;
     let json = serde_json::to_string_pretty(rows).map_err(|e| Error::ImageWrite {
         path: csv_path.with_extension("json"),
         message: e.to_string(),
     })?;
-    write_atomically(&csv_path.with_extension("json"), json.as_bytes())
+    write_text(&csv_path.with_extension("json"), &json)
 }
 
 #[cfg(test)]
@@ -200,19 +173,5 @@ mod tests {
         assert_eq!(cells[1], "", "an unmeasured GPU time is an empty cell");
         assert_eq!(cells[3], "1.5000");
         assert_eq!(cells[9], "7");
-    }
-
-    #[test]
-    fn a_failed_atomic_write_keeps_the_old_file() {
-        let dir = std::env::temp_dir().join(format!("mixvol-log-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("frames.csv");
-        write_atomically(&path, b"old").unwrap();
-        // A folder where the temporary file would go makes the write fail.
-        let temp = dir.join(format!(".frames.csv.partial-{}", std::process::id()));
-        std::fs::create_dir_all(&temp).unwrap();
-        assert!(write_atomically(&path, b"new").is_err());
-        assert_eq!(std::fs::read(&path).unwrap(), b"old");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

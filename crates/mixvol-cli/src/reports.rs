@@ -43,22 +43,18 @@ pub fn accuracy(args: &ReportArgs) -> Result<()> {
     );
     let write = |name: &str, text: String| -> Result<()> {
         let path = args.output_dir.join(name);
-        std::fs::write(&path, text).map_err(|e| Error::ImageWrite {
-            path,
-            message: e.to_string(),
+        mixvol::output::write_file_atomically(&path, text.as_bytes()).map_err(|e| {
+            Error::ImageWrite {
+                path,
+                message: e.to_string(),
+            }
         })
     };
     let md = report.to_markdown(&when, &command);
     write("accuracy-vs-time.md", md.clone())?;
     write("accuracy-vs-time.csv", report.to_csv())?;
     let chart_path = args.output_dir.join("accuracy-vs-time.png");
-    report
-        .chart()
-        .save(&chart_path)
-        .map_err(|e| Error::ImageWrite {
-            path: chart_path.clone(),
-            message: e.to_string(),
-        })?;
+    mixvol::renderer::save_png(&report.chart(), &chart_path)?;
     print!("{md}");
     println!(
         "wrote {}/accuracy-vs-time.{{md,csv,png}}",

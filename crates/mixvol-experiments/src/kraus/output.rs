@@ -382,12 +382,10 @@ pub fn write_report(dir: &Path, options: &KrausOptions) -> Result<KrausReport> {
         ("kraus.csv", report.to_csv()),
     ] {
         let path = dir.join(name);
-        std::fs::write(&path, text).map_err(|e| io(path.clone(), &e))?;
+        mixvol::output::write_file_atomically(&path, text.as_bytes())
+            .map_err(|e| io(path.clone(), &e))?;
     }
     let path = dir.join("kraus.png");
-    report
-        .chart()
-        .save(&path)
-        .map_err(|e| io(path.clone(), &e))?;
+    mixvol::renderer::save_png(&report.chart(), &path)?;
     Ok(report)
 }

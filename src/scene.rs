@@ -206,6 +206,10 @@ pub struct RayFeatures {
     pub clip_planes: bool,
 }
 
+/// Most samples one ray may take: step counts travel to the shaders as `f32`, exact up to
+/// 2^24.
+pub const MAX_RAY_STEPS: u32 = 1 << 24;
+
 /// Settings for one render.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct RenderSettings {
@@ -219,7 +223,10 @@ pub struct RenderSettings {
     /// cannot be classified in f32 (width outside 2^-128..2^126, or float data below 2^-110 in
     /// magnitude) is an `InvalidInput` error, never a black frame.
     pub value_window: Option<(f32, f32)>,
-    /// Upper bound on samples along one ray.
+    /// Lower bound on the samples a ray may take before it is stopped. Whatever this says, a
+    /// frame allows every ray as many samples as the longest ray through the volume box needs
+    /// (its diagonal over the step, see [`RaycastParams::for_dims`]), so no ray is ever cut
+    /// short; a scene needing more than [`MAX_RAY_STEPS`] samples per ray is refused.
     pub max_steps: u32,
     /// What a ray computes.
     pub mode: RenderMode,
@@ -478,6 +485,13 @@ impl RaycastParams {
             }
         };
         settings.validate_optics()?;
+        if settings.early_termination.is_nan() || settings.early_termination <= 0.0 {
+            return Err(Error::InvalidInput(format!(
+                "early termination {} must be above 0 (the opacity at which a ray stops; 1 or \
+                 more never stops early)",
+                settings.early_termination
+            )));
+        }
         if !(settings.samples_per_voxel > 0.0 && settings.samples_per_voxel.is_finite()) {
             return Err(Error::InvalidInput(format!(
                 "samples per voxel {} must be positive",
@@ -529,6 +543,20 @@ impl RaycastParams {
         let (box_min, box_max) = volume_box(dims, spacing);
         let voxel = ((box_max - box_min) / dims.as_vec3()).min_element();
         let step = voxel / settings.samples_per_voxel;
+        // The longest ray inside the box is its diagonal: allow it every sample (plus the
+        // partial first and last steps), so no ray is cut short.
+        let needed = (f64::from((box_max - box_min).length()) / f64::from(step)).ceil() + 2.0;
+        if !(step > 0.0 && step.is_finite() && needed <= f64::from(MAX_RAY_STEPS)) {
+            return Err(Error::InvalidInput(format!(
+                "a ray through this volume needs {needed:.3e} samples (box diagonal {:.3} over \
+                 step {step:.3e} = smallest voxel side {voxel:.3e} / {} samples per voxel); at \
+                 most {MAX_RAY_STEPS} are supported: lower the samples per voxel or check the \
+                 voxel spacing {spacing:?} (a side far thinner than the others)",
+                (box_max - box_min).length(),
+                settings.samples_per_voxel
+            )));
+        }
+        let max_steps = (needed as u32).max(settings.max_steps.min(MAX_RAY_STEPS));
         Ok(Self {
             eye: camera.eye.extend(ortho),
             forward: forward.extend(camera.near),
@@ -536,12 +564,7 @@ impl RaycastParams {
             up: (up * half_h).extend(0.0),
             box_min: box_min.extend(step),
             box_max: box_max.extend(voxel),
-            tf_window: Vec4::new(
-                lo,
-                inv_range,
-                settings.early_termination,
-                settings.max_steps as f32,
-            ),
+            tf_window: Vec4::new(lo, inv_range, settings.early_termination, max_steps as f32),
             viewport: Vec4::new(width as f32, height as f32, 0.0, 0.0),
             volume_dims: dims.as_vec3().extend(0.0),
             cache_extent_inv: Vec4::ZERO,

@@ -23,6 +23,12 @@ pub enum ClipPlaneError {
         /// Position of the plane in the list given.
         index: usize,
     },
+    /// A clip plane has a zero normal (it would keep everything or clip everything).
+    #[error("clip plane {index} has a zero normal: give nx,ny,nz pointing to the kept side")]
+    ZeroNormal {
+        /// Position of the plane in the list given.
+        index: usize,
+    },
 }
 
 /// A world-space plane `normal . p + offset = 0`. Points with `normal . p + offset < 0` lie on
@@ -81,7 +87,8 @@ impl ClipPlanes {
         count: 0,
     };
 
-    /// Validates `planes`: at most [`MAX_CLIP_PLANES`], every normal and offset finite.
+    /// Validates `planes`: at most [`MAX_CLIP_PLANES`], every normal and offset finite, no zero
+    /// normal.
     pub fn new(planes: &[ClipPlane]) -> Result<Self, ClipPlaneError> {
         if planes.len() > MAX_CLIP_PLANES {
             return Err(ClipPlaneError::TooMany {
@@ -92,6 +99,9 @@ impl ClipPlanes {
         for (index, plane) in planes.iter().enumerate() {
             if !(plane.normal.is_finite() && plane.offset.is_finite()) {
                 return Err(ClipPlaneError::NonFinite { index });
+            }
+            if plane.normal == Vec3::ZERO {
+                return Err(ClipPlaneError::ZeroNormal { index });
             }
             out.planes[index] = *plane;
         }

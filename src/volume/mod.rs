@@ -6,6 +6,7 @@
 
 pub mod formats;
 mod loader;
+pub mod memory;
 mod rgba;
 mod synthetic;
 
@@ -192,6 +193,21 @@ pub enum VolumeError {
         expected: u64,
         /// Bytes in the file.
         actual: u64,
+    },
+    /// A volume would not fit the host-memory limit ([`memory::host_memory_limit`]); checked
+    /// before any voxel is allocated or computed.
+    #[error(
+        "{what} needs {bytes} bytes of RAM but the host-memory limit is {limit} bytes (memory \
+         available, or MIXVOL_HOST_MEMORY_MB): use smaller dims or a smaller scalar type, or \
+         convert the volume into a brick store and stream it"
+    )]
+    TooLarge {
+        /// What was to be allocated.
+        what: String,
+        /// Bytes it needs.
+        bytes: u64,
+        /// The limit.
+        limit: u64,
     },
     /// A synthetic field parameter is out of range.
     #[error("invalid synthetic field parameter: {0}")]

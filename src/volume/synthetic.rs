@@ -2,6 +2,7 @@
 //!
 //! All synthetic volumes have spacing (1, 1, 1). Values are computed in [0, 1] and quantised to
 //! the requested scalar type (`round(v * max)`, clamped); f32 volumes store them as is.
+use super::memory::check_host_bytes;
 use super::{checked_voxel_count, ScalarType, Volume, VolumeError, VoxelData};
 use glam::{UVec3, Vec3};
 use std::f64::consts::PI;
@@ -111,7 +112,14 @@ fn build(
     scalar: ScalarType,
     f: impl Fn(u32, u32, u32) -> f32,
 ) -> Result<Volume, VolumeError> {
-    checked_voxel_count(dims)?;
+    let voxels = checked_voxel_count(dims)?;
+    check_host_bytes(
+        &format!(
+            "a {}x{}x{} {scalar:?} synthetic volume",
+            dims.x, dims.y, dims.z
+        ),
+        (voxels as u64).saturating_mul(scalar.size_bytes() as u64),
+    )?;
     let values = (0..dims.z)
         .flat_map(|z| (0..dims.y).flat_map(move |y| (0..dims.x).map(move |x| (x, y, z))));
     let values = values.map(|(x, y, z)| f(x, y, z));

@@ -61,3 +61,25 @@ fn a_frame_log_into_a_folder_path_fails_and_names_it() {
     assert_eq!(names.len(), 2, "{names:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Issue 16 item 3: a synthetic volume beyond the host-memory limit is refused before any voxel
+/// is computed (a 4096^3 f32 field used to run for minutes towards 256 GiB).
+#[test]
+fn a_synthetic_volume_beyond_the_memory_limit_is_refused_at_once() {
+    let start = std::time::Instant::now();
+    let out = Command::new(env!("CARGO_BIN_EXE_mixvol"))
+        .args(["render", "--dims", "4096,4096,4096", "--scalar", "f32"])
+        .args(["-o", "/nonexistent/x.png"])
+        .env("MIXVOL_HOST_MEMORY_MB", "1024")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("274877906944 bytes") && stderr.contains("1073741824"),
+        "names the request and the limit: {stderr}"
+    );
+    assert!(stderr.contains("MIXVOL_HOST_MEMORY_MB"), "{stderr}");
+    // Refused before the work: far below the minutes generation took.
+    assert!(start.elapsed().as_secs() < 20, "{:?}", start.elapsed());
+}

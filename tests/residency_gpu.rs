@@ -244,10 +244,11 @@ fn check_boundary_field(
             }
         }
     }
-    // The field is Lipschitz with a constant below 1 per voxel (u16 values in [0, 1], the
-    // steepest step the ball's 3-voxel fade and Marschner-Lobb make is about 0.35 per voxel);
-    // across 2 eps that is 2 eps, plus the GPU's sub-texel weight quantisation (1/256 voxel of
-    // a difference of at most 0.35 between neighbouring texels, about 0.0015; 0.004 allowed).
+    // The field is Lipschitz with a constant below 1 per voxel (u16 values in [0, 1]: the
+    // ball's 3-voxel fade changes by at most 1/3 per voxel, Marschner-Lobb at 80^3 by about
+    // 0.15); across 2 eps that is below 2 eps, plus the GPU's sub-texel weight quantisation
+    // (1/256 voxel of a difference of at most 0.5 between neighbouring texels, 0.002; 0.004
+    // allowed). Measured: about 0.6 eps.
     // A jump (no fixup, no blend) stays near the low-res / hi-res difference at any eps.
     assert!(
         max_jump[0] < 2.0 * EPS[0] + 0.004 && max_jump[1] < 2.0 * EPS[1] + 0.004,
@@ -322,12 +323,12 @@ fn camera_path_over_a_store_matches_the_reference_every_frame() {
             renderer.brick_cache().unwrap().geometry().slot_count() as usize,
             slots
         );
-        let grid = renderer.brick_cache().unwrap().grid().clone();
+        let grid = *renderer.brick_cache().unwrap().grid();
         let mut rng = Rng(0x5eed_0000_1414);
         let mut reports: Vec<FrameReport> = Vec::new();
         let (mut probed_frames, mut probed_faces) = (0, 0);
         let mut worst = [0.0f32; 2];
-        let mut previous_levels: Option<Vec<Level>> = None;
+        let mut drawn: Vec<Vec<Level>> = Vec::new();
         let mut level_changes = 0;
         for f in 0..FRAMES {
             let t = f as f32 / (FRAMES - 1) as f32;
@@ -378,10 +379,10 @@ fn camera_path_over_a_store_matches_the_reference_every_frame() {
                 check_boundary_field(&mut renderer, &reference, &points, &format!("frame {f}"))
             };
             worst = [worst[0].max(jumps[0]), worst[1].max(jumps[1])];
-            if let Some(prev) = &previous_levels {
+            if let Some(prev) = drawn.last() {
                 level_changes += prev.iter().zip(&levels).filter(|(a, b)| a != b).count();
             }
-            previous_levels = Some(levels);
+            drawn.push(levels);
             eprintln!(
                 "frame {f:2}: up {:3} bricks {:6} B (plan {:6} B), hi {:3} lo {:3} absent {:3} \
                  culled {:3}, waiting {:3}, deferred {:3}, worst error {:7.2}; cover {:4.1} %, \
@@ -421,11 +422,25 @@ fn camera_path_over_a_store_matches_the_reference_every_frame() {
             reports.iter().any(|r| r.plan.deferred > 0),
             "the upload budget never deferred a change"
         );
-        let first_hi = reports.iter().position(|r| r.plan.drawn_hi > 0).unwrap();
-        let last = reports.last().unwrap();
         assert!(
-            last.plan.drawn_hi > reports[first_hi].plan.drawn_hi / 2 && last.plan.drawn_hi > 0,
-            "{last:?}"
+            reports[1..].iter().any(|r| r.plan.drawn_absent > 0),
+            "no wanted brick ever waited for its upload"
+        );
+        assert!(
+            reports[1..].iter().any(|r| r.plan.waiting_for_source > 0),
+            "no brick was ever drawn at a fallback while its level streamed in"
+        );
+        // The orbit moved the refined set: hi-res bricks at the end that were not at frame 5.
+        let hi = |levels: &[Level]| -> Vec<usize> {
+            (0..levels.len())
+                .filter(|&i| levels[i] == Level::Hi)
+                .collect()
+        };
+        let (early, late) = (hi(&drawn[5]), hi(drawn.last().unwrap()));
+        let moved = late.iter().filter(|i| !early.contains(i)).count();
+        assert!(
+            moved >= 5,
+            "only {moved} hi-res bricks moved along the orbit"
         );
         assert!(
             level_changes > 100,
@@ -450,8 +465,21 @@ fn camera_path_over_a_store_matches_the_reference_every_frame() {
 // ---------------------------------------------------------------------------------------------
 // 1b. The soak.
 
-/// `VmRSS` (resident set size) of this process in bytes.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+extern "C" {
+    /// glibc: returns free heap memory to the system.
+    fn malloc_trim(pad: usize) -> std::ffi::c_int;
+}
+
+/// `VmRSS` (resident set size) of this process in bytes, after returning free heap memory to
+/// the system (glibc keeps freed chunks resident, and a leak would first fill those without
+/// growing RSS).
 fn vm_rss() -> u64 {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only releases free memory of the allocator.
+    unsafe {
+        malloc_trim(0);
+    }
     let status = std::fs::read_to_string("/proc/self/status").unwrap();
     let line = status.lines().find(|l| l.starts_with("VmRSS:")).unwrap();
     let kb: u64 = line.split_whitespace().nth(1).unwrap().parse().unwrap();
@@ -604,7 +632,7 @@ fn a_thousand_frames_of_camera_motion_stay_clean_and_bounded() {
             deferring >= 10,
             "the upload budget deferred only {deferring} times"
         );
-        assert!(level_changes >= 1000, "only {level_changes} level changes");
+        assert!(level_changes >= 500, "only {level_changes} level changes");
         assert!(reports
             .iter()
             .all(|r| r.plan.drawn_hi > 0 || r.plan.drawn_lo > 0));
@@ -754,6 +782,7 @@ fn bricks_that_fail_to_load_are_reported_and_drawn_at_a_fallback() {
             })
             .unwrap();
         let mut reports = Vec::new();
+        let mut last_cover = 0.0;
         for f in 0..4 {
             let frame = renderer.render(&camera, &settings, SIZE, SIZE).unwrap();
             let report = frame.residency.clone().unwrap();
@@ -761,9 +790,14 @@ fn bricks_that_fail_to_load_are_reported_and_drawn_at_a_fallback() {
             assert_eq!(levels[last as usize], Level::Absent, "frame {f}");
             let (expected, _) = reference_image(&renderer, &volume, &tf, &camera, &settings, SIZE);
             assert_matches(&format!("truncated-store-{f}"), &frame, &expected);
+            last_cover = coverage(&frame.pixels);
             reports.push((report, levels));
             assert!(streamer.wait_settled(Duration::from_secs(10)));
         }
+        assert!(
+            last_cover > 0.2,
+            "the truncated store's image covers {last_cover}"
+        );
         let (report, levels) = reports.last().unwrap();
         let plan = renderer.last_plan().unwrap();
         assert_eq!(plan.wanted[last as usize], Level::Hi);

@@ -37,6 +37,7 @@ use mixvol::scene::{Camera, RenderSettings};
 use mixvol::store::{write_store_from_volume, BrickStreamer, StreamerConfig};
 use mixvol::volume::{marschner_lobb_value, ScalarType, Volume, VoxelData};
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering as AtomicOrdering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -818,6 +819,43 @@ fn bricks_that_fail_to_load_are_reported_and_drawn_at_a_fallback() {
 // ---------------------------------------------------------------------------------------------
 // 1d. A still camera converges under the upload budget.
 
+/// An in-memory source that counts the brick fetches (what the pass packs per frame).
+struct CountingSource {
+    inner: VolumeBrickSource,
+    fetches: AtomicUsize,
+}
+
+impl BrickSource for CountingSource {
+    fn grid(&self) -> BrickGrid {
+        self.inner.grid()
+    }
+
+    fn scalar(&self) -> ScalarType {
+        self.inner.scalar()
+    }
+
+    fn filter(&self) -> DownsampleFilter {
+        self.inner.filter()
+    }
+
+    fn spacing(&self) -> Vec3 {
+        self.inner.spacing()
+    }
+
+    fn value_ranges(&self) -> &[ValueRange] {
+        self.inner.value_ranges()
+    }
+
+    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>, SourceError> {
+        self.fetches.fetch_add(1, AtomicOrdering::Relaxed);
+        self.inner.brick_bytes(brick, level)
+    }
+
+    fn is_loaded(&self, brick: u32, level: Level) -> bool {
+        self.inner.is_loaded(brick, level)
+    }
+}
+
 #[test]
 fn a_still_camera_converges_then_uploads_nothing() {
     const SIZE: u32 = 48;
@@ -837,14 +875,29 @@ fn a_still_camera_converges_then_uploads_nothing() {
             upload_bytes_per_frame: UPLOAD_BUDGET,
             ..ResidencyConfig::default()
         });
+        let source = Arc::new(CountingSource {
+            inner: VolumeBrickSource::new(volume.clone(), N, DownsampleFilter::Mean2).unwrap(),
+            fetches: AtomicUsize::new(0),
+        });
         renderer
-            .set_source(VolumeSource::Mixed {
-                volume: volume.clone(),
+            .set_source(VolumeSource::Bricks {
+                source: source.clone(),
                 config: mixed_config(CACHE_BUDGET),
             })
             .unwrap();
+        // The pass fetches (packs, for an in-memory source) only the bricks it uploads: not
+        // the deferred ones, nor the resident ones of a still frame.
+        let fetched = |report: &FrameReport| {
+            let n = source.fetches.swap(0, AtomicOrdering::Relaxed);
+            assert!(
+                n <= report.residency.uploaded_bricks,
+                "{n} bricks fetched for {} uploads: {report:?}",
+                report.residency.uploaded_bricks
+            );
+        };
         let first = renderer.render(&camera, &settings, SIZE, SIZE).unwrap();
         let first = first.residency.unwrap();
+        fetched(&first);
         assert!(first.plan.upload_bytes <= UPLOAD_BUDGET, "{first:?}");
         assert!(
             first.plan.deferred > 0,
@@ -865,6 +918,7 @@ fn a_still_camera_converges_then_uploads_nothing() {
             let frame = renderer.render(&camera, &settings, SIZE, SIZE).unwrap();
             let report = frame.residency.unwrap();
             assert!(report.plan.upload_bytes <= UPLOAD_BUDGET, "{report:?}");
+            fetched(&report);
             frames += 1;
             if report.plan.is_settled() {
                 converged = Some(frames);
@@ -886,6 +940,7 @@ fn a_still_camera_converges_then_uploads_nothing() {
         for s in 0..STILL_FRAMES {
             let frame = renderer.render(&camera, &settings, SIZE, SIZE).unwrap();
             let report = frame.residency.clone().unwrap();
+            fetched(&report);
             assert_eq!(report.plan.upload_bytes, 0, "still frame {s}: {report:?}");
             assert_eq!(report.plan.deferred, 0, "still frame {s}: {report:?}");
             assert_eq!(

@@ -976,3 +976,103 @@ fn a_still_camera_converges_then_uploads_nothing() {
     }
     common::finish(ctx);
 }
+
+// ---------------------------------------------------------------------------------------------
+// Streaming under a RAM budget below what the view wants, with the camera moving.
+
+#[test]
+fn streaming_under_a_tight_ram_budget_draws_what_is_loaded_and_matches_the_reference() {
+    const DIM: u32 = 64;
+    const SIZE: u32 = 32;
+    const FRAMES: usize = 300;
+    const CACHE_BUDGET: u64 = 256 << 10;
+    const UPLOAD_BUDGET: u64 = 16_000;
+    /// Below the ~216 KB of levels the views want (about 65 hi-res + 340 low-res bricks): the
+    /// planner cuts its requests, the streamer evicts what is no longer requested.
+    const RAM_BUDGET: u64 = 160_000;
+    const SAMPLED: [usize; 4] = [30, 120, 210, FRAMES - 1];
+    let start = Instant::now();
+    let volume = masked_marschner_lobb(DIM);
+    let path = temp_path("tight-ram");
+    let _cleanup = RemoveOnDrop(path.clone());
+    write_store_from_volume(&path, &volume, N, DownsampleFilter::Mean2).unwrap();
+    let ctx = common::validated_context();
+    {
+        let streamer = Arc::new(
+            BrickStreamer::open(
+                &path,
+                StreamerConfig {
+                    ram_budget_bytes: RAM_BUDGET as usize,
+                    record_load_order: false,
+                },
+            )
+            .unwrap(),
+        );
+        let tf = TransferFunction::preset(TfPreset::Bands);
+        let settings = settings();
+        let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
+        renderer.set_transfer_function(&tf).unwrap();
+        renderer.set_residency_config(ResidencyConfig {
+            upload_bytes_per_frame: UPLOAD_BUDGET,
+            ram_bytes: Some(RAM_BUDGET),
+            ..ResidencyConfig::default()
+        });
+        renderer
+            .set_source(VolumeSource::Bricks {
+                source: streamer.clone(),
+                config: mixed_config(CACHE_BUDGET),
+            })
+            .unwrap();
+        let (mut cut, mut waiting, mut uploading, mut compared) = (0, 0, 0, 0);
+        let mut fell_back = 0;
+        for f in 0..FRAMES {
+            let t = f as f32 / FRAMES as f32;
+            let tau = std::f32::consts::TAU;
+            let camera = orbit_camera(tau * t, 1.8 + 0.5 * (2.0 * tau * t).sin(), 0.3);
+            let frame = renderer.render(&camera, &settings, SIZE, SIZE).unwrap();
+            let report = frame.residency.clone().unwrap();
+            assert!(
+                report.plan.request_bytes <= RAM_BUDGET,
+                "frame {f}: {report:?}"
+            );
+            assert!(
+                report.plan.upload_bytes <= UPLOAD_BUDGET,
+                "frame {f}: {report:?}"
+            );
+            assert_eq!(report.source_errors, 0, "frame {f}: {report:?}");
+            fell_back += report.fell_back;
+            cut += usize::from(report.plan.requests_cut > 0);
+            waiting += usize::from(report.plan.waiting_for_source > 0);
+            uploading += usize::from(report.residency.uploaded_bricks > 0);
+            if SAMPLED.contains(&f) {
+                let (expected, _) =
+                    reference_image(&renderer, &volume, &tf, &camera, &settings, SIZE);
+                assert_matches(&format!("tight-ram-{f:03}"), &frame, &expected);
+                assert!(coverage(&frame.pixels) > 0.1, "frame {f}");
+                compared += 1;
+            }
+            // A little time for the loader, not enough to always catch up.
+            streamer.wait_settled(Duration::from_millis(5));
+        }
+        let stats = streamer.stats();
+        eprintln!(
+            "{FRAMES} frames under a {RAM_BUDGET} B RAM budget: {cut} with requests cut, \
+             {waiting} with bricks waiting, {uploading} uploading, {fell_back} bricks fell back between \
+             plan and fetch; streamer {stats:?}; {:.1} s",
+            start.elapsed().as_secs_f64()
+        );
+        assert_eq!(compared, SAMPLED.len());
+        assert!(stats.peak_bytes as u64 <= RAM_BUDGET, "{stats:?}");
+        assert!(stats.evictions > 0, "the streamer never evicted: {stats:?}");
+        assert!(
+            cut > FRAMES / 2,
+            "the RAM budget cut requests in only {cut} frames"
+        );
+        assert!(
+            waiting > FRAMES / 2,
+            "bricks waited in only {waiting} frames"
+        );
+        assert!(uploading >= 20, "only {uploading} frames uploaded anything");
+    }
+    common::finish(ctx);
+}

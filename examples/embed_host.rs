@@ -5,7 +5,18 @@
 //! command buffer: the volume composites over the quad and stops at its depth. The composite is
 //! written as a PNG. `tests/embed.rs` runs [`run`] and checks the compositing analytically.
 //!
-//! Run: `cargo run --release --example embed_host -- out/embed.png`
+//! A second part renders a brick source twice the size of its cache the way a host drives
+//! camera-driven residency: per frame, wait for the slot's fence, [`VolumePass::update`] with the
+//! frame's camera (plan, fetch and stage under the cache and upload budgets), record the host's
+//! quad and [`VolumePass::record`], submit; two frames in flight. It prints every frame's
+//! [`FrameReport`] summary along a short camera path (an orbit and a zoom towards the front
+//! view), holds the front view until the residency settles, and checks that image analytically:
+//! the transfer function is constant, so whatever the levels the composite is that of
+//! [`expected`] (`tests/embed.rs` checks both parts; the example checks them too and fails
+//! otherwise).
+//!
+//! Run: `cargo run --release --example embed_host -- out/embed.png` (writes `out/embed.png` and
+//! `out/embed-bricks.png`)
 
 use ash::vk;
 use glam::{Mat4, UVec3, Vec3, Vec4};
@@ -13,11 +24,15 @@ use gpu_allocator::vulkan::{
     Allocation, AllocationCreateDesc, AllocationScheme, Allocator, AllocatorCreateDesc,
 };
 use gpu_allocator::MemoryLocation;
-use mixvol::embed::{HostDepth, PassDesc, PassTarget, TargetLoad, VolumePass, VolumeSource};
+use mixvol::bricks::DownsampleFilter;
+use mixvol::embed::{
+    FrameReport, HostDepth, MixedConfig, PassDesc, PassTarget, ResidencyConfig, TargetLoad,
+    VolumePass, VolumeSource,
+};
 use mixvol::gpu::{shaders::compile_source, GpuContext, HostDevice, ShaderStage};
 use mixvol::optics::{TfPreset, TransferFunction};
-use mixvol::scene::{Camera, RenderSettings};
-use mixvol::volume::{Volume, VoxelData};
+use mixvol::scene::{Camera, RenderSettings, Transition};
+use mixvol::volume::{ScalarType, SyntheticField, Volume, VoxelData};
 use std::ffi::c_void;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
@@ -29,6 +44,30 @@ pub const QUAD_COLOR: [f32; 3] = [0.9, 0.2, 0.1];
 /// Background clear colour.
 pub const BACKGROUND: [f32; 3] = [0.0, 0.0, 0.3];
 
+/// Frames in flight of the host (one command buffer, fence and pass slot each).
+pub const FRAMES_IN_FLIGHT: usize = 2;
+/// Brick edge of the brick-cache part.
+pub const BRICK_SIZE: u32 = 8;
+/// Cache budget of the brick-cache part: a 32^3 R32F image, 27 slots, for 64 bricks of
+/// 10^3 x 4 B = 256 KB in hi-res (twice the cache).
+pub const BRICK_CACHE_BUDGET: u64 = 128 << 10;
+/// Upload budget of the brick-cache part: four hi-res or 32 low-res bricks per frame, so the
+/// residency builds up over several frames.
+pub const BRICK_UPLOAD_BUDGET: u64 = 16_000;
+/// Frames of the camera path of the brick-cache part.
+pub const PATH_FRAMES: usize = 10;
+/// Most still frames the brick-cache part waits for the residency to settle.
+pub const MAX_SETTLE_FRAMES: usize = 40;
+
+/// Which scene a run draws.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+enum Scene {
+    /// A plain 3D texture, one frame.
+    Volume,
+    /// The brick cache along a camera path, residency planned by the pass.
+    Bricks,
+}
+
 /// What one run produced.
 pub struct HostReport {
     /// RGBA8 pixels, row-major from the top-left.
@@ -37,6 +76,8 @@ pub struct HostReport {
     pub validation_problems: usize,
     /// The messages themselves.
     pub messages: Vec<String>,
+    /// The brick-cache part's per-frame residency reports (empty for the plain volume).
+    pub frames: Vec<FrameReport>,
 }
 
 static PROBLEMS: AtomicUsize = AtomicUsize::new(0);
@@ -76,13 +117,300 @@ pub fn camera() -> Camera {
     Camera::orthographic(Vec3::new(0.0, 0.0, 2.0), Vec3::ZERO, 1.2)
 }
 
-/// `clip_from_world` of [`camera`] in Vulkan conventions (y down, depth 0..1), near 0.5, far 4.
-pub fn clip_from_world() -> Mat4 {
-    let c = camera();
+/// `clip_from_world` of an orthographic `camera` (e.g. [`camera`]) in Vulkan conventions (y
+/// down, depth 0..1), near 0.5, far 4.
+pub fn clip_from_world_of(c: &Camera) -> Mat4 {
     let view = Mat4::look_at_rh(c.eye, c.target, c.up);
-    let half = 0.6;
+    let half = match c.projection {
+        mixvol::scene::Projection::Orthographic { height } => 0.5 * height,
+        mixvol::scene::Projection::Perspective { .. } => unreachable!("the host is orthographic"),
+    };
     let proj = Mat4::orthographic_rh(-half, half, -half, half, 0.5, 4.0);
     Mat4::from_scale(Vec3::new(1.0, -1.0, 1.0)) * proj * view
+}
+
+/// The brick-cache part's camera path: from 30 degrees to the side and a 1.8-wide view, orbit
+/// to the front and zoom to [`camera`]'s 1.2 (the frames after it hold [`camera`]).
+pub fn brick_path() -> Vec<Camera> {
+    (0..PATH_FRAMES)
+        .map(|f| {
+            let t = f as f32 / PATH_FRAMES as f32;
+            let angle = 0.5 * (1.0 - t);
+            let eye = 2.0 * Vec3::new(angle.sin(), 0.0, angle.cos());
+            Camera::orthographic(eye, Vec3::ZERO, 1.8 - 0.6 * t)
+        })
+        .collect()
+}
+
+/// The brick-cache part's volume: Marschner-Lobb, 32^3 f32 (with the constant transfer function
+/// the image does not depend on the values; the planner's errors do).
+pub fn brick_volume() -> Volume {
+    SyntheticField::MarschnerLobb
+        .generate(UVec3::splat(32), ScalarType::F32)
+        .expect("valid volume")
+}
+
+/// One line per frame: what the pass uploaded, what is resident, what waits, the worst error.
+pub fn summary(frame: usize, r: &FrameReport) -> String {
+    format!(
+        "frame {frame:2}: uploaded {:3} bricks ({:.3} MB), resident hi {:2} lo {:2} absent {:2} \
+         (culled {}), waiting {:2}, deferred {:2}, worst error {:.2} px, slots {}/{}, plan {:.2} \
+         ms",
+        r.residency.uploaded_bricks,
+        r.residency.uploaded_bytes as f64 / 1e6,
+        r.residency.hi_bricks,
+        r.residency.lo_bricks,
+        r.plan.bricks - r.residency.hi_bricks - r.residency.lo_bricks,
+        r.plan.culled,
+        r.plan.waiting_for_source,
+        r.plan.deferred,
+        r.plan.max_drawn_error,
+        r.plan.slots_used,
+        r.plan.slot_budget,
+        r.plan_ms,
+    )
+}
+
+/// Checks a composite of the [`camera`] view of a volume `voxels` deep analytically: where the
+/// quad (plane z = 0, left half) is in front of the back half of the volume the rays stop at it
+/// (half the path composites over the quad), elsewhere the whole path composites over the
+/// background; outside the box the quad shows. Tolerance 2.5 / 255 per channel.
+pub fn check_composite(pixels: &[[u8; 4]], voxels: f32) -> Result<(), String> {
+    let px = |x: u32, y: u32| pixels[(y * SIZE + x) as usize];
+    let close = |a: u8, e: f32| (a as f32 - e * 255.0).abs() <= 2.5;
+    // The volume box spans x, y in [-0.5, 0.5]; the image shows [-0.6, 0.6]: pixel 16 is at
+    // x = -0.3 (quad, inside the volume), pixel 48 at x = +0.3 (volume only), row 32 at y ~ 0.
+    let with_quad = expected(0.5 * voxels, QUAD_COLOR);
+    let without = expected(voxels, BACKGROUND);
+    let quad = Vec4::new(QUAD_COLOR[0], QUAD_COLOR[1], QUAD_COLOR[2], 1.0);
+    for (x, y, e) in [
+        (16, 32, with_quad),
+        (20, 20, with_quad),
+        (48, 32, without),
+        (44, 44, without),
+        (1, 32, quad),
+    ] {
+        let p = px(x, y);
+        for c in 0..3 {
+            if !close(p[c], e[c]) {
+                return Err(format!(
+                    "pixel ({x},{y}) channel {c}: {} vs expected {:.1}",
+                    p[c],
+                    e[c] * 255.0
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Checks the brick-cache part's reports: every frame within the cache's slots and the upload
+/// budget, the budget spreading the first residency over several frames, the last frame settled
+/// with every brick resident and both levels drawn.
+pub fn check_bricks(frames: &[FrameReport]) -> Result<(), String> {
+    for (f, r) in frames.iter().enumerate() {
+        if r.plan.upload_bytes > BRICK_UPLOAD_BUDGET || r.plan.slots_used > r.plan.slot_budget {
+            return Err(format!("frame {f} over a budget: {}", summary(f, r)));
+        }
+    }
+    let uploading = frames
+        .iter()
+        .filter(|r| r.residency.uploaded_bricks > 0)
+        .count();
+    if uploading < 3 || !frames.iter().any(|r| r.plan.deferred > 0) {
+        return Err(format!(
+            "the upload budget did not spread the residency ({uploading} frames uploaded)"
+        ));
+    }
+    let last = frames.last().ok_or("no frames")?;
+    if !last.plan.is_settled()
+        || last.residency.hi_bricks == 0
+        || last.residency.lo_bricks == 0
+        || last.residency.hi_bricks + last.residency.lo_bricks != last.plan.bricks
+    {
+        return Err(format!(
+            "the last frame is not settled and mixed: {}",
+            summary(frames.len() - 1, last)
+        ));
+    }
+    Ok(())
+}
+
+/// Records the host's part of a frame into `cmd`: the colour and depth targets cleared, the
+/// opaque quad drawn with depth, then the barriers the pass contract asks for.
+fn record_frame(
+    device: &ash::Device,
+    cmd: vk::CommandBuffer,
+    (color, depth): (&HostImage, &HostImage),
+    (pipeline, layout): (vk::Pipeline, vk::PipelineLayout),
+    clip_from_world: &Mat4,
+) {
+    use vk::{AccessFlags2 as A, ImageLayout as L, PipelineStageFlags2 as S};
+    // Earlier frames (in submission order) may still read both images: wait for all of them.
+    barrier(
+        device,
+        cmd,
+        color.image,
+        vk::ImageAspectFlags::COLOR,
+        (S::ALL_COMMANDS, A::NONE, L::UNDEFINED),
+        (
+            S::COLOR_ATTACHMENT_OUTPUT,
+            A::COLOR_ATTACHMENT_WRITE,
+            L::COLOR_ATTACHMENT_OPTIMAL,
+        ),
+    );
+    barrier(
+        device,
+        cmd,
+        depth.image,
+        vk::ImageAspectFlags::DEPTH,
+        (S::ALL_COMMANDS, A::NONE, L::UNDEFINED),
+        (
+            S::EARLY_FRAGMENT_TESTS | S::LATE_FRAGMENT_TESTS,
+            A::DEPTH_STENCIL_ATTACHMENT_WRITE | A::DEPTH_STENCIL_ATTACHMENT_READ,
+            L::DEPTH_ATTACHMENT_OPTIMAL,
+        ),
+    );
+    let area = vk::Rect2D {
+        offset: vk::Offset2D { x: 0, y: 0 },
+        extent: vk::Extent2D {
+            width: SIZE,
+            height: SIZE,
+        },
+    };
+    let color_attachment = [vk::RenderingAttachmentInfo::default()
+        .image_view(color.view)
+        .image_layout(L::COLOR_ATTACHMENT_OPTIMAL)
+        .load_op(vk::AttachmentLoadOp::CLEAR)
+        .store_op(vk::AttachmentStoreOp::STORE)
+        .clear_value(vk::ClearValue {
+            color: vk::ClearColorValue {
+                float32: [BACKGROUND[0], BACKGROUND[1], BACKGROUND[2], 1.0],
+            },
+        })];
+    let depth_attachment = vk::RenderingAttachmentInfo::default()
+        .image_view(depth.view)
+        .image_layout(L::DEPTH_ATTACHMENT_OPTIMAL)
+        .load_op(vk::AttachmentLoadOp::CLEAR)
+        .store_op(vk::AttachmentStoreOp::STORE)
+        .clear_value(vk::ClearValue {
+            depth_stencil: vk::ClearDepthStencilValue {
+                depth: 1.0,
+                stencil: 0,
+            },
+        });
+    let rendering_info = vk::RenderingInfo::default()
+        .render_area(area)
+        .layer_count(1)
+        .color_attachments(&color_attachment)
+        .depth_attachment(&depth_attachment);
+    // SAFETY: recording the host's own draw with live objects.
+    unsafe {
+        device.cmd_begin_rendering(cmd, &rendering_info);
+        device.cmd_set_viewport(
+            cmd,
+            0,
+            &[vk::Viewport {
+                x: 0.0,
+                y: 0.0,
+                width: SIZE as f32,
+                height: SIZE as f32,
+                min_depth: 0.0,
+                max_depth: 1.0,
+            }],
+        );
+        device.cmd_set_scissor(cmd, 0, &[area]);
+        device.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
+        device.cmd_push_constants(
+            cmd,
+            layout,
+            vk::ShaderStageFlags::VERTEX,
+            0,
+            bytemuck::bytes_of(clip_from_world),
+        );
+        device.cmd_draw(cmd, 6, 1, 0, 0);
+        device.cmd_end_rendering(cmd);
+    }
+    // The pass contract: colour writes visible to colour-attachment output, depth readable.
+    barrier(
+        device,
+        cmd,
+        color.image,
+        vk::ImageAspectFlags::COLOR,
+        (
+            S::COLOR_ATTACHMENT_OUTPUT,
+            A::COLOR_ATTACHMENT_WRITE,
+            L::COLOR_ATTACHMENT_OPTIMAL,
+        ),
+        (
+            S::COLOR_ATTACHMENT_OUTPUT,
+            A::COLOR_ATTACHMENT_READ | A::COLOR_ATTACHMENT_WRITE,
+            L::COLOR_ATTACHMENT_OPTIMAL,
+        ),
+    );
+    barrier(
+        device,
+        cmd,
+        depth.image,
+        vk::ImageAspectFlags::DEPTH,
+        (
+            S::EARLY_FRAGMENT_TESTS | S::LATE_FRAGMENT_TESTS,
+            A::DEPTH_STENCIL_ATTACHMENT_WRITE,
+            L::DEPTH_ATTACHMENT_OPTIMAL,
+        ),
+        (
+            S::FRAGMENT_SHADER,
+            A::SHADER_SAMPLED_READ,
+            L::DEPTH_READ_ONLY_OPTIMAL,
+        ),
+    );
+}
+
+/// Records the copy of the colour target (after the pass) into `readback`, visible to the host.
+fn record_readback(
+    device: &ash::Device,
+    cmd: vk::CommandBuffer,
+    image: vk::Image,
+    readback: vk::Buffer,
+) {
+    use vk::{AccessFlags2 as A, ImageLayout as L, PipelineStageFlags2 as S};
+    barrier(
+        device,
+        cmd,
+        image,
+        vk::ImageAspectFlags::COLOR,
+        (
+            S::COLOR_ATTACHMENT_OUTPUT,
+            A::COLOR_ATTACHMENT_WRITE,
+            L::COLOR_ATTACHMENT_OPTIMAL,
+        ),
+        (S::COPY, A::TRANSFER_READ, L::TRANSFER_SRC_OPTIMAL),
+    );
+    let copy = vk::BufferImageCopy::default()
+        .image_subresource(vk::ImageSubresourceLayers {
+            aspect_mask: vk::ImageAspectFlags::COLOR,
+            mip_level: 0,
+            base_array_layer: 0,
+            layer_count: 1,
+        })
+        .image_extent(vk::Extent3D {
+            width: SIZE,
+            height: SIZE,
+            depth: 1,
+        });
+    let host_barrier = [vk::MemoryBarrier2::default()
+        .src_stage_mask(S::COPY)
+        .src_access_mask(A::TRANSFER_WRITE)
+        .dst_stage_mask(S::HOST)
+        .dst_access_mask(A::HOST_READ)];
+    // SAFETY: recording with live objects; layouts as set by the barriers above.
+    unsafe {
+        device.cmd_copy_image_to_buffer(cmd, image, L::TRANSFER_SRC_OPTIMAL, readback, &[copy]);
+        device.cmd_pipeline_barrier2(
+            cmd,
+            &vk::DependencyInfo::default().memory_barriers(&host_barrier),
+        );
+    }
 }
 
 const QUAD_VS: &str = r#"#version 460
@@ -203,8 +531,20 @@ pub fn volume() -> Volume {
     .expect("valid volume")
 }
 
-/// Creates the host, draws the quad and the volume, reads the image back.
+/// Creates the host, draws the quad and the volume (a plain 3D texture), reads the image back.
 pub fn run() -> Result<HostReport, BoxError> {
+    run_scene(Scene::Volume)
+}
+
+/// Creates the host and draws the quad and a brick source larger than its cache along
+/// [`brick_path`], the pass planning residency every frame, then the [`camera`] view until the
+/// residency settles; reads that last image back. [`HostReport::frames`] holds every frame's
+/// report.
+pub fn run_bricks() -> Result<HostReport, BoxError> {
+    run_scene(Scene::Bricks)
+}
+
+fn run_scene(scene: Scene) -> Result<HostReport, BoxError> {
     PROBLEMS.store(0, Ordering::SeqCst);
     MESSAGES.lock().unwrap_or_else(|e| e.into_inner()).clear();
     // SAFETY: loading the system Vulkan loader.
@@ -402,11 +742,30 @@ pub fn run() -> Result<HostReport, BoxError> {
         &ctx,
         PassDesc {
             color_format: vk::Format::R8G8B8A8_UNORM,
-            frames_in_flight: 2,
+            frames_in_flight: FRAMES_IN_FLIGHT as u32,
         },
     )?;
-    pass.set_source(VolumeSource::Volume(&volume()))?;
     pass.set_transfer_function(&TransferFunction::preset(TfPreset::ConstantWhite));
+    match scene {
+        Scene::Volume => pass.set_source(VolumeSource::Volume(&volume()))?,
+        Scene::Bricks => {
+            // A brick source twice the size of its cache: the pass plans residency from the
+            // camera every frame under the cache and upload budgets.
+            pass.set_source(VolumeSource::Mixed {
+                volume: Arc::new(brick_volume()),
+                config: MixedConfig {
+                    brick_size: BRICK_SIZE,
+                    filter: DownsampleFilter::Mean2,
+                    cache_budget_bytes: BRICK_CACHE_BUDGET,
+                    transition: Transition::Smooth,
+                },
+            })?;
+            pass.set_residency_config(ResidencyConfig {
+                upload_bytes_per_frame: BRICK_UPLOAD_BUDGET,
+                ..ResidencyConfig::default()
+            });
+        }
+    }
     let settings = RenderSettings {
         early_termination: 2.0,
         ..RenderSettings::default()
@@ -415,210 +774,124 @@ pub fn run() -> Result<HostReport, BoxError> {
     // SAFETY: plain object creation on the host's device.
     let pool = unsafe {
         device.create_command_pool(
-            &vk::CommandPoolCreateInfo::default().queue_family_index(family),
+            &vk::CommandPoolCreateInfo::default()
+                .queue_family_index(family)
+                .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
             None,
         )
     }?;
     // SAFETY: the pool was just created.
-    let cmd = unsafe {
+    let cmds = unsafe {
         device.allocate_command_buffers(
             &vk::CommandBufferAllocateInfo::default()
                 .command_pool(pool)
-                .command_buffer_count(1),
+                .command_buffer_count(FRAMES_IN_FLIGHT as u32),
         )
-    }?[0];
-    // SAFETY: plain object creation.
-    let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }?;
-    // SAFETY: the command buffer is new.
-    check(unsafe { device.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default()) })?;
-    use vk::{AccessFlags2 as A, ImageLayout as L, PipelineStageFlags2 as S};
-    barrier(
-        &device,
-        cmd,
-        color.image,
-        vk::ImageAspectFlags::COLOR,
-        (S::NONE, A::NONE, L::UNDEFINED),
-        (
-            S::COLOR_ATTACHMENT_OUTPUT,
-            A::COLOR_ATTACHMENT_WRITE,
-            L::COLOR_ATTACHMENT_OPTIMAL,
-        ),
-    );
-    barrier(
-        &device,
-        cmd,
-        depth.image,
-        vk::ImageAspectFlags::DEPTH,
-        (S::NONE, A::NONE, L::UNDEFINED),
-        (
-            S::EARLY_FRAGMENT_TESTS | S::LATE_FRAGMENT_TESTS,
-            A::DEPTH_STENCIL_ATTACHMENT_WRITE | A::DEPTH_STENCIL_ATTACHMENT_READ,
-            L::DEPTH_ATTACHMENT_OPTIMAL,
-        ),
-    );
-    let area = vk::Rect2D {
-        offset: vk::Offset2D { x: 0, y: 0 },
-        extent: vk::Extent2D {
-            width: SIZE,
-            height: SIZE,
-        },
+    }?;
+    let mut fences = Vec::with_capacity(FRAMES_IN_FLIGHT);
+    for _ in 0..FRAMES_IN_FLIGHT {
+        // SAFETY: plain object creation.
+        fences.push(unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }?);
+    }
+    let mut in_flight = [false; FRAMES_IN_FLIGHT];
+    let mut frames = Vec::new();
+    let path = match scene {
+        Scene::Volume => Vec::new(),
+        Scene::Bricks => brick_path(),
     };
-    let color_attachment = [vk::RenderingAttachmentInfo::default()
-        .image_view(color.view)
-        .image_layout(L::COLOR_ATTACHMENT_OPTIMAL)
-        .load_op(vk::AttachmentLoadOp::CLEAR)
-        .store_op(vk::AttachmentStoreOp::STORE)
-        .clear_value(vk::ClearValue {
-            color: vk::ClearColorValue {
-                float32: [BACKGROUND[0], BACKGROUND[1], BACKGROUND[2], 1.0],
+    let mut frame = 0usize;
+    loop {
+        let slot = frame % FRAMES_IN_FLIGHT;
+        if in_flight[slot] {
+            // The slot's last frame is done: its resources may be recorded again.
+            // SAFETY: the fence was submitted with the slot's last frame.
+            unsafe {
+                device.wait_for_fences(&[fences[slot]], true, u64::MAX)?;
+                device.reset_fences(&[fences[slot]])?;
+            }
+            in_flight[slot] = false;
+            if frame == 1 || scene == Scene::Bricks && frame.is_multiple_of(8) {
+                println!(
+                    "volume pass GPU timings (frame {}): {:?}",
+                    frame - FRAMES_IN_FLIGHT,
+                    pass.timings(slot)?
+                );
+            }
+        }
+        // The camera path, then the still view until the residency settles.
+        let camera = path.get(frame).copied().unwrap_or_else(camera);
+        let clip_from_world = clip_from_world_of(&camera);
+        let last = match scene {
+            Scene::Volume => true,
+            Scene::Bricks => {
+                let report = pass.update(&camera, SIZE, SIZE, &settings)?;
+                println!("{}", summary(frame, &report));
+                // Settled: the frame draws the residency the still view wants, nothing waits.
+                let settled = frame >= path.len()
+                    && report.plan.is_settled()
+                    && report.plan.waiting_for_source == 0
+                    && report.plan.drawn_absent == 0;
+                frames.push(report);
+                if !settled && frame >= path.len() + MAX_SETTLE_FRAMES {
+                    return Err(format!(
+                        "the residency did not settle within {MAX_SETTLE_FRAMES} still frames"
+                    )
+                    .into());
+                }
+                settled
+            }
+        };
+        let cmd = cmds[slot];
+        // SAFETY: the command buffer's last submission completed (fence above).
+        check(unsafe { device.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default()) })?;
+        record_frame(
+            &device,
+            cmd,
+            (&color, &depth),
+            (pipeline, layout),
+            &clip_from_world,
+        );
+        pass.record(
+            cmd,
+            slot,
+            &PassTarget {
+                view: color.view,
+                extent: vk::Extent2D {
+                    width: SIZE,
+                    height: SIZE,
+                },
+                load: TargetLoad::Load,
+                depth: Some(HostDepth {
+                    view: depth.view,
+                    layout: vk::ImageLayout::DEPTH_READ_ONLY_OPTIMAL,
+                    clip_from_world,
+                }),
             },
-        })];
-    let depth_attachment = vk::RenderingAttachmentInfo::default()
-        .image_view(depth.view)
-        .image_layout(L::DEPTH_ATTACHMENT_OPTIMAL)
-        .load_op(vk::AttachmentLoadOp::CLEAR)
-        .store_op(vk::AttachmentStoreOp::STORE)
-        .clear_value(vk::ClearValue {
-            depth_stencil: vk::ClearDepthStencilValue {
-                depth: 1.0,
-                stencil: 0,
-            },
-        });
-    let rendering_info = vk::RenderingInfo::default()
-        .render_area(area)
-        .layer_count(1)
-        .color_attachments(&color_attachment)
-        .depth_attachment(&depth_attachment);
-    let clip_from_world = clip_from_world();
-    // SAFETY: recording the host's own draw with live objects.
-    unsafe {
-        device.cmd_begin_rendering(cmd, &rendering_info);
-        device.cmd_set_viewport(
-            cmd,
-            0,
-            &[vk::Viewport {
-                x: 0.0,
-                y: 0.0,
-                width: SIZE as f32,
-                height: SIZE as f32,
-                min_depth: 0.0,
-                max_depth: 1.0,
-            }],
-        );
-        device.cmd_set_scissor(cmd, 0, &[area]);
-        device.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
-        device.cmd_push_constants(
-            cmd,
-            layout,
-            vk::ShaderStageFlags::VERTEX,
-            0,
-            bytemuck::bytes_of(&clip_from_world),
-        );
-        device.cmd_draw(cmd, 6, 1, 0, 0);
-        device.cmd_end_rendering(cmd);
+            &camera,
+            &settings,
+        )?;
+        if last {
+            record_readback(&device, cmd, color.image, readback);
+        }
+        check(unsafe { device.end_command_buffer(cmd) })?;
+        let infos = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
+        let submit = [vk::SubmitInfo2::default().command_buffer_infos(&infos)];
+        // SAFETY: the command buffer is complete; the fence is unsignalled.
+        unsafe { device.queue_submit2(queue, &submit, fences[slot]) }?;
+        in_flight[slot] = true;
+        frame += 1;
+        if last {
+            break;
+        }
     }
-    // The pass contract: colour writes visible to colour-attachment output, depth readable.
-    barrier(
-        &device,
-        cmd,
-        color.image,
-        vk::ImageAspectFlags::COLOR,
-        (
-            S::COLOR_ATTACHMENT_OUTPUT,
-            A::COLOR_ATTACHMENT_WRITE,
-            L::COLOR_ATTACHMENT_OPTIMAL,
-        ),
-        (
-            S::COLOR_ATTACHMENT_OUTPUT,
-            A::COLOR_ATTACHMENT_READ | A::COLOR_ATTACHMENT_WRITE,
-            L::COLOR_ATTACHMENT_OPTIMAL,
-        ),
-    );
-    barrier(
-        &device,
-        cmd,
-        depth.image,
-        vk::ImageAspectFlags::DEPTH,
-        (
-            S::EARLY_FRAGMENT_TESTS | S::LATE_FRAGMENT_TESTS,
-            A::DEPTH_STENCIL_ATTACHMENT_WRITE,
-            L::DEPTH_ATTACHMENT_OPTIMAL,
-        ),
-        (
-            S::FRAGMENT_SHADER,
-            A::SHADER_SAMPLED_READ,
-            L::DEPTH_READ_ONLY_OPTIMAL,
-        ),
-    );
-    pass.record(
-        cmd,
-        0,
-        &PassTarget {
-            view: color.view,
-            extent: area.extent,
-            load: TargetLoad::Load,
-            depth: Some(HostDepth {
-                view: depth.view,
-                layout: L::DEPTH_READ_ONLY_OPTIMAL,
-                clip_from_world,
-            }),
-        },
-        &camera(),
-        &settings,
-    )?;
-    barrier(
-        &device,
-        cmd,
-        color.image,
-        vk::ImageAspectFlags::COLOR,
-        (
-            S::COLOR_ATTACHMENT_OUTPUT,
-            A::COLOR_ATTACHMENT_WRITE,
-            L::COLOR_ATTACHMENT_OPTIMAL,
-        ),
-        (S::COPY, A::TRANSFER_READ, L::TRANSFER_SRC_OPTIMAL),
-    );
-    let copy = vk::BufferImageCopy::default()
-        .image_subresource(vk::ImageSubresourceLayers {
-            aspect_mask: vk::ImageAspectFlags::COLOR,
-            mip_level: 0,
-            base_array_layer: 0,
-            layer_count: 1,
-        })
-        .image_extent(vk::Extent3D {
-            width: SIZE,
-            height: SIZE,
-            depth: 1,
-        });
-    let host_barrier = [vk::MemoryBarrier2::default()
-        .src_stage_mask(S::COPY)
-        .src_access_mask(A::TRANSFER_WRITE)
-        .dst_stage_mask(S::HOST)
-        .dst_access_mask(A::HOST_READ)];
-    // SAFETY: recording with live objects; layouts as set by the barriers above.
+    // SAFETY: every fence waited on was submitted.
     unsafe {
-        device.cmd_copy_image_to_buffer(
-            cmd,
-            color.image,
-            L::TRANSFER_SRC_OPTIMAL,
-            readback,
-            &[copy],
-        );
-        device.cmd_pipeline_barrier2(
-            cmd,
-            &vk::DependencyInfo::default().memory_barriers(&host_barrier),
-        );
+        for (fence, busy) in fences.iter().zip(in_flight) {
+            if busy {
+                device.wait_for_fences(&[*fence], true, u64::MAX)?;
+            }
+        }
     }
-    check(unsafe { device.end_command_buffer(cmd) })?;
-    let cmds = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
-    let submit = [vk::SubmitInfo2::default().command_buffer_infos(&cmds)];
-    // SAFETY: the command buffer is complete; the host submits and waits, as hosts do.
-    unsafe {
-        device.queue_submit2(queue, &submit, fence)?;
-        device.wait_for_fences(&[fence], true, u64::MAX)?;
-    }
-    let timings = pass.timings(0)?;
-    println!("volume pass GPU timings: {timings:?}");
     let bytes = readback_memory
         .as_ref()
         .expect("allocated")
@@ -634,7 +907,9 @@ pub fn run() -> Result<HostReport, BoxError> {
     drop(ctx);
     // SAFETY: the GPU finished all work; objects are destroyed in reverse creation order.
     unsafe {
-        device.destroy_fence(fence, None);
+        for fence in fences {
+            device.destroy_fence(fence, None);
+        }
         device.destroy_command_pool(pool, None);
         device.destroy_pipeline(pipeline, None);
         device.destroy_pipeline_layout(layout, None);
@@ -664,6 +939,7 @@ pub fn run() -> Result<HostReport, BoxError> {
         pixels,
         validation_problems: PROBLEMS.load(Ordering::SeqCst),
         messages,
+        frames,
     })
 }
 
@@ -684,20 +960,70 @@ fn main() -> Result<(), BoxError> {
     let output = std::env::args()
         .nth(1)
         .unwrap_or_else(|| "out/embed.png".into());
-    let report = run()?;
-    if let Some(parent) = std::path::Path::new(&output).parent() {
+    let output = std::path::Path::new(&output);
+    if let Some(parent) = output.parent() {
         std::fs::create_dir_all(parent)?;
     }
-    let img = image::RgbaImage::from_fn(SIZE, SIZE, |x, y| {
-        image::Rgba(report.pixels[(y * SIZE + x) as usize])
-    });
-    img.save(&output)?;
-    println!(
-        "wrote {output}; validation problems: {}",
-        report.validation_problems
-    );
-    for m in &report.messages {
-        eprintln!("  {m}");
+    let mut failed = false;
+    let parts = [
+        ("volume", 32.0, output.to_path_buf()),
+        (
+            "bricks",
+            32.0,
+            output.with_file_name(format!(
+                "{}-bricks.png",
+                output
+                    .file_stem()
+                    .and_then(|s| s.to_str())
+                    .unwrap_or("embed")
+            )),
+        ),
+    ];
+    for (name, voxels, path) in parts {
+        let report = if name == "volume" {
+            run()?
+        } else {
+            run_bricks()?
+        };
+        let img = image::RgbaImage::from_fn(SIZE, SIZE, |x, y| {
+            image::Rgba(report.pixels[(y * SIZE + x) as usize])
+        });
+        img.save(&path)?;
+        let check = check_composite(&report.pixels, voxels).and_then(|()| {
+            if name == "bricks" {
+                check_bricks(&report.frames)
+            } else {
+                Ok(())
+            }
+        });
+        println!(
+            "{name}: wrote {}; validation problems: {}; composite {}",
+            path.display(),
+            report.validation_problems,
+            match &check {
+                Ok(()) => "matches the analytic expectation, budgets held".to_string(),
+                Err(e) => format!("WRONG: {e}"),
+            }
+        );
+        for m in &report.messages {
+            eprintln!("  {m}");
+        }
+        if name == "bricks" {
+            let uploading = report
+                .frames
+                .iter()
+                .filter(|r| r.residency.uploaded_bricks > 0)
+                .count();
+            println!(
+                "bricks: {} frames ({} along the path), {uploading} uploaded, settled at the last",
+                report.frames.len(),
+                PATH_FRAMES
+            );
+        }
+        failed |= check.is_err() || report.validation_problems > 0;
+    }
+    if failed {
+        return Err("the composite or validation failed (see above)".into());
     }
     Ok(())
 }

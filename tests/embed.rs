@@ -340,3 +340,20 @@ fn frames_in_flight_with_residency_changes_and_a_resize_are_validation_clean() {
     // No allocation of the crate is live, and validation reported nothing (warnings included).
     common::finish(ctx);
 }
+
+/// The example's second part: a brick source twice the size of its cache drawn through
+/// `VolumePass::update` + `record` with host depth and two frames in flight along a camera path,
+/// then settled at the front view. The transfer function is constant, so the composite is
+/// analytic whatever the residency; the reports stay within the budgets.
+#[test]
+fn brick_source_larger_than_its_cache_composites_through_update() {
+    let report = embed_host::run_bricks().expect("host runs");
+    assert_eq!(
+        report.validation_problems, 0,
+        "validation: {:#?}",
+        report.messages
+    );
+    embed_host::check_composite(&report.pixels, 32.0).unwrap();
+    embed_host::check_bricks(&report.frames).unwrap();
+    assert!(report.frames.len() > embed_host::PATH_FRAMES);
+}

@@ -167,7 +167,12 @@ impl VolumePass {
         let requests = plan.requests.clone();
         let (mut source_errors, mut first_source_error) = (0, None);
         for (brick, (&wanted, &drawn)) in plan.wanted.iter().zip(&plan.draw).enumerate() {
-            if wanted == drawn || wanted == Level::Absent {
+            // A loaded level has no error to report (and fetching it would pack a deferred brick
+            // of an in-memory source for nothing): only a level the source lacks is asked about.
+            if wanted == drawn
+                || wanted == Level::Absent
+                || state.source.is_loaded(brick as u32, wanted)
+            {
                 continue;
             }
             if let Err(e) = state.source.brick_bytes(brick as u32, wanted) {

@@ -174,6 +174,9 @@ pub(crate) struct MixedState {
     pub(super) geometry: BrickGeometry,
     /// The camera-driven residency planner ([`VolumePass::update`]); remembers what it drew.
     pub(super) planner: ResidencyPlanner,
+    /// Whether tables were ever staged for the GPU cache (until then even an unchanged
+    /// residency must be staged: the GPU tables hold nothing yet).
+    tables_staged: bool,
 }
 
 /// The source on the GPU.
@@ -409,6 +412,7 @@ impl VolumePass {
             rgba_model,
             geometry,
             planner: ResidencyPlanner::new(self.residency.options),
+            tables_staged: false,
         }));
         Ok(())
     }
@@ -456,7 +460,12 @@ impl MixedState {
         let pack_start = Instant::now();
         let levels = fallback_levels(wanted, &*state.source);
         let fallback_bricks = levels.iter().zip(wanted).filter(|(a, b)| a != b).count();
+        let before = state.cache.residencies().to_vec();
         let update = state.cache.update(&levels)?;
+        // Nothing moved (a still camera once converged): the GPU cache and its tables are
+        // current, so nothing is staged and the next record copies nothing and skips the fixup.
+        let unchanged =
+            state.tables_staged && update.uploads.is_empty() && state.cache.residencies() == before;
         let grid = state.cache.grid();
         let mut packed = Vec::with_capacity(update.uploads.len());
         for upload in &update.uploads {
@@ -493,7 +502,10 @@ impl MixedState {
             brick_size: grid.brick_size(),
             slots_per_axis: state.cache.geometry().slots_per_axis(),
         };
-        state.gpu.stage(&regions, &tables)?;
+        if !unchanged {
+            state.gpu.stage(&regions, &tables)?;
+            state.tables_staged = true;
+        }
         state.any_transition = !fixup_slots.is_empty();
         let current = state.cache.levels();
         state.any_low_res = current.contains(&Level::Lo);

@@ -41,6 +41,15 @@ use std::sync::atomic::{AtomicUsize, Ordering as AtomicOrdering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+/// The tests of this binary run one at a time: the soak measures the process's RSS, which
+/// other tests' allocations running beside it would move.
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Holds [`SERIAL`] for one test (a failed test's poison does not stop the others).
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 const N: u32 = 8;
 const MEAN_TOLERANCE: f32 = 1.0 / 1000.0;
 const LARGE: f32 = 1.0 / 255.0;
@@ -267,6 +276,7 @@ fn check_boundary_field(
 
 #[test]
 fn camera_path_over_a_store_matches_the_reference_every_frame() {
+    let _serial = serial();
     const DIM: u32 = 80;
     const SIZE: u32 = 64;
     const FRAMES: usize = 30;
@@ -489,6 +499,7 @@ fn vm_rss() -> u64 {
 
 #[test]
 fn a_thousand_frames_of_camera_motion_stay_clean_and_bounded() {
+    let _serial = serial();
     const DIM: u32 = 64;
     const SIZE: u32 = 32;
     const FRAMES: usize = 1000;
@@ -689,6 +700,7 @@ impl BrickSource for FailingSource {
 
 #[test]
 fn bricks_that_fail_to_load_are_reported_and_drawn_at_a_fallback() {
+    let _serial = serial();
     const SIZE: u32 = 48;
     let ctx = common::validated_context();
     {
@@ -858,6 +870,7 @@ impl BrickSource for CountingSource {
 
 #[test]
 fn a_still_camera_converges_then_uploads_nothing() {
+    let _serial = serial();
     const SIZE: u32 = 48;
     const CACHE_BUDGET: u64 = 256 << 10;
     /// 8 hi-res or 64 low-res bricks per frame.
@@ -982,6 +995,7 @@ fn a_still_camera_converges_then_uploads_nothing() {
 
 #[test]
 fn streaming_under_a_tight_ram_budget_draws_what_is_loaded_and_matches_the_reference() {
+    let _serial = serial();
     const DIM: u32 = 64;
     const SIZE: u32 = 32;
     const FRAMES: usize = 300;

@@ -13,7 +13,7 @@
 //!   [`pack_low_res_brick`](crate::bricks::pack_low_res_brick) +
 //!   [`quantize_to`](crate::bricks::quantize_to), and its ranges to
 //!   [`brick_value_ranges_for_storage`](crate::bricks::brick_value_ranges_for_storage).
-//! //! - [`write_store_from_slabs`] writes the same bytes from a volume *file* read slab by slab
+//! - [`write_store_from_slabs`] writes the same bytes from a volume *file* read slab by slab
 //!   ([`crate::volume::SlabReader`]) under a RAM budget, never holding the whole volume.
 //! - [`BrickStore`] opens and validates a store file, keeps the small tables (offsets, min/max) in
 //!   RAM and reads one brick level with one positioned read ([`BrickStore::read_brick`]).

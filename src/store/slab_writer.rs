@@ -16,7 +16,7 @@
 //! writer refuses, before creating anything, a budget that cannot hold the slab and one worker,
 //! and uses only as many threads as the budget holds.
 
-use super::writer::{assemble, layer_chunks, pack_chunks, Voxels, CHUNK_WINDOW_BYTES};
+use super::writer::{assemble, layer_chunks, pack_chunks, Voxels};
 use super::{StoreDesc, StoreError, WriteSummary};
 use crate::bricks::{
     hi_res_brick_extent, low_res_brick_extent, BrickBox, BrickGrid, BrickKernel, ValueRange,
@@ -137,14 +137,17 @@ fn mib(bytes: u64) -> u64 {
 }
 
 /// Estimated peak bytes of one worker: its chunk's hi-res and low-res bricks (the kernel's output
-/// and the interleaved copy written to the file) and the kernel's filter scratch (bounded like a
-/// chunk window).
+/// and the interleaved copy written to the file, plus slack for the allocator), the f32 low-res
+/// block and filter rows the kernel computes for the chunk (twice its low-res samples), and 2 MiB
+/// for the rest (ranges, row tables, the thread's stack, allocator slack).
 fn worker_bytes(grid: &BrickGrid, storage: ScalarType) -> u64 {
     let n = grid.brick_size();
-    let run = layer_chunks(grid, 0).first().map_or(1, |c| c.bx1 - c.bx0);
+    let run = u64::from(layer_chunks(grid, 0).first().map_or(1, |c| c.bx1 - c.bx0));
     let texels =
         u64::from(hi_res_brick_extent(n)).pow(3) + u64::from(low_res_brick_extent(n)).pow(3);
-    2 * u64::from(run) * texels * storage.size_bytes() as u64 + CHUNK_WINDOW_BYTES as u64
+    let bricks = 3 * run * texels * storage.size_bytes() as u64;
+    let low_res = 2 * run * u64::from(n / 2 + 2).pow(3) * 4;
+    bricks + low_res + (2 << 20)
 }
 
 /// Writes a brick store at `path` from `reader` (whose dims must be `desc.dims`), holding at most

@@ -159,6 +159,9 @@ pub(super) struct Target<'a> {
     pub path: &'a Path,
 }
 
+/// What a brick producer returns: the per-brick value ranges and the volume's value range.
+pub(super) type Written = (Vec<ValueRange>, ValueRange);
+
 /// Checks `desc`, creates `<path>.partial` at its final length, lets `bricks` write every brick
 /// into it (returning the per-brick ranges and the volume's value range), then writes the tables
 /// and the header and renames the file to `path`. On any error the partial file is removed.
@@ -166,7 +169,7 @@ pub(super) fn assemble(
     path: &Path,
     desc: StoreDesc,
     threads: usize,
-    bricks: &mut dyn FnMut(&Target<'_>) -> Result<(Vec<ValueRange>, ValueRange), StoreError>,
+    bricks: &mut dyn FnMut(&Target<'_>) -> Result<Written, StoreError>,
 ) -> Result<WriteSummary, StoreError> {
     let start = Instant::now();
     let grid = check_desc(&desc)?;

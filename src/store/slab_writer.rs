@@ -16,7 +16,7 @@
 //! writer refuses, before creating anything, a budget that cannot hold the slab and one worker,
 //! and uses only as many threads as the budget holds.
 
-use super::writer::{assemble, layer_chunks, pack_chunks, Voxels};
+use super::writer::{assemble, layer_chunks, pack_chunks, Voxels, Worker};
 use super::{StoreDesc, StoreError, WriteSummary};
 use crate::bricks::{
     hi_res_brick_extent, low_res_brick_extent, BrickBox, BrickGrid, BrickKernel, ValueRange,
@@ -137,16 +137,17 @@ fn mib(bytes: u64) -> u64 {
 }
 
 /// Estimated peak bytes of one worker: its chunk's hi-res and low-res bricks (the kernel's output
-/// and the interleaved copy written to the file, plus slack for the allocator), the f32 low-res
-/// block and filter rows the kernel computes for the chunk (twice its low-res samples), and 2 MiB
-/// for the rest (ranges, row tables, the thread's stack, allocator slack).
+/// and the interleaved copy written to the file, plus slack for the allocator), the kernel's f32
+/// low-res block and its x-y filtered rows (each about the chunk's low-res samples, the rows once
+/// per z tap: counted as four blocks), and 2 MiB for the rest (ranges, row tables, the thread's
+/// stack, allocator slack).
 fn worker_bytes(grid: &BrickGrid, storage: ScalarType) -> u64 {
     let n = grid.brick_size();
     let run = u64::from(layer_chunks(grid, 0).first().map_or(1, |c| c.bx1 - c.bx0));
     let texels =
         u64::from(hi_res_brick_extent(n)).pow(3) + u64::from(low_res_brick_extent(n)).pow(3);
     let bricks = 3 * run * texels * storage.size_bytes() as u64;
-    let low_res = 2 * run * u64::from(n / 2 + 2).pow(3) * 4;
+    let low_res = 4 * (run * u64::from(n / 2) + 3) * u64::from(n / 2 + 3).pow(2) * 4;
     bricks + low_res + (2 << 20)
 }
 
@@ -198,6 +199,9 @@ pub fn write_store_from_slabs(
         let mut value_range = ValueRange::EMPTY;
         let mut done = 0u64;
         progress(0, total);
+        let mut workers: Vec<Worker> = (0..plan.threads)
+            .map(|_| Worker::new(target.grid, target.desc))
+            .collect();
         // Planes held: `held.start .. held.end`, at the start of `slab`.
         let mut held = 0u32..0u32;
         for (bz, window) in windows.iter().enumerate() {
@@ -234,7 +238,7 @@ pub fn write_store_from_slabs(
                 target,
                 Voxels::Window(voxels),
                 &chunks,
-                plan.threads,
+                &mut workers,
                 &mut |chunk| {
                     let first = chunk.first as usize;
                     ranges[first..first + chunk.ranges.len()].copy_from_slice(&chunk.ranges);

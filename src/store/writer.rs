@@ -380,7 +380,10 @@ fn write_bricks(
     let mut value_range = ValueRange::EMPTY;
     let mut done = 0u64;
     progress(0, total);
-    pack_chunks(target, voxels, &chunks, threads, &mut |chunk| {
+    let mut workers: Vec<Worker> = (0..threads.max(1).min(chunks.len()))
+        .map(|_| Worker::new(target.grid, target.desc))
+        .collect();
+    pack_chunks(target, voxels, &chunks, &mut workers, &mut |chunk| {
         let first = chunk.first as usize;
         ranges[first..first + chunk.ranges.len()].copy_from_slice(&chunk.ranges);
         value_range.include(chunk.voxels.min);
@@ -395,32 +398,26 @@ fn write_bricks(
     Ok((ranges, value_range))
 }
 
-/// Packs and writes `chunks` on `threads` workers; `done` is called on the calling thread for
-/// every finished chunk. The first error stops the workers and is returned.
+/// Packs and writes `chunks` on one thread per worker of `workers` (whose buffers are reused from
+/// call to call); `done` is called on the calling thread for every finished chunk. The first
+/// error stops the workers and is returned.
 pub(super) fn pack_chunks(
     target: &Target<'_>,
     voxels: Voxels<'_>,
     chunks: &[Chunk],
-    threads: usize,
+    workers: &mut [Worker],
     done: &mut dyn FnMut(ChunkDone),
 ) -> Result<(), StoreError> {
-    let (grid, desc, header, file, path) = (
-        target.grid,
-        target.desc,
-        target.header,
-        target.file,
-        target.path,
-    );
+    let (grid, header, file, path) = (target.grid, target.header, target.file, target.path);
     let next = AtomicUsize::new(0);
     let abort = AtomicBool::new(false);
     let mut first_error = None;
     std::thread::scope(|scope| {
         let (tx, rx) = mpsc::channel::<Result<ChunkDone, StoreError>>();
-        for _ in 0..threads.max(1).min(chunks.len()) {
+        for worker in workers.iter_mut().take(chunks.len()) {
             let tx = tx.clone();
             let (next, abort) = (&next, &abort);
             scope.spawn(move || {
-                let mut worker = Worker::new(grid, desc);
                 while !abort.load(Ordering::Relaxed) {
                     let Some(chunk) = chunks.get(next.fetch_add(1, Ordering::Relaxed)) else {
                         break;
@@ -466,7 +463,7 @@ pub(super) fn pack_chunks(
 }
 
 /// One worker's kernel and reusable buffers.
-struct Worker {
+pub(super) struct Worker {
     kernel: BrickKernel,
     /// The chunk's window of quantised voxels (producer only).
     window: VoxelData,
@@ -481,7 +478,8 @@ struct Worker {
 }
 
 impl Worker {
-    fn new(grid: &BrickGrid, desc: &StoreDesc) -> Self {
+    /// A worker for `desc`'s bricks of `grid`.
+    pub(super) fn new(grid: &BrickGrid, desc: &StoreDesc) -> Self {
         let empty = || match desc.scalar {
             ScalarType::U8 => VoxelData::U8(Vec::new()),
             ScalarType::U16 => VoxelData::U16(Vec::new()),

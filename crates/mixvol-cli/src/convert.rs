@@ -26,6 +26,14 @@ use std::time::Instant;
 pub fn convert(args: &ConvertArgs) -> Result<()> {
     let store = args.store.as_path();
     check_destination(store, args.force)?;
+    if let (Ok(a), Ok(b)) = (Path::new(&args.input).canonicalize(), store.canonicalize()) {
+        if a == b {
+            return Err(Error::InvalidInput(format!(
+                "STORE {} is the INPUT file; write the store to another path",
+                store.display()
+            )));
+        }
+    }
     let budget = args.ram_budget_mb.checked_mul(1 << 20).ok_or_else(|| {
         Error::InvalidInput(format!(
             "--ram-budget-mb {} is too large",
@@ -42,7 +50,7 @@ pub fn convert(args: &ConvertArgs) -> Result<()> {
             u64::from(dims.x) * u64::from(dims.y) * u64::from(dims.z) * scalar.size_bytes() as u64;
         if bytes > budget {
             return Err(Error::InvalidInput(format!(
-                "--volume {}: a synthetic field of {}x{}x{} {scalar:?} voxels is generated whole \
+                "INPUT {}: a synthetic field of {}x{}x{} {scalar:?} voxels is generated whole \
                  ({} MiB), more than --ram-budget-mb {}",
                 args.input,
                 dims.x,
@@ -204,7 +212,7 @@ fn progress_bar() -> ProgressBar {
     };
     let bar = ProgressBar::with_draw_target(None, target);
     if let Ok(style) = ProgressStyle::with_template(
-        "{spinner} [{elapsed_precise}] {wide_bar} {pos}/{len} bricks ({per_sec}, eta {eta})",
+        "{spinner} [{elapsed_precise}] {wide_bar} {pos}/{len} bricks (eta {eta})",
     ) {
         bar.set_style(style);
     }

@@ -379,6 +379,22 @@ fn failed_converts_leave_nothing_and_name_the_file() {
     assert!(out.status.success(), "{}", text(&out));
     BrickStore::open(&store).unwrap();
 
+    // The input itself is never the store, even with --force.
+    let out = convert(&input, &input, &["--force"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("is the INPUT"));
+    assert_eq!(std::fs::read(&input).unwrap(), whole);
+
+    // A synthetic field larger than the budget is refused before it is generated.
+    let out = convert(
+        Path::new("ml"),
+        &dir.join("ml.mvbs"),
+        &["--dims", "512,512,512", "--ram-budget-mb", "16"],
+    );
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("generated whole"));
+    assert_nothing_at(&dir.join("ml.mvbs"));
+
     // A missing input and a headerless file without --dims name the file.
     let out = convert(&dir.join("missing.nrrd"), &dir.join("m.mvbs"), &[]);
     assert!(!out.status.success());

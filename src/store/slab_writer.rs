@@ -322,3 +322,67 @@ fn minmax<T: Copy + Ord>(values: &[T]) -> Option<(T, T)> {
             .fold((first, first), |(a, b), &x| (a.min(x), b.max(x))),
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bricks::DownsampleFilter;
+    use glam::Vec3;
+
+    fn desc(dims: [u32; 3], n: u32, filter: DownsampleFilter) -> StoreDesc {
+        StoreDesc {
+            dims: UVec3::from_array(dims),
+            brick_size: n,
+            scalar: ScalarType::U8,
+            spacing: Vec3::ONE,
+            filter,
+        }
+    }
+
+    #[test]
+    fn layer_windows_cover_every_plane_once_in_order() {
+        for filter in DownsampleFilter::ALL {
+            for (dims, n) in [([20, 9, 37], 8), ([5, 5, 3], 4), ([9, 9, 64], 16)] {
+                let d = desc(dims, n, filter);
+                let grid = crate::store::writer::check_desc(&d).unwrap();
+                let w = layer_windows(&grid, &d).unwrap();
+                assert_eq!(w.len() as u32, grid.bricks_per_axis().z);
+                assert_eq!((w[0].start, w.last().unwrap().end), (0, dims[2]));
+                for pair in w.windows(2) {
+                    // Monotone and overlapping or touching: planes are read once, forward.
+                    assert!(pair[0].start <= pair[1].start && pair[0].end <= pair[1].end);
+                    assert!(pair[1].start <= pair[0].end, "{filter:?} {pair:?}");
+                }
+                // A layer holds its bricks' voxels plus a border.
+                for (bz, r) in w.iter().enumerate() {
+                    let bz = bz as u32;
+                    assert!(r.start <= (n * bz).saturating_sub(1));
+                    assert!(r.end >= (n * bz + n + 1).min(dims[2]));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn plan_fits_the_budget_and_trades_threads_for_memory() {
+        let d = desc([256, 256, 256], 32, DownsampleFilter::BSpline4);
+        let big = plan_slab_write(&d, ScalarType::U16, 1 << 20, 1 << 30, 8).unwrap();
+        assert_eq!(big.threads, 8);
+        assert!(big.planes >= 34 && big.planes <= 32 + 8, "{}", big.planes);
+        assert_eq!(big.slab_bytes, 256 * 256 * 2 * u64::from(big.planes));
+        let tight_budget = big.slab_bytes + big.reader_bytes + 2 * big.worker_bytes + 10;
+        let tight = plan_slab_write(&d, ScalarType::U16, 1 << 20, tight_budget, 8).unwrap();
+        assert_eq!(tight.threads, 2);
+        assert!(tight.total_bytes <= tight_budget);
+        let err = plan_slab_write(&d, ScalarType::U16, 1 << 20, big.slab_bytes, 8).unwrap_err();
+        assert!(matches!(err, StoreError::RamBudget { .. }), "{err:?}");
+        assert!(plan_slab_write(
+            &desc([0, 4, 4], 4, DownsampleFilter::Mean2),
+            ScalarType::U8,
+            0,
+            1 << 30,
+            1
+        )
+        .is_err());
+    }
+}

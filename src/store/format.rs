@@ -498,16 +498,22 @@ pub fn parse_header(bytes: &[u8], actual_len: u64, path: &Path) -> Result<StoreH
         }
     }
     if actual_len != file_size {
+        let what = if actual_len >= file_size {
+            "trailing bytes".to_string()
+        } else if actual_len < data_offset {
+            "truncated inside the tables, before brick 0".to_string()
+        } else {
+            // In the canonical layout (every writer's) brick i starts at data_offset + i * pair.
+            let pair = hi_brick_bytes + lo_brick_bytes;
+            let first = (actual_len - data_offset) / pair.max(1);
+            format!(
+                "truncated: brick {first} of {brick_count} and those after it are cut off in \
+                 the canonical layout"
+            )
+        };
         return Err(err(
             "file_size",
-            format!(
-                "header says {file_size} bytes but the file holds {actual_len} ({})",
-                if actual_len < file_size {
-                    "truncated"
-                } else {
-                    "trailing bytes"
-                }
-            ),
+            format!("header says {file_size} bytes but the file holds {actual_len} ({what})"),
         ));
     }
     let value_range = ValueRange {

@@ -13,6 +13,8 @@
 //!   [`pack_low_res_brick`](crate::bricks::pack_low_res_brick) +
 //!   [`quantize_to`](crate::bricks::quantize_to), and its ranges to
 //!   [`brick_value_ranges_for_storage`](crate::bricks::brick_value_ranges_for_storage).
+//! - [`write_store_from_slabs`] writes the same bytes from a volume *file* read slab by slab
+//!   ([`crate::volume::SlabReader`]) under a RAM budget, never holding the whole volume.
 //! - [`BrickStore`] opens and validates a store file, keeps the small tables (offsets, min/max) in
 //!   RAM and reads one brick level with one positioned read ([`BrickStore::read_brick`]).
 //! - [`BrickStreamer`] loads the bricks a renderer asks for on a background thread, in priority
@@ -25,11 +27,13 @@
 
 pub mod format;
 pub mod reader;
+pub mod slab_writer;
 pub mod streamer;
 pub mod writer;
 
 pub use format::{StoreHeader, FORMAT_VERSION, HEADER_SIZE, MAGIC};
 pub use reader::BrickStore;
+pub use slab_writer::{plan_slab_write, slab_store_desc, write_store_from_slabs, SlabPlan};
 pub use streamer::{BrickStreamer, StreamStats, StreamerConfig};
 pub use writer::{
     write_store, write_store_from_volume, write_store_from_volume_with_progress,
@@ -92,6 +96,20 @@ pub enum StoreError {
     AbsentLevel {
         /// The brick index given.
         brick: u32,
+    },
+    /// Reading the input volume failed (truncated or corrupt data, a non-finite value, an OS
+    /// error); the error names the file and the field.
+    #[error("reading the input volume: {0}")]
+    Input(#[from] crate::volume::VolumeError),
+    /// The RAM budget of a slab write cannot hold what the write needs.
+    #[error("RAM budget of {budget} bytes is too small: {needed} bytes needed for {message}")]
+    RamBudget {
+        /// Bytes the write needs at least.
+        needed: u64,
+        /// The budget given (0 when the allocator refused).
+        budget: u64,
+        /// What the bytes are for.
+        message: String,
     },
     /// The streamer's loader thread could not be started.
     #[error("cannot start the brick loader thread: {0}")]

@@ -146,7 +146,9 @@ impl BrickStore {
 
     /// Reads `brick` at `level`: `(n+2)^3` (Hi) or `(n/2+1)^3` (Lo) texels of the storage type, x
     /// fastest, native-endian (what [`crate::bricks::quantize_to`] returns), with one positioned
-    /// read.
+    /// read. A failed read (a file cut after opening) is a [`StoreError::Io`] whose message names
+    /// the brick, the level and the byte range. Brick bytes carry no checksum (format version 1):
+    /// a brick whose bytes were altered in place reads as those bytes.
     pub fn read_brick(&self, brick: u32, level: Level) -> Result<Vec<u8>, StoreError> {
         let mut out = vec![0u8; self.level_bytes(level)];
         self.read_brick_into(brick, level, &mut out)?;
@@ -181,7 +183,14 @@ impl BrickStore {
             .map_err(|source| StoreError::Io {
                 path: self.path.clone(),
                 action: "read brick",
-                source,
+                // The OS error, with the brick it happened on.
+                source: std::io::Error::new(
+                    source.kind(),
+                    format!(
+                        "brick {brick} level {level:?} (bytes {offset}..{}): {source}",
+                        offset + out.len() as u64
+                    ),
+                ),
             })?;
         le_to_native(out, self.header.scalar);
         Ok(())

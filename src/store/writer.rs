@@ -121,11 +121,14 @@ pub fn write_store_with_threads(
 
 /// Where the voxels come from.
 #[derive(Copy, Clone)]
-enum Voxels<'a> {
+pub(super) enum Voxels<'a> {
     /// A producer, evaluated on each chunk's window.
     Producer(&'a (dyn Fn(IVec3) -> f32 + Sync)),
     /// An in-memory volume of the store's dimensions and scalar type, read in place.
     Volume(&'a Volume),
+    /// A window of the volume (a slab of z planes), read in place; only chunks whose voxels it
+    /// holds are packed from it.
+    Window(VoxelWindow<'a>),
 }
 
 /// [`write_store_with_threads`] from `voxels`.
@@ -135,6 +138,38 @@ fn write_with(
     voxels: Voxels<'_>,
     threads: usize,
     progress: &mut dyn FnMut(u64, u64),
+) -> Result<WriteSummary, StoreError> {
+    let threads = threads.max(1);
+    assemble(path, desc, threads, &mut |target| {
+        write_bricks(target, voxels, threads, progress)
+    })
+}
+
+/// Where the bricks of a store being written go, for the brick-producing part of a writer.
+pub(super) struct Target<'a> {
+    /// The partial file, already of its final length.
+    pub file: &'a File,
+    /// The brick grid.
+    pub grid: &'a BrickGrid,
+    /// What is written.
+    pub desc: &'a StoreDesc,
+    /// The store's header (its value range is filled in later).
+    pub header: &'a StoreHeader,
+    /// The partial file's path, named in errors.
+    pub path: &'a Path,
+}
+
+/// What a brick producer returns: the per-brick value ranges and the volume's value range.
+pub(super) type Written = (Vec<ValueRange>, ValueRange);
+
+/// Checks `desc`, creates `<path>.partial` at its final length, lets `bricks` write every brick
+/// into it (returning the per-brick ranges and the volume's value range), then writes the tables
+/// and the header and renames the file to `path`. On any error the partial file is removed.
+pub(super) fn assemble(
+    path: &Path,
+    desc: StoreDesc,
+    threads: usize,
+    bricks: &mut dyn FnMut(&Target<'_>) -> Result<Written, StoreError>,
 ) -> Result<WriteSummary, StoreError> {
     let start = Instant::now();
     let grid = check_desc(&desc)?;
@@ -153,7 +188,6 @@ fn write_with(
             desc.brick_size
         ),
     })?;
-    let threads = threads.max(1);
     let partial = partial_path(path);
     let io = |action: &'static str| {
         let p = partial.clone();
@@ -172,9 +206,14 @@ fn write_with(
         .map_err(io("create"))?;
     let result = (|| {
         file.set_len(header.file_size).map_err(io("set length"))?;
-        let (ranges, value_range) = write_bricks(
-            &file, &grid, &desc, &header, voxels, threads, progress, &partial,
-        )?;
+        let target = Target {
+            file: &file,
+            grid: &grid,
+            desc: &desc,
+            header: &header,
+            path: &partial,
+        };
+        let (ranges, value_range) = bricks(&target)?;
         header.value_range = value_range;
         let offsets: Vec<[u64; 2]> = (0..header.brick_count)
             .map(|i| {
@@ -192,6 +231,7 @@ fn write_with(
             .map_err(io("write offsets"))?;
         file.write_all_at(&header_bytes, 0)
             .map_err(io("write header"))?;
+        file.sync_all().map_err(io("sync"))?;
         Ok(())
     })();
     drop(file);
@@ -200,10 +240,13 @@ fn write_with(
         let _ = std::fs::remove_file(&partial);
         return Err(e);
     }
-    std::fs::rename(&partial, path).map_err(|source| StoreError::Io {
-        path: path.to_path_buf(),
-        action: "rename the finished store into place",
-        source,
+    std::fs::rename(&partial, path).map_err(|source| {
+        let _ = std::fs::remove_file(&partial);
+        StoreError::Io {
+            path: path.to_path_buf(),
+            action: "rename the finished store into place",
+            source,
+        }
     })?;
     Ok(WriteSummary {
         path: path.to_path_buf(),
@@ -251,13 +294,14 @@ pub fn write_store_from_volume_with_progress(
 }
 
 /// `<path>.partial`, where the store is assembled before it is renamed into place.
-fn partial_path(path: &Path) -> PathBuf {
+pub fn partial_path(path: &Path) -> PathBuf {
     let mut name = path.file_name().unwrap_or_default().to_os_string();
     name.push(".partial");
     path.with_file_name(name)
 }
 
-fn check_desc(desc: &StoreDesc) -> Result<BrickGrid, StoreError> {
+/// Checks a description and returns its brick grid.
+pub(super) fn check_desc(desc: &StoreDesc) -> Result<BrickGrid, StoreError> {
     if desc.dims.min_element() == 0 {
         return Err(StoreError::InvalidDesc {
             field: "dims",
@@ -287,67 +331,98 @@ fn check_desc(desc: &StoreDesc) -> Result<BrickGrid, StoreError> {
 
 /// A run of bricks `bx0..bx1` along x at `(by, bz)`.
 #[derive(Copy, Clone, Debug)]
-struct Chunk {
-    bx0: u32,
-    bx1: u32,
-    by: u32,
-    bz: u32,
+pub(super) struct Chunk {
+    pub(super) bx0: u32,
+    pub(super) bx1: u32,
+    pub(super) by: u32,
+    pub(super) bz: u32,
 }
 
 /// A finished chunk: its first linear brick index and per-brick ranges, plus the raw (quantised)
 /// voxel min/max of its window.
-struct ChunkDone {
-    first: u32,
-    ranges: Vec<ValueRange>,
-    voxels: ValueRange,
+pub(super) struct ChunkDone {
+    pub(super) first: u32,
+    pub(super) ranges: Vec<ValueRange>,
+    pub(super) voxels: ValueRange,
 }
 
-/// Produces and writes every brick; returns the per-brick ranges and the volume's value range.
-#[allow(clippy::too_many_arguments)] // reason: private plumbing between two functions.
-fn write_bricks(
-    file: &File,
-    grid: &BrickGrid,
-    desc: &StoreDesc,
-    header: &StoreHeader,
-    voxels: Voxels<'_>,
-    threads: usize,
-    progress: &mut dyn FnMut(u64, u64),
-    path: &Path,
-) -> Result<(Vec<ValueRange>, ValueRange), StoreError> {
+/// The chunks of brick layer `bz` (every `by`, runs along x as long as [`CHUNK_WINDOW_BYTES`]
+/// allows), in linear brick order.
+pub(super) fn layer_chunks(grid: &BrickGrid, bz: u32) -> Vec<Chunk> {
     let n = grid.brick_size();
     let b = grid.bricks_per_axis();
     let per_brick_window = n as usize * (n as usize + 8).pow(2) * 4;
     let run = ((CHUNK_WINDOW_BYTES / per_brick_window).max(1) as u32).min(b.x);
     let mut chunks = Vec::new();
-    for bz in 0..b.z {
-        for by in 0..b.y {
-            let mut bx0 = 0;
-            while bx0 < b.x {
-                let bx1 = (bx0 + run).min(b.x);
-                chunks.push(Chunk { bx0, bx1, by, bz });
-                bx0 = bx1;
-            }
+    for by in 0..b.y {
+        let mut bx0 = 0;
+        while bx0 < b.x {
+            let bx1 = (bx0 + run).min(b.x);
+            chunks.push(Chunk { bx0, bx1, by, bz });
+            bx0 = bx1;
         }
     }
-    let total = header.brick_count as u64;
-    let mut ranges = vec![ValueRange::EMPTY; header.brick_count as usize];
+    chunks
+}
+
+/// Produces and writes every brick; returns the per-brick ranges and the volume's value range.
+fn write_bricks(
+    target: &Target<'_>,
+    voxels: Voxels<'_>,
+    threads: usize,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<(Vec<ValueRange>, ValueRange), StoreError> {
+    let chunks: Vec<Chunk> = (0..target.grid.bricks_per_axis().z)
+        .flat_map(|bz| layer_chunks(target.grid, bz))
+        .collect();
+    let total = target.header.brick_count as u64;
+    let mut ranges = vec![ValueRange::EMPTY; target.header.brick_count as usize];
     let mut value_range = ValueRange::EMPTY;
+    let mut done = 0u64;
+    progress(0, total);
+    let mut workers: Vec<Worker> = (0..threads.max(1).min(chunks.len()))
+        .map(|_| Worker::new(target.grid, target.desc))
+        .collect();
+    pack_chunks(target, voxels, &chunks, &mut workers, &mut |chunk| {
+        let first = chunk.first as usize;
+        ranges[first..first + chunk.ranges.len()].copy_from_slice(&chunk.ranges);
+        value_range.include(chunk.voxels.min);
+        value_range.include(chunk.voxels.max);
+        done += chunk.ranges.len() as u64;
+        progress(done, total);
+    })?;
+    if let Voxels::Volume(volume) = voxels {
+        let (min, max) = volume.value_range();
+        value_range = ValueRange { min, max };
+    }
+    Ok((ranges, value_range))
+}
+
+/// Packs and writes `chunks` on one thread per worker of `workers` (whose buffers are reused from
+/// call to call); `done` is called on the calling thread for every finished chunk. The first
+/// error stops the workers and is returned.
+pub(super) fn pack_chunks(
+    target: &Target<'_>,
+    voxels: Voxels<'_>,
+    chunks: &[Chunk],
+    workers: &mut [Worker],
+    done: &mut dyn FnMut(ChunkDone),
+) -> Result<(), StoreError> {
+    let (grid, header, file, path) = (target.grid, target.header, target.file, target.path);
     let next = AtomicUsize::new(0);
     let abort = AtomicBool::new(false);
     let mut first_error = None;
-    progress(0, total);
     std::thread::scope(|scope| {
         let (tx, rx) = mpsc::channel::<Result<ChunkDone, StoreError>>();
-        for _ in 0..threads.min(chunks.len()) {
+        for worker in workers.iter_mut().take(chunks.len()) {
             let tx = tx.clone();
-            let (chunks, next, abort) = (&chunks, &next, &abort);
+            let (next, abort) = (&next, &abort);
             scope.spawn(move || {
-                let mut worker = Worker::new(grid, desc);
                 while !abort.load(Ordering::Relaxed) {
                     let Some(chunk) = chunks.get(next.fetch_add(1, Ordering::Relaxed)) else {
                         break;
                     };
-                    let done = worker.build(chunk, voxels).and_then(|()| {
+                    let result = worker.build(chunk, voxels).and_then(|()| {
                         let first =
                             grid.linear_index(UVec3::new(chunk.bx0, chunk.by, chunk.bz)) as u32;
                         let offset = canonical_brick_offset(header, first);
@@ -364,24 +439,16 @@ fn write_bricks(
                             voxels: worker.voxels,
                         })
                     });
-                    if tx.send(done).is_err() {
+                    if tx.send(result).is_err() {
                         break;
                     }
                 }
             });
         }
         drop(tx);
-        let mut done = 0u64;
         for message in rx {
             match message {
-                Ok(chunk) => {
-                    let first = chunk.first as usize;
-                    ranges[first..first + chunk.ranges.len()].copy_from_slice(&chunk.ranges);
-                    value_range.include(chunk.voxels.min);
-                    value_range.include(chunk.voxels.max);
-                    done += chunk.ranges.len() as u64;
-                    progress(done, total);
-                }
+                Ok(chunk) => done(chunk),
                 Err(e) => {
                     abort.store(true, Ordering::Relaxed);
                     first_error.get_or_insert(e);
@@ -389,18 +456,14 @@ fn write_bricks(
             }
         }
     });
-    if let Some(e) = first_error {
-        return Err(e);
+    match first_error {
+        Some(e) => Err(e),
+        None => Ok(()),
     }
-    if let Voxels::Volume(volume) = voxels {
-        let (min, max) = volume.value_range();
-        value_range = ValueRange { min, max };
-    }
-    Ok((ranges, value_range))
 }
 
 /// One worker's kernel and reusable buffers.
-struct Worker {
+pub(super) struct Worker {
     kernel: BrickKernel,
     /// The chunk's window of quantised voxels (producer only).
     window: VoxelData,
@@ -415,7 +478,8 @@ struct Worker {
 }
 
 impl Worker {
-    fn new(grid: &BrickGrid, desc: &StoreDesc) -> Self {
+    /// A worker for `desc`'s bricks of `grid`.
+    pub(super) fn new(grid: &BrickGrid, desc: &StoreDesc) -> Self {
         let empty = || match desc.scalar {
             ScalarType::U8 => VoxelData::U8(Vec::new()),
             ScalarType::U16 => VoxelData::U16(Vec::new()),
@@ -454,6 +518,7 @@ impl Worker {
                 VoxelWindow::new(&self.window, origin, extent).map_err(internal)?
             }
             Voxels::Volume(volume) => VoxelWindow::of_volume(volume),
+            Voxels::Window(window) => window,
         };
         let out = PackOutputs {
             hi: Some(TexelsMut::of(&mut self.hi)),

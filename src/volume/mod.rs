@@ -8,6 +8,7 @@ pub mod formats;
 mod loader;
 pub mod memory;
 mod rgba;
+pub mod slabs;
 mod synthetic;
 
 pub use formats::{
@@ -16,6 +17,7 @@ pub use formats::{
 };
 pub use loader::{load_raw, save_raw, RawDescriptor};
 pub use rgba::RgbaVolume;
+pub use slabs::{open_raw_slabs, open_slabs, SlabMut, SlabReader};
 pub use synthetic::{
     marschner_lobb, marschner_lobb_value, sphere, wall, SyntheticField,
     DEFAULT_SPHERE_RADIUS_FRACTION,
@@ -212,6 +214,15 @@ pub enum VolumeError {
     /// A synthetic field parameter is out of range.
     #[error("invalid synthetic field parameter: {0}")]
     InvalidParameter(String),
+    /// A slab was asked for that the reader cannot give: outside the volume, of the wrong size or
+    /// scalar type, or backwards on a forward-only (gzip) reader.
+    #[error("{path}: slab request: {message}")]
+    SlabRequest {
+        /// The file being read.
+        path: PathBuf,
+        /// What is wrong with the request.
+        message: String,
+    },
     /// A volume file's header (or the data it describes) is invalid or unsupported.
     #[error("{path}: field `{field}`: {message}")]
     Format {

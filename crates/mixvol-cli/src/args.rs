@@ -434,3 +434,53 @@ impl MixedArgs {
         })
     }
 }
+
+/// `mixvol convert`: a volume into a brick store, read in slabs under a RAM budget.
+#[derive(Args, Debug)]
+pub struct ConvertArgs {
+    /// The volume to convert: a file with a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON
+    /// sidecar or .raw with one), an OME-Zarr folder, a headerless raw file (described by
+    /// --dims, --scalar, --spacing, --header-bytes, --big-endian), or a synthetic field (ml,
+    /// sphere, wall; generated whole at --dims, --scalar).
+    pub input: String,
+    /// The brick store file to write (refused if it exists, unless --force).
+    pub store: PathBuf,
+    /// Brick edge in voxels (a power of two).
+    #[arg(long, default_value_t = 32)]
+    pub brick_size: u32,
+    /// Filter building the low-res bricks: mean2, lamar, box4, bspline4.
+    #[arg(long, default_value = "mean2", value_parser = parse_filter)]
+    pub filter: mixvol::bricks::DownsampleFilter,
+    /// Dimensions x,y,z of a headerless raw file or a synthetic field (default 128,128,128).
+    #[arg(long, value_parser = parse_uvec3)]
+    pub dims: Option<UVec3>,
+    /// Scalar type of a headerless raw file or a synthetic field: u8 (default), u16 or f32.
+    #[arg(long, value_parser = parse_scalar)]
+    pub scalar: Option<ScalarType>,
+    /// Voxel spacing x,y,z of a headerless raw file.
+    #[arg(long, default_value = "1,1,1", value_parser = parse_vec3)]
+    pub spacing: Vec3,
+    /// Bytes to skip at the start of a headerless raw file.
+    #[arg(long, default_value_t = 0)]
+    pub header_bytes: u64,
+    /// The headerless raw file's multi-byte values are big-endian.
+    #[arg(long)]
+    pub big_endian: bool,
+    /// RAM budget in MiB for the voxels being bricked (slab, read buffers, worker buffers).
+    #[arg(long, default_value_t = 512)]
+    pub ram_budget_mb: u64,
+    /// Level of an OME-Zarr image to convert (index into its multiscales datasets; 0 = finest).
+    #[arg(long)]
+    pub level: Option<usize>,
+    /// Replace an existing STORE (atomically, once the new store is complete).
+    #[arg(long)]
+    pub force: bool,
+    /// Also write the summary (sizes, MB/s, peak RSS) as JSON to this path.
+    #[arg(long)]
+    pub stats_json: Option<PathBuf>,
+}
+
+fn parse_filter(s: &str) -> std::result::Result<mixvol::bricks::DownsampleFilter, String> {
+    mixvol::bricks::DownsampleFilter::parse(s)
+        .ok_or_else(|| format!("unknown filter '{s}' (mean2, lamar, box4, bspline4)"))
+}

@@ -6,6 +6,7 @@ mod args;
 mod bench;
 mod camera_path;
 mod compare;
+mod convert;
 mod files;
 mod frame_log;
 mod input;
@@ -17,7 +18,7 @@ mod render;
 mod reports;
 mod stats;
 
-use args::{BenchArgs, JunctionArgs, KrausArgs, RenderArgs, ReportArgs};
+use args::{BenchArgs, ConvertArgs, JunctionArgs, KrausArgs, RenderArgs, ReportArgs};
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
@@ -47,6 +48,9 @@ enum Command {
     /// Kraus & Bürger's sampling experiments on the CPU: opacity- vs extinction-based deviation
     /// from the exact integral (docs/report/kraus.md, .csv and a PNG chart).
     Kraus(KrausArgs),
+    /// Convert a volume (any supported file, an OME-Zarr level, raw data) into a brick store,
+    /// reading it in slabs under a RAM budget, with a progress bar and a summary.
+    Convert(ConvertArgs),
 }
 
 fn main() -> ExitCode {
@@ -57,6 +61,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => bench::bench(args),
         Command::Report(args) => reports::accuracy(args),
         Command::Kraus(args) => reports::kraus(args),
+        Command::Convert(args) => convert::convert(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,9 +3,9 @@
 //! triples, `map_warps`) and a 32-bit `map_length`, in the writer's byte order (detected from
 //! `map_version`, which is 1), followed by `map_len[0] * map_len[1] * map_len[2]` unsigned bytes,
 //! x fastest. The format stores no voxel spacing: volumes load with spacing 1.
-use super::read::{self, format_err, layout, Payload};
+use super::read::{self, format_err, layout, Described, Payload};
 use super::{FileFormat, LoadedVolume, StoredType, VolumeMeta};
-use crate::volume::{Volume, VolumeError};
+use crate::volume::VolumeError;
 use glam::Vec3;
 use std::path::Path;
 
@@ -106,21 +106,27 @@ pub fn parse_den_header(path: &Path, bytes: &[u8]) -> Result<DenHeader, VolumeEr
 /// Loads a `.den` file as a u8 volume with spacing 1. The file must hold exactly the header and
 /// `map_length` bytes.
 pub fn load_den(path: &Path) -> Result<LoadedVolume, VolumeError> {
+    describe_den(path)?.load()
+}
+
+/// Parses and checks a `.den` header (see [`load_den`]), reading no voxel.
+pub(super) fn describe_den(path: &Path) -> Result<Described, VolumeError> {
     let (bytes, _) = read::read_prefix(path, DEN_HEADER_BYTES as u64)?;
     let h = parse_den_header(path, &bytes)?;
     let layout = layout(path, "map_len", h.dims, StoredType::U8)?;
     let payload = Payload {
-        header_path: path,
+        header_path: path.to_path_buf(),
         size_field: "map_length",
-        data_path: path,
+        data_path: path.to_path_buf(),
         offset: DEN_HEADER_BYTES as u64,
         gzip: false,
         decoded_skip: 0,
         big_endian: h.big_endian,
     };
-    let data = read::read_payload(&payload, &layout)?;
-    Ok(LoadedVolume {
-        volume: Volume::new(layout.dims, Vec3::ONE, data)?,
+    Ok(Described {
+        payload,
+        layout,
+        spacing: Vec3::ONE,
         meta: VolumeMeta::plain(FileFormat::Den, StoredType::U8, h.big_endian),
     })
 }

@@ -56,6 +56,7 @@ mod nii;
 mod nrrd;
 mod read;
 mod sidecar;
+pub(crate) mod slab_readers;
 pub mod zarr;
 
 pub use den::{load_den, parse_den_header, DenHeader, DEN_HEADER_BYTES};
@@ -328,43 +329,20 @@ pub fn load_volume_with_meta(path: &Path) -> Result<LoadedVolume, VolumeError> {
         Some(FileFormat::Den) => load_den(path),
         Some(FileFormat::Zarr) => load_zarr(path),
         Some(FileFormat::Sidecar) if lower.ends_with(".json") => load_sidecar(path),
-        Some(FileFormat::Sidecar) => {
-            let candidates = raw_sidecar_candidates(path);
-            let Some(json) = candidates.iter().find(|p| p.is_file()) else {
-                return Err(format_err(
-                    path,
-                    "extension",
-                    format!(
-                        "a .raw file needs a JSON sidecar ({} or {}) giving dims, type, \
-                         endianness and spacing",
-                        candidates[0].display(),
-                        candidates[1].display()
-                    ),
-                ));
-            };
-            let sidecar = sidecar::read_sidecar(json)?;
-            let described = sidecar.data_path(json);
-            if !same_file(&described, path) {
-                return Err(format_err(
-                    json,
-                    "data",
-                    format!(
-                        "sidecar describes {}, not {}",
-                        described.display(),
-                        path.display()
-                    ),
-                ));
-            }
-            sidecar::load_parsed(json, &sidecar)
-        }
+        Some(FileFormat::Sidecar) => slab_readers::describe_raw_with_sidecar(path)?.load(),
         None if is_zarr_folder(path) => load_zarr(path),
-        None => Err(format_err(
-            path,
-            "extension",
-            "unknown volume file type; expected .nii, .nii.gz, .nrrd, .nhdr, .json, \
-             .raw (with a .json sidecar), .den or a .zarr folder",
-        )),
+        None => Err(unknown_extension(path)),
     }
+}
+
+/// The error for a file whose name names no known format.
+fn unknown_extension(path: &Path) -> VolumeError {
+    format_err(
+        path,
+        "extension",
+        "unknown volume file type; expected .nii, .nii.gz, .nrrd, .nhdr, .json, \
+         .raw (with a .json sidecar), .den or a .zarr folder",
+    )
 }
 
 /// `NAME.raw.json` and `NAME.json` for `NAME.raw`.

@@ -1,8 +1,8 @@
 //! NIfTI-1 single files (`.nii`, `.nii.gz`): the header is parsed by the `nifti` crate, then
 //! validated here; the voxels are read by the shared, size-checked reader.
-use super::read::{self, format_err, layout, Payload};
+use super::read::{self, format_err, layout, Described, Payload};
 use super::{FileFormat, LoadedVolume, StoredType, VolumeMeta, IDENTITY, MAX_VOLUME_BYTES};
-use crate::volume::{Volume, VolumeError};
+use crate::volume::VolumeError;
 use flate2::bufread::MultiGzDecoder;
 use glam::Vec3;
 use std::io::{BufReader, Read};
@@ -298,6 +298,11 @@ pub(super) fn normalize_columns(columns: [[f64; 3]; 3]) -> Option<[[f64; 3]; 3]>
 /// `vox_offset` + the voxel bytes, gzip streams must decode to exactly that. `scl_slope` /
 /// `scl_inter` are reported in the metadata, not applied.
 pub fn load_nifti(path: &Path) -> Result<LoadedVolume, VolumeError> {
+    describe_nifti(path)?.load()
+}
+
+/// Parses and checks a NIfTI-1 file's header (see [`load_nifti`]), reading no voxel.
+pub(super) fn describe_nifti(path: &Path) -> Result<Described, VolumeError> {
     let gzip = read::is_gzip(path)?;
     let header = if gzip {
         let (file, _) = read::open_regular(path)?;
@@ -319,15 +324,14 @@ pub fn load_nifti(path: &Path) -> Result<LoadedVolume, VolumeError> {
     let info = parse_nifti_header(path, &header)?;
     let layout = layout(path, "dim", info.dims, info.stored)?;
     let payload = Payload {
-        header_path: path,
+        header_path: path.to_path_buf(),
         size_field: "dim",
-        data_path: path,
+        data_path: path.to_path_buf(),
         offset: if gzip { 0 } else { info.vox_offset },
         gzip,
         decoded_skip: if gzip { info.vox_offset } else { 0 },
         big_endian: info.big_endian,
     };
-    let data = read::read_payload(&payload, &layout)?;
     let spacing = Vec3::from_array(info.spacing.map(|s| s as f32));
     if !(spacing.is_finite() && spacing.min_element() > 0.0) {
         return Err(format_err(
@@ -336,8 +340,10 @@ pub fn load_nifti(path: &Path) -> Result<LoadedVolume, VolumeError> {
             format!("pixdim {:?} does not fit in f32", info.spacing),
         ));
     }
-    Ok(LoadedVolume {
-        volume: Volume::new(layout.dims, spacing, data)?,
+    Ok(Described {
+        payload,
+        layout,
+        spacing,
         meta: info.meta,
     })
 }

@@ -1,8 +1,8 @@
 //! NRRD (`NRRD0001` to `NRRD0005`): attached `.nrrd` files and detached `.nhdr` headers, raw or
 //! gzip encoding, three axes.
-use super::read::{self, format_err, layout, Payload};
+use super::read::{self, format_err, layout, Described, Payload};
 use super::{Encoding, FileFormat, LoadedVolume, StoredType, VolumeMeta, MAX_HEADER_BYTES};
-use crate::volume::{Volume, VolumeError};
+use crate::volume::VolumeError;
 use glam::Vec3;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -444,6 +444,11 @@ fn clip(s: &str) -> String {
 /// file). Raw data must fill the rest of its file exactly; gzip data must decode to exactly the
 /// described size. The header is read from the first [`MAX_HEADER_BYTES`] bytes.
 pub fn load_nrrd(path: &Path) -> Result<LoadedVolume, VolumeError> {
+    describe_nrrd(path)?.load()
+}
+
+/// Parses and checks a NRRD header and locates its data (see [`load_nrrd`]), reading no voxel.
+pub(super) fn describe_nrrd(path: &Path) -> Result<Described, VolumeError> {
     let (bytes, len) = read::read_prefix(path, MAX_HEADER_BYTES)?;
     let h = parse_nrrd_header(path, &bytes).map_err(|e| match e {
         VolumeError::Format { ref field, .. } if field == "data file" && len > MAX_HEADER_BYTES => {
@@ -495,15 +500,14 @@ pub fn load_nrrd(path: &Path) -> Result<LoadedVolume, VolumeError> {
             .ok_or_else(|| format_err(path, "byte skip", "offset overflows"))?
     };
     let payload = Payload {
-        header_path: path,
+        header_path: path.to_path_buf(),
         size_field: "sizes",
-        data_path: &data_path,
+        data_path,
         offset,
         gzip,
         decoded_skip: if gzip { h.byte_skip.max(0) as u64 } else { 0 },
         big_endian: h.big_endian,
     };
-    let data = read::read_payload(&payload, &layout)?;
     let spacing = Vec3::from_array(h.spacing.map(|s| s as f32));
     if !(spacing.is_finite() && spacing.min_element() > 0.0) {
         let field = if h.directions.is_some() {
@@ -524,8 +528,10 @@ pub fn load_nrrd(path: &Path) -> Result<LoadedVolume, VolumeError> {
     if let Some(o) = h.origin {
         meta.origin = o;
     }
-    Ok(LoadedVolume {
-        volume: Volume::new(layout.dims, spacing, data)?,
+    Ok(Described {
+        payload,
+        layout,
+        spacing,
         meta,
     })
 }

@@ -1,12 +1,12 @@
 //! Shared reading machinery for the file formats: size checks, file opening, voxel decoding and
 //! bounded (bomb-safe) gzip reading.
-use super::{StoredType, MAX_VOLUME_BYTES};
-use crate::volume::{checked_voxel_count, VolumeError, VoxelData};
+use super::{LoadedVolume, StoredType, VolumeMeta, MAX_VOLUME_BYTES};
+use crate::volume::{checked_voxel_count, Volume, VolumeError, VoxelData};
 use flate2::bufread::MultiGzDecoder;
-use glam::UVec3;
+use glam::{UVec3, Vec3};
 use std::fs::File;
 use std::io::{self, BufRead, BufReader, ErrorKind, Read, Seek, SeekFrom};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Elements reserved up front when the final size is not yet backed by data (gzip streams): the
 /// buffer then grows geometrically with the data actually decoded, never past the header's size.
@@ -259,13 +259,14 @@ pub(super) fn read_voxels(
 }
 
 /// Where and how a volume's voxel values are stored.
-pub(super) struct Payload<'a> {
+#[derive(Clone, Debug)]
+pub(super) struct Payload {
     /// The header file, named in format errors.
-    pub header_path: &'a Path,
+    pub header_path: PathBuf,
     /// The header field blamed when the data is too short or too long.
-    pub size_field: &'a str,
+    pub size_field: &'static str,
     /// The file holding the data.
-    pub data_path: &'a Path,
+    pub data_path: PathBuf,
     /// Byte offset of the (possibly compressed) data in `data_path`.
     pub offset: u64,
     /// True for a gzip stream starting at `offset`.
@@ -276,14 +277,38 @@ pub(super) struct Payload<'a> {
     pub big_endian: bool,
 }
 
-/// Reads the voxels described by `payload` and `layout`. Raw data must fill the file exactly
-/// from `offset`; a gzip stream must decode to exactly `decoded_skip + layout.bytes` bytes (it is
-/// read through a `take` limit, so a stream that decodes to more stops there).
-pub(super) fn read_payload(payload: &Payload, layout: &Layout) -> Result<VoxelData, VolumeError> {
-    let header = payload.header_path;
-    let data_path = payload.data_path;
-    let (mut file, len) = open_regular(data_path)?;
-    let describe = || {
+/// A volume file's header, parsed and checked, before any voxel is read: where the voxels are,
+/// their layout, the spacing and the metadata. Loading it ([`Described::load`]) and reading it
+/// slab by slab ([`super::slabs::PayloadSlabs`]) see the same voxels.
+#[derive(Clone, Debug)]
+pub(super) struct Described {
+    /// Where the voxels are.
+    pub payload: Payload,
+    /// Their layout.
+    pub layout: Layout,
+    /// The voxel spacing (checked: positive and finite in f32).
+    pub spacing: Vec3,
+    /// What the header says besides.
+    pub meta: VolumeMeta,
+}
+
+impl Described {
+    /// Reads every voxel into a volume.
+    pub fn load(self) -> Result<LoadedVolume, VolumeError> {
+        let data = read_payload(&self.payload, &self.layout)?;
+        Ok(LoadedVolume {
+            volume: Volume::new(self.layout.dims, self.spacing, data)?,
+            meta: self.meta,
+        })
+    }
+}
+
+/// A gzip stream positioned at the first voxel byte, limited to one byte past the voxels.
+pub(super) type GzStream = io::Take<MultiGzDecoder<BufReader<File>>>;
+
+impl Payload {
+    /// `WxHxD type voxels need N bytes`, for error messages.
+    pub fn describe(&self, layout: &Layout) -> String {
         format!(
             "{}x{}x{} {} voxels need {} bytes",
             layout.dims.x,
@@ -292,113 +317,172 @@ pub(super) fn read_payload(payload: &Payload, layout: &Layout) -> Result<VoxelDa
             layout.stored.name(),
             layout.bytes
         )
-    };
-    let data_name = data_path.display();
-    if !payload.gzip {
-        let need = payload.offset.checked_add(layout.bytes).ok_or_else(|| {
-            format_err(header, payload.size_field, "data offset + size overflows")
+    }
+
+    /// Checks that raw data fills the data file (of `len` bytes) exactly from `offset`.
+    pub fn check_raw_len(&self, layout: &Layout, len: u64) -> Result<(), VolumeError> {
+        let need = self.offset.checked_add(layout.bytes).ok_or_else(|| {
+            format_err(
+                &self.header_path,
+                self.size_field,
+                "data offset + size overflows",
+            )
         })?;
         if len != need {
             let what = if len < need { "short" } else { "long" };
             return Err(format_err(
-                header,
-                payload.size_field,
+                &self.header_path,
+                self.size_field,
                 format!(
-                    "{data_name} is too {what}: it holds {len} bytes but {} + header/offset {} = {need}",
-                    describe(),
-                    payload.offset
+                    "{} is too {what}: it holds {len} bytes but {} + header/offset {} = {need}",
+                    self.data_path.display(),
+                    self.describe(layout),
+                    self.offset
                 ),
             ));
         }
-        file.seek(SeekFrom::Start(payload.offset))
-            .map_err(io_err(data_path))?;
-        let mut reader = BufReader::new(file);
-        return read_voxels(&mut reader, layout, payload.big_endian, true).map_err(|e| match e {
-            ReadFail::Short { got } => format_err(
-                header,
-                payload.size_field,
-                format!("{data_name} ended after {got} data bytes; {}", describe()),
-            ),
-            ReadFail::Io(e) => io_err(data_path)(e),
-        });
+        Ok(())
     }
 
-    if payload.offset > len {
-        return Err(format_err(
-            header,
-            payload.size_field,
+    /// The error for raw data that ended after `got` data bytes.
+    pub fn raw_short(&self, layout: &Layout, got: u64) -> VolumeError {
+        format_err(
+            &self.header_path,
+            self.size_field,
             format!(
-                "data offset {} is past the end of {data_name} ({len} bytes)",
-                payload.offset
+                "{} ended after {got} data bytes; {}",
+                self.data_path.display(),
+                self.describe(layout)
             ),
-        ));
+        )
     }
-    file.seek(SeekFrom::Start(payload.offset))
-        .map_err(io_err(data_path))?;
-    let limit = payload
-        .decoded_skip
-        .checked_add(layout.bytes)
-        .and_then(|n| n.checked_add(1))
-        .ok_or_else(|| format_err(header, payload.size_field, "data skip + size overflows"))?;
-    let mut stream = MultiGzDecoder::new(BufReader::new(file)).take(limit);
-    let gzip_err = |e: io::Error| match e.kind() {
-        ErrorKind::UnexpectedEof => format_err(
-            header,
-            payload.size_field,
-            format!("gzip data in {data_name} is truncated: {e}"),
-        ),
-        ErrorKind::InvalidInput | ErrorKind::InvalidData => format_err(
-            header,
-            "encoding",
-            format!("corrupt gzip data in {data_name}: {e}"),
-        ),
-        _ => io_err(data_path)(e),
-    };
-    let skipped = io::copy(
-        &mut (&mut stream).take(payload.decoded_skip),
-        &mut io::sink(),
-    )
-    .map_err(gzip_err)?;
-    if skipped < payload.decoded_skip {
-        return Err(format_err(
-            header,
-            payload.size_field,
+
+    /// Maps an error of the gzip stream to a format error (truncated, corrupt) or an IO error.
+    pub fn gzip_err(&self, e: io::Error) -> VolumeError {
+        let data_name = self.data_path.display();
+        match e.kind() {
+            ErrorKind::UnexpectedEof => format_err(
+                &self.header_path,
+                self.size_field,
+                format!("gzip data in {data_name} is truncated: {e}"),
+            ),
+            ErrorKind::InvalidInput | ErrorKind::InvalidData => format_err(
+                &self.header_path,
+                "encoding",
+                format!("corrupt gzip data in {data_name}: {e}"),
+            ),
+            _ => io_err(&self.data_path)(e),
+        }
+    }
+
+    /// The error for a gzip stream that ended after `got` data bytes.
+    pub fn gzip_short(&self, layout: &Layout, got: u64) -> VolumeError {
+        format_err(
+            &self.header_path,
+            self.size_field,
             format!(
-                "gzip data in {data_name} ends after {skipped} bytes, before the {} bytes to skip",
-                payload.decoded_skip
+                "gzip data in {} ends after {got} data bytes; {}",
+                self.data_path.display(),
+                self.describe(layout)
             ),
-        ));
+        )
     }
+
+    /// Opens the gzip stream of a gzip payload, skips `decoded_skip` bytes and returns it at the
+    /// first voxel byte, limited to one byte past the voxels.
+    pub fn open_gzip(&self, layout: &Layout) -> Result<GzStream, VolumeError> {
+        let (mut file, len) = open_regular(&self.data_path)?;
+        let data_name = self.data_path.display();
+        if self.offset > len {
+            return Err(format_err(
+                &self.header_path,
+                self.size_field,
+                format!(
+                    "data offset {} is past the end of {data_name} ({len} bytes)",
+                    self.offset
+                ),
+            ));
+        }
+        file.seek(SeekFrom::Start(self.offset))
+            .map_err(io_err(&self.data_path))?;
+        let limit = self
+            .decoded_skip
+            .checked_add(layout.bytes)
+            .and_then(|n| n.checked_add(1))
+            .ok_or_else(|| {
+                format_err(
+                    &self.header_path,
+                    self.size_field,
+                    "data skip + size overflows",
+                )
+            })?;
+        let mut stream = MultiGzDecoder::new(BufReader::new(file)).take(limit);
+        let skipped = io::copy(&mut (&mut stream).take(self.decoded_skip), &mut io::sink())
+            .map_err(|e| self.gzip_err(e))?;
+        if skipped < self.decoded_skip {
+            return Err(format_err(
+                &self.header_path,
+                self.size_field,
+                format!(
+                    "gzip data in {data_name} ends after {skipped} bytes, before the {} bytes to skip",
+                    self.decoded_skip
+                ),
+            ));
+        }
+        Ok(stream)
+    }
+
+    /// Checks that the gzip stream holds nothing after the voxels.
+    pub fn check_gzip_end(
+        &self,
+        layout: &Layout,
+        stream: &mut GzStream,
+    ) -> Result<(), VolumeError> {
+        let mut extra = [0u8; 1];
+        let n = loop {
+            match stream.read(&mut extra) {
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                other => break other.map_err(|e| self.gzip_err(e))?,
+            }
+        };
+        if n != 0 {
+            return Err(format_err(
+                &self.header_path,
+                self.size_field,
+                format!(
+                    "gzip data in {} holds more than the {} bytes described; {}",
+                    self.data_path.display(),
+                    layout.bytes,
+                    self.describe(layout)
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Reads the voxels described by `payload` and `layout`. Raw data must fill the file exactly
+/// from `offset`; a gzip stream must decode to exactly `decoded_skip + layout.bytes` bytes (it is
+/// read through a `take` limit, so a stream that decodes to more stops there).
+pub(super) fn read_payload(payload: &Payload, layout: &Layout) -> Result<VoxelData, VolumeError> {
+    if !payload.gzip {
+        let (mut file, len) = open_regular(&payload.data_path)?;
+        payload.check_raw_len(layout, len)?;
+        file.seek(SeekFrom::Start(payload.offset))
+            .map_err(io_err(&payload.data_path))?;
+        let mut reader = BufReader::new(file);
+        return read_voxels(&mut reader, layout, payload.big_endian, true).map_err(|e| match e {
+            ReadFail::Short { got } => payload.raw_short(layout, got),
+            ReadFail::Io(e) => io_err(&payload.data_path)(e),
+        });
+    }
+    let mut stream = payload.open_gzip(layout)?;
     let data =
         read_voxels(&mut stream, layout, payload.big_endian, false).map_err(|e| match e {
-            ReadFail::Short { got } => format_err(
-                header,
-                payload.size_field,
-                format!(
-                    "gzip data in {data_name} ends after {got} data bytes; {}",
-                    describe()
-                ),
-            ),
-            ReadFail::Io(e) => gzip_err(e),
+            ReadFail::Short { got } => payload.gzip_short(layout, got),
+            ReadFail::Io(e) => payload.gzip_err(e),
         })?;
-    let mut extra = [0u8; 1];
-    let n = loop {
-        match stream.read(&mut extra) {
-            Err(e) if e.kind() == ErrorKind::Interrupted => {}
-            other => break other.map_err(gzip_err)?,
-        }
-    };
-    if n != 0 {
-        return Err(format_err(
-            header,
-            payload.size_field,
-            format!(
-                "gzip data in {data_name} holds more than the {} bytes described; {}",
-                layout.bytes,
-                describe()
-            ),
-        ));
-    }
+    payload.check_gzip_end(layout, &mut stream)?;
     Ok(data)
 }
 

@@ -19,9 +19,9 @@
 //! start of the data file) to 0; `encoding` (`raw` / `gzip`; `header_bytes` then counts decoded
 //! bytes) to `raw`. `type` is one of `u8 i8 u16 i16 u32 i32 f32 f64` (or `uint8`, `int16`,
 //! `float32`, `float64`, ...). Unknown keys are errors, so a misspelt key is not silently ignored.
-use super::read::{self, format_err, layout, Payload};
+use super::read::{self, format_err, layout, Described, Payload};
 use super::{Encoding, FileFormat, LoadedVolume, StoredType, VolumeMeta, MAX_HEADER_BYTES};
-use crate::volume::{Volume, VolumeError};
+use crate::volume::VolumeError;
 use glam::Vec3;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -213,19 +213,23 @@ pub(super) fn read_sidecar(json: &Path) -> Result<Sidecar, VolumeError> {
 
 /// Loads the data described by an already parsed sidecar at `json`.
 pub(super) fn load_parsed(json: &Path, sidecar: &Sidecar) -> Result<LoadedVolume, VolumeError> {
+    describe_parsed(json, sidecar)?.load()
+}
+
+/// Where and how the data of an already parsed sidecar at `json` is stored (no voxel is read).
+pub(super) fn describe_parsed(json: &Path, sidecar: &Sidecar) -> Result<Described, VolumeError> {
     let layout = layout(json, "dims", sidecar.dims, sidecar.stored)?;
     let data_path = sidecar.data_path(json);
     let gzip = sidecar.encoding == Encoding::Gzip;
     let payload = Payload {
-        header_path: json,
+        header_path: json.to_path_buf(),
         size_field: "dims",
-        data_path: &data_path,
+        data_path,
         offset: if gzip { 0 } else { sidecar.header_bytes },
         gzip,
         decoded_skip: if gzip { sidecar.header_bytes } else { 0 },
         big_endian: sidecar.big_endian,
     };
-    let data = read::read_payload(&payload, &layout)?;
     let spacing = Vec3::from_array(sidecar.spacing.map(|s| s as f32));
     if !spacing.is_finite() {
         return Err(format_err(
@@ -234,8 +238,10 @@ pub(super) fn load_parsed(json: &Path, sidecar: &Sidecar) -> Result<LoadedVolume
             format!("spacing {:?} does not fit in f32", sidecar.spacing),
         ));
     }
-    Ok(LoadedVolume {
-        volume: Volume::new(layout.dims, spacing, data)?,
+    Ok(Described {
+        payload,
+        layout,
+        spacing,
         meta: VolumeMeta::plain(FileFormat::Sidecar, sidecar.stored, sidecar.big_endian),
     })
 }

@@ -2,6 +2,7 @@
 //! that assembles the voxels under the size limits.
 
 use super::*;
+use std::ops::Range;
 
 /// Reads a metadata document of at most [`MAX_HEADER_BYTES`].
 pub(super) fn read_metadata(path: &Path) -> Result<Vec<u8>, VolumeError> {
@@ -124,21 +125,7 @@ pub(super) fn array_create_err(
     format_err(array_doc, field, e.to_string())
 }
 
-/// Reads an array's chunks one by one into a volume-ordered buffer.
-pub(super) struct ChunkReader<'a> {
-    pub(super) array: &'a Array<FilesystemStore>,
-    pub(super) root: &'a Path,
-    pub(super) array_doc: &'a Path,
-    pub(super) version: ZarrVersion,
-    /// Volume x, y, z sizes (array axes reversed).
-    pub(super) dims: [usize; 3],
-    /// Voxels in the volume (checked).
-    pub(super) count: usize,
-    /// Bytes per stored element.
-    pub(super) elem_bytes: u64,
-}
-
-impl ChunkReader<'_> {
+impl ZarrLevel {
     /// The file of the chunk at `indices`.
     fn chunk_path(&self, indices: &[u64]) -> PathBuf {
         let key = self.array.chunk_key(indices);
@@ -147,92 +134,188 @@ impl ChunkReader<'_> {
             .fold(self.root.to_path_buf(), |p, s| p.join(s))
     }
 
-    /// Reads every chunk (bounded to the array) into a buffer of `count` values, x fastest.
-    pub(super) fn read<T: ElementOwned + Copy + Default>(&self) -> Result<Vec<T>, VolumeError> {
-        let chunks_field = self.version.chunks_field();
-        let mut out: Vec<T> = Vec::new();
-        out.try_reserve_exact(self.count).map_err(|_| {
-            io_err(self.array_doc)(std::io::Error::from(std::io::ErrorKind::OutOfMemory))
+    /// Reads volume z planes `z` into a new buffer (reserved fallibly), x fastest, each stored
+    /// value mapped by `map`.
+    pub(super) fn read_all<T: ElementOwned + Copy, U: Copy + Default>(
+        &self,
+        z: Range<usize>,
+        map: impl Fn(T) -> U,
+    ) -> Result<Vec<U>, VolumeError> {
+        let count = self.dims[0] * self.dims[1] * z.len();
+        let mut out: Vec<U> = Vec::new();
+        out.try_reserve_exact(count).map_err(|_| {
+            io_err(&self.array_doc)(std::io::Error::from(std::io::ErrorKind::OutOfMemory))
         })?;
-        out.resize(self.count, T::default());
+        out.resize(count, U::default());
+        self.read_planes(z, &mut out, map)?;
+        Ok(out)
+    }
+
+    /// The largest decoded chunk, in bytes (checked against [`MAX_CHUNK_BYTES`]).
+    pub(super) fn max_chunk_bytes(&self) -> Result<u64, VolumeError> {
+        let chunks_field = self.version.chunks_field();
         let grid = self.array.chunk_grid_shape().to_vec();
-        let ndim = grid.len();
         if grid.contains(&0) {
-            return Ok(out);
+            return Ok(0);
         }
-        let [nx, ny, _] = self.dims;
-        let mut indices = vec![0u64; ndim];
-        loop {
-            let chunk_shape = self
-                .array
-                .chunk_shape(&indices)
-                .map_err(|e| format_err(self.array_doc, chunks_field, e.to_string()))?;
-            let bytes = chunk_shape
-                .iter()
-                .try_fold(self.elem_bytes, |acc, d| acc.checked_mul(d.get()))
-                .filter(|&b| b <= MAX_CHUNK_BYTES);
-            if bytes.is_none() {
-                return Err(format_err(
-                    self.array_doc,
+        // Regular grids (all zarrs builds here) have one chunk shape: the first chunk's.
+        let first = vec![0u64; grid.len()];
+        self.chunk_bytes(&first, chunks_field)
+    }
+
+    /// Decoded bytes of the chunk at `indices`, refused beyond [`MAX_CHUNK_BYTES`].
+    fn chunk_bytes(&self, indices: &[u64], chunks_field: &str) -> Result<u64, VolumeError> {
+        let chunk_shape = self
+            .array
+            .chunk_shape(indices)
+            .map_err(|e| format_err(&self.array_doc, chunks_field, e.to_string()))?;
+        let elem_bytes = self.stored.size_bytes() as u64;
+        chunk_shape
+            .iter()
+            .try_fold(elem_bytes, |acc, d| acc.checked_mul(d.get()))
+            .filter(|&b| b <= MAX_CHUNK_BYTES)
+            .ok_or_else(|| {
+                format_err(
+                    &self.array_doc,
                     chunks_field,
                     format!(
                         "chunk shape {:?} exceeds the {} MiB chunk size limit",
                         chunk_shape.iter().map(|d| d.get()).collect::<Vec<_>>(),
                         MAX_CHUNK_BYTES >> 20
                     ),
-                ));
-            }
+                )
+            })
+    }
+
+    /// Reads volume z planes `z` into `out` (exactly `dims.x * dims.y * z.len()` values, x
+    /// fastest), each stored value mapped by `map`: every chunk whose z range meets `z` is
+    /// decoded whole (so a chunk that does not hold its full shape is an error even where the
+    /// array ends inside it) and its part inside the array and `z` is copied. Missing chunks
+    /// read as the fill value.
+    pub(super) fn read_planes<T: ElementOwned + Copy, U: Copy>(
+        &self,
+        z: Range<usize>,
+        out: &mut [U],
+        map: impl Fn(T) -> U,
+    ) -> Result<(), VolumeError> {
+        let chunks_field = self.version.chunks_field();
+        let [nx, ny, _] = self.dims;
+        if out.len() != nx * ny * z.len() {
+            return Err(format_err(
+                &self.array_doc,
+                "shape",
+                format!(
+                    "{} values asked for z planes {z:?} of {nx}x{ny} voxels",
+                    out.len()
+                ),
+            ));
+        }
+        let grid = self.array.chunk_grid_shape().to_vec();
+        let ndim = grid.len();
+        if grid.contains(&0) || z.is_empty() {
+            return Ok(());
+        }
+        let za = ndim - 3;
+        let mut indices = vec![0u64; ndim];
+        // The chunk rows along the array's z axis that meet `z`.
+        let mut rows = Vec::new();
+        for i in 0..grid[za] {
+            indices[za] = i;
             let bounded = self
                 .array
                 .chunk_subset_bounded(&indices)
-                .map_err(|e| format_err(self.array_doc, chunks_field, e.to_string()))?;
-            if bounded.shape().iter().all(|&s| s > 0) {
-                // The whole chunk is decoded (so a chunk that does not hold its full shape is
-                // an error even where the array ends inside it), then its part inside the
-                // array is copied. Leading axes have size 1: their index is 0.
-                let values: Vec<T> = self
-                    .array
-                    .retrieve_chunk::<Vec<T>>(&indices)
-                    .map_err(|e| self.chunk_err(&indices, e))?;
-                let full: Vec<usize> = chunk_shape.iter().map(|d| d.get() as usize).collect();
-                let (fy, fx) = (full[ndim - 2], full[ndim - 1]);
-                let start = bounded.start();
-                let extent = bounded.shape();
-                let at = |a: usize| (start[a] as usize, extent[a] as usize);
-                let ((z0, cz), (y0, cy), (x0, cx)) = (at(ndim - 3), at(ndim - 2), at(ndim - 1));
-                if values.len() != full.iter().product::<usize>() {
-                    return Err(format_err(
-                        &self.chunk_path(&indices),
-                        chunks_field,
-                        format!(
-                            "chunk {indices:?} decoded to {} values, expected {}",
-                            values.len(),
-                            full.iter().product::<usize>()
-                        ),
-                    ));
-                }
-                for z in 0..cz {
-                    for y in 0..cy {
-                        let src = fx * (y + fy * z);
-                        let dst = x0 + nx * (y0 + y + ny * (z0 + z));
-                        out[dst..dst + cx].copy_from_slice(&values[src..src + cx]);
-                    }
-                }
-            }
-            // Next chunk, last axis fastest.
-            let mut axis = ndim;
-            loop {
-                if axis == 0 {
-                    return Ok(out);
-                }
-                axis -= 1;
-                indices[axis] += 1;
-                if indices[axis] < grid[axis] {
-                    break;
-                }
-                indices[axis] = 0;
+                .map_err(|e| format_err(&self.array_doc, chunks_field, e.to_string()))?;
+            let (s, e) = (bounded.start()[za] as usize, bounded.shape()[za] as usize);
+            if s < z.end && s + e > z.start {
+                rows.push(i);
             }
         }
+        for &row in &rows {
+            indices.iter_mut().for_each(|i| *i = 0);
+            indices[za] = row;
+            loop {
+                self.copy_chunk(&indices, &z, out, &map, chunks_field)?;
+                // Next chunk in this row, last axis fastest (the z axis stays at `row`).
+                let mut axis = ndim;
+                let done = loop {
+                    if axis == 0 {
+                        break true;
+                    }
+                    axis -= 1;
+                    if axis == za {
+                        continue;
+                    }
+                    indices[axis] += 1;
+                    if indices[axis] < grid[axis] {
+                        break false;
+                    }
+                    indices[axis] = 0;
+                };
+                if done {
+                    break;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Decodes the chunk at `indices` and copies its part inside the array and the planes `z`.
+    fn copy_chunk<T: ElementOwned + Copy, U: Copy>(
+        &self,
+        indices: &[u64],
+        z: &Range<usize>,
+        out: &mut [U],
+        map: &impl Fn(T) -> U,
+        chunks_field: &str,
+    ) -> Result<(), VolumeError> {
+        let ndim = indices.len();
+        let [nx, ny, _] = self.dims;
+        self.chunk_bytes(indices, chunks_field)?;
+        let chunk_shape = self
+            .array
+            .chunk_shape(indices)
+            .map_err(|e| format_err(&self.array_doc, chunks_field, e.to_string()))?;
+        let bounded = self
+            .array
+            .chunk_subset_bounded(indices)
+            .map_err(|e| format_err(&self.array_doc, chunks_field, e.to_string()))?;
+        if !bounded.shape().iter().all(|&s| s > 0) {
+            return Ok(());
+        }
+        let values: Vec<T> = self
+            .array
+            .retrieve_chunk::<Vec<T>>(indices)
+            .map_err(|e| self.chunk_err(indices, e))?;
+        let full: Vec<usize> = chunk_shape.iter().map(|d| d.get() as usize).collect();
+        let (fy, fx) = (full[ndim - 2], full[ndim - 1]);
+        let start = bounded.start();
+        let extent = bounded.shape();
+        let at = |a: usize| (start[a] as usize, extent[a] as usize);
+        let ((z0, cz), (y0, cy), (x0, cx)) = (at(ndim - 3), at(ndim - 2), at(ndim - 1));
+        if values.len() != full.iter().product::<usize>() {
+            return Err(format_err(
+                &self.chunk_path(indices),
+                chunks_field,
+                format!(
+                    "chunk {indices:?} decoded to {} values, expected {}",
+                    values.len(),
+                    full.iter().product::<usize>()
+                ),
+            ));
+        }
+        // Leading axes have size 1: their index is 0.
+        let (lo, hi) = (z0.max(z.start), (z0 + cz).min(z.end));
+        for vz in lo..hi {
+            let cz = vz - z0;
+            for y in 0..cy {
+                let src = fx * (y + fy * cz);
+                let dst = x0 + nx * (y0 + y + ny * (vz - z.start));
+                for (o, &v) in out[dst..dst + cx].iter_mut().zip(&values[src..src + cx]) {
+                    *o = map(v);
+                }
+            }
+        }
+        Ok(())
     }
 
     /// A chunk that could not be read or decoded.

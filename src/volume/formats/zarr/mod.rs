@@ -45,10 +45,12 @@
 
 mod array;
 mod ome;
+mod slabs;
 
 pub use ome::{parse_zarr_root, OmeAxis, OmeDataset, OmeMultiscale, ZarrRoot, ZarrVersion};
+pub use slabs::ZarrSlabs;
 
-use super::read::{format_err, io_err, layout, read_prefix};
+use super::read::{format_err, io_err, layout, read_prefix, Layout};
 use super::{FileFormat, LoadedVolume, StoredType, VolumeMeta, MAX_HEADER_BYTES};
 use crate::volume::{Volume, VolumeError, VoxelData};
 use array::*;
@@ -77,6 +79,41 @@ pub fn load_zarr(root: &Path) -> Result<LoadedVolume, VolumeError> {
 /// image at `root`; a plain Zarr array has only level 0. A level that does not exist is an
 /// error on the field `datasets`.
 pub fn load_zarr_level(root: &Path, level: usize) -> Result<LoadedVolume, VolumeError> {
+    let level = open_level(root, level)?;
+    let z = 0..level.dims[2];
+    let data = match level.stored {
+        StoredType::U8 => VoxelData::U8(level.read_all::<u8, u8>(z, |v| v)?),
+        StoredType::I8 => VoxelData::U8(level.read_all::<i8, u8>(z, |v| (v as u8) ^ 0x80)?),
+        StoredType::U16 => VoxelData::U16(level.read_all::<u16, u16>(z, |v| v)?),
+        StoredType::I16 => VoxelData::U16(level.read_all::<i16, u16>(z, |v| (v as u16) ^ 0x8000)?),
+        StoredType::U32 => VoxelData::F32(level.read_all::<u32, f32>(z, |v| v as f32)?),
+        StoredType::I32 => VoxelData::F32(level.read_all::<i32, f32>(z, |v| v as f32)?),
+        StoredType::F32 => VoxelData::F32(level.read_all::<f32, f32>(z, |v| v)?),
+        StoredType::F64 => VoxelData::F32(level.read_all::<f64, f32>(z, |v| v as f32)?),
+    };
+    Ok(LoadedVolume {
+        volume: Volume::new(level.layout.dims, level.spacing, data)?,
+        meta: level.meta,
+    })
+}
+
+/// One level of an OME-Zarr image, opened and checked (axes, shape, data type, spacing), before
+/// any chunk is read.
+pub(super) struct ZarrLevel {
+    pub(super) array: Array<FilesystemStore>,
+    pub(super) root: PathBuf,
+    pub(super) array_doc: PathBuf,
+    pub(super) version: ZarrVersion,
+    /// Volume x, y, z sizes (array axes reversed).
+    pub(super) dims: [usize; 3],
+    pub(super) layout: Layout,
+    pub(super) stored: StoredType,
+    pub(super) spacing: Vec3,
+    pub(super) meta: VolumeMeta,
+}
+
+/// Opens level `level` of the image at `root` (see [`load_zarr_level`]) without reading a chunk.
+pub(super) fn open_level(root: &Path, level: usize) -> Result<ZarrLevel, VolumeError> {
     let meta = std::fs::metadata(root).map_err(io_err(root))?;
     if !meta.is_dir() {
         return Err(format_err(
@@ -232,59 +269,17 @@ pub fn load_zarr_level(root: &Path, level: usize) -> Result<LoadedVolume, Volume
         ));
     }
 
-    let reader = ChunkReader {
-        array: &array,
-        root,
-        array_doc: &array_doc,
-        version,
-        dims: [dims[0] as usize, dims[1] as usize, dims[2] as usize],
-        count: lay.count,
-        elem_bytes: stored.size_bytes() as u64,
-    };
-    let data = match stored {
-        StoredType::U8 => VoxelData::U8(reader.read::<u8>()?),
-        StoredType::I8 => VoxelData::U8(
-            reader
-                .read::<i8>()?
-                .into_iter()
-                .map(|v| (v as u8) ^ 0x80)
-                .collect(),
-        ),
-        StoredType::U16 => VoxelData::U16(reader.read::<u16>()?),
-        StoredType::I16 => VoxelData::U16(
-            reader
-                .read::<i16>()?
-                .into_iter()
-                .map(|v| (v as u16) ^ 0x8000)
-                .collect(),
-        ),
-        StoredType::U32 => VoxelData::F32(
-            reader
-                .read::<u32>()?
-                .into_iter()
-                .map(|v| v as f32)
-                .collect(),
-        ),
-        StoredType::I32 => VoxelData::F32(
-            reader
-                .read::<i32>()?
-                .into_iter()
-                .map(|v| v as f32)
-                .collect(),
-        ),
-        StoredType::F32 => VoxelData::F32(reader.read::<f32>()?),
-        StoredType::F64 => VoxelData::F32(
-            reader
-                .read::<f64>()?
-                .into_iter()
-                .map(|v| v as f32)
-                .collect(),
-        ),
-    };
     let mut meta = VolumeMeta::plain(FileFormat::Zarr, stored, big_endian);
     meta.origin = origin;
-    Ok(LoadedVolume {
-        volume: Volume::new(lay.dims, spacing_f32, data)?,
+    Ok(ZarrLevel {
+        array,
+        root: root.to_path_buf(),
+        array_doc,
+        version,
+        dims: [dims[0] as usize, dims[1] as usize, dims[2] as usize],
+        layout: lay,
+        stored,
+        spacing: spacing_f32,
         meta,
     })
 }

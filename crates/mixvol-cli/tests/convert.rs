@@ -1,0 +1,506 @@
+//! `mixvol convert INPUT STORE`, run as a user runs it.
+//!
+//! - A 96 MiB NRRD converted under `--ram-budget-mb 16`: the process's peak RSS (`VmHWM`, which
+//!   the command reports in `--stats-json`) stays far below the file size.
+//! - Every slab-read format (headerless raw, NRRD raw and gzip, NIfTI `.nii` and `.nii.gz`,
+//!   OME-Zarr): the converted store is byte for byte the store the library writes from the fully
+//!   loaded volume.
+//! - Failures (gzip cut mid-way, an unwritable destination, an existing STORE without --force, a
+//!   budget too small) exit non-zero, name the file, and leave neither STORE nor STORE.partial.
+//! - A converted store that is cut or corrupted gives typed errors: truncation names the first
+//!   missing brick, table corruption the checksum field, a read under a cut file the brick.
+//!   Brick bytes themselves carry no checksum (store format version 1): altered brick bytes are
+//!   not detected, which the last test pins down.
+use flate2::write::GzEncoder;
+use flate2::Compression;
+use mixvol::bricks::{DownsampleFilter, Level};
+use mixvol::store::{write_store_from_volume, BrickStore, StoreError};
+use mixvol::volume::{load_raw, load_volume, RawDescriptor, ScalarType};
+use serde_json::{json, Value};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// A fresh temporary folder for one test, removed on drop.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(tag: &str) -> Self {
+        let dir =
+            std::env::temp_dir().join(format!("mixvol-cli-convert-{}-{tag}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        Self(dir)
+    }
+
+    fn join(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
+
+    fn write(&self, name: &str, bytes: &[u8]) -> PathBuf {
+        let p = self.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        p
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn convert(input: &Path, store: &Path, extra: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_mixvol"))
+        .arg("convert")
+        .arg(input)
+        .arg(store)
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn text(out: &Output) -> String {
+    format!(
+        "status {:?}\nstdout:\n{}\nstderr:\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+fn gzip(bytes: &[u8]) -> Vec<u8> {
+    let mut e = GzEncoder::new(Vec::new(), Compression::fast());
+    e.write_all(bytes).unwrap();
+    e.finish().unwrap()
+}
+
+/// u16 voxels of `dims` (little-endian, x fastest): a ramp plus a hash.
+fn u16_voxels(dims: [u64; 3]) -> Vec<u8> {
+    let mut out = Vec::new();
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                let h = (x * 7919 + y * 104_729 + z * 1_299_709) % 4096;
+                let v = (x * 300 + y * 200 + z * 500 + h) as u16;
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+    }
+    out
+}
+
+/// An attached NRRD header for `dims` of `type_name`.
+fn nrrd_header(type_name: &str, dims: [u64; 3], encoding: &str) -> Vec<u8> {
+    format!(
+        "NRRD0004\ntype: {type_name}\ndimension: 3\nsizes: {} {} {}\nencoding: {encoding}\n\
+         endian: little\nspacings: 1 1 2\n\n",
+        dims[0], dims[1], dims[2]
+    )
+    .into_bytes()
+}
+
+/// A u16 NIfTI-1 file of `dims` with `data`.
+fn nifti_u16(dims: [u64; 3], data: &[u8]) -> Vec<u8> {
+    let mut h = vec![0u8; 352];
+    let mut put = |at: usize, bytes: &[u8]| h[at..at + bytes.len()].copy_from_slice(bytes);
+    put(0, &348i32.to_le_bytes());
+    let dim = [
+        3,
+        dims[0] as i16,
+        dims[1] as i16,
+        dims[2] as i16,
+        1,
+        1,
+        1,
+        1,
+    ];
+    for (i, d) in dim.iter().enumerate() {
+        put(40 + 2 * i, &d.to_le_bytes());
+    }
+    put(70, &512i16.to_le_bytes());
+    put(72, &16i16.to_le_bytes());
+    for (i, p) in [1.0f32, 0.8, 0.8, 1.5, 1.0, 1.0, 1.0, 1.0]
+        .iter()
+        .enumerate()
+    {
+        put(76 + 4 * i, &p.to_le_bytes());
+    }
+    put(108, &352.0f32.to_le_bytes());
+    put(344, b"n+1\0");
+    h.extend_from_slice(data);
+    h
+}
+
+/// A u16 OME-Zarr 0.4 image (Zarr v2, one level, gzip chunks of 5 x 8 x 16) of `dims` x, y, z.
+fn zarr_u16(root: &Path, dims: [u64; 3], data: &[u8]) {
+    let level = root.join("0");
+    std::fs::create_dir_all(&level).unwrap();
+    let shape = [dims[2], dims[1], dims[0]];
+    let chunks = [5u64, 8, 16];
+    std::fs::write(root.join(".zgroup"), json!({"zarr_format": 2}).to_string()).unwrap();
+    let axes: Vec<Value> = ["z", "y", "x"]
+        .iter()
+        .map(|n| json!({"name": n, "type": "space"}))
+        .collect();
+    let ms = json!({"version": "0.4", "axes": axes, "datasets": [{"path": "0",
+        "coordinateTransformations": [{"type": "scale", "scale": [2.0, 1.0, 1.0]}]}]});
+    std::fs::write(
+        root.join(".zattrs"),
+        json!({"multiscales": [ms]}).to_string(),
+    )
+    .unwrap();
+    let meta = json!({"zarr_format": 2, "shape": shape, "chunks": chunks, "dtype": "<u2",
+        "compressor": {"id": "gzip", "level": 1}, "fill_value": 0, "order": "C", "filters": null});
+    std::fs::write(level.join(".zarray"), meta.to_string()).unwrap();
+    let grid: Vec<u64> = (0..3).map(|a| shape[a].div_ceil(chunks[a])).collect();
+    for cz in 0..grid[0] {
+        for cy in 0..grid[1] {
+            for cx in 0..grid[2] {
+                let mut chunk = Vec::new();
+                for z in 0..chunks[0] {
+                    for y in 0..chunks[1] {
+                        for x in 0..chunks[2] {
+                            let (vz, vy, vx) =
+                                (cz * chunks[0] + z, cy * chunks[1] + y, cx * chunks[2] + x);
+                            if vz < shape[0] && vy < shape[1] && vx < shape[2] {
+                                let i = (vx + dims[0] * (vy + dims[1] * vz)) as usize * 2;
+                                chunk.extend_from_slice(&data[i..i + 2]);
+                            } else {
+                                chunk.extend_from_slice(&[0xAB, 0xCD]);
+                            }
+                        }
+                    }
+                }
+                std::fs::write(level.join(format!("{cz}.{cy}.{cx}")), gzip(&chunk)).unwrap();
+            }
+        }
+    }
+}
+
+/// Asserts that neither `store` nor its partial file exists.
+fn assert_nothing_at(store: &Path) {
+    assert!(!store.exists(), "{} exists", store.display());
+    let mut partial = store.as_os_str().to_owned();
+    partial.push(".partial");
+    assert!(
+        !Path::new(&partial).exists(),
+        "partial file of {} left",
+        store.display()
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn file_larger_than_the_budget_converts_with_bounded_peak_rss() {
+    let dir = TempDir::new("rss");
+    // 512 x 512 x 384 u8 = 96 MiB of voxels behind a NRRD header.
+    let dims = [512u64, 512, 384];
+    let mut file = nrrd_header("uchar", dims, "raw");
+    let plane: Vec<u8> = (0..512 * 512u64)
+        .map(|i| ((i % 512) ^ (i / 512)) as u8)
+        .collect();
+    for z in 0..dims[2] {
+        file.extend(plane.iter().map(|v| v.wrapping_add(z as u8)));
+    }
+    let file_len = file.len() as u64;
+    let input = dir.write("big.nrrd", &file);
+    drop(file);
+    let store = dir.join("big.mvbs");
+    let stats = dir.join("stats.json");
+    let out = convert(
+        &input,
+        &store,
+        &[
+            "--ram-budget-mb",
+            "16",
+            "--stats-json",
+            stats.to_str().unwrap(),
+        ],
+    );
+    assert!(out.status.success(), "{}", text(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("512x512x384"), "{stdout}");
+    assert!(stdout.contains("peak RSS"), "{stdout}");
+    let s: Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    let peak = s["peak_rss_bytes"].as_u64().expect("peak RSS measured");
+    let planned = s["plan_bytes"].as_u64().unwrap();
+    assert!(planned <= 16 << 20, "plan {planned} over the budget");
+    // The voxels alone are 96 MiB; the process (code and libraries included) stays under 40 MiB.
+    assert!(
+        peak < 40 << 20 && peak < file_len / 2,
+        "peak RSS {peak} bytes for a {file_len}-byte file under a 16 MiB budget"
+    );
+    assert!(s["input_mb_per_s"].as_f64().unwrap() > 0.0);
+    let opened = BrickStore::open(&store).unwrap();
+    assert_eq!(opened.header().dims.to_array(), [512, 512, 384]);
+    assert_eq!(
+        s["store_bytes"].as_u64(),
+        Some(std::fs::metadata(&store).unwrap().len())
+    );
+}
+
+/// Converts `input` with the CLI and asserts the store equals `write_store_from_volume` of the
+/// loaded volume, for two brick sizes and filters.
+fn assert_cli_store_identical(
+    dir: &TempDir,
+    tag: &str,
+    input: &Path,
+    volume: &mixvol::volume::Volume,
+    extra: &[&str],
+) {
+    for (n, filter, name) in [
+        (8, DownsampleFilter::Mean2, "mean2"),
+        (16, DownsampleFilter::BSpline4, "bspline4"),
+    ] {
+        let ours = dir.join(&format!("{tag}-{n}.mvbs"));
+        let theirs = dir.join(&format!("{tag}-{n}-mem.mvbs"));
+        let n_text = n.to_string();
+        let mut args = vec![
+            "--brick-size",
+            &n_text,
+            "--filter",
+            name,
+            "--ram-budget-mb",
+            "8",
+        ];
+        args.extend_from_slice(extra);
+        let out = convert(input, &ours, &args);
+        assert!(out.status.success(), "{tag}: {}", text(&out));
+        write_store_from_volume(&theirs, volume, n, filter).unwrap();
+        let (a, b) = (
+            std::fs::read(&ours).unwrap(),
+            std::fs::read(&theirs).unwrap(),
+        );
+        assert!(
+            a == b,
+            "{tag} n={n}: the converted store differs from the in-memory one"
+        );
+    }
+}
+
+#[test]
+fn converted_stores_equal_the_in_memory_path_for_every_format() {
+    let dir = TempDir::new("formats");
+    let dims = [45u64, 38, 27];
+    let data = u16_voxels(dims);
+
+    let raw = dir.write("v.bin", &data);
+    let desc = RawDescriptor {
+        dims: glam::UVec3::new(45, 38, 27),
+        scalar: ScalarType::U16,
+        spacing: glam::Vec3::new(1.0, 1.0, 2.0),
+        header_bytes: 0,
+        big_endian: false,
+    };
+    let volume = load_raw(&raw, &desc).unwrap();
+    assert_cli_store_identical(
+        &dir,
+        "raw",
+        &raw,
+        &volume,
+        &[
+            "--dims",
+            "45,38,27",
+            "--scalar",
+            "u16",
+            "--spacing",
+            "1,1,2",
+        ],
+    );
+
+    let mut nrrd = nrrd_header("ushort", dims, "raw");
+    nrrd.extend_from_slice(&data);
+    let path = dir.write("v.nrrd", &nrrd);
+    assert_cli_store_identical(&dir, "nrrd", &path, &load_volume(&path).unwrap(), &[]);
+
+    let mut nrrd_gz = nrrd_header("ushort", dims, "gzip");
+    nrrd_gz.extend(gzip(&data));
+    let path = dir.write("v-gz.nrrd", &nrrd_gz);
+    assert_cli_store_identical(&dir, "nrrd-gz", &path, &load_volume(&path).unwrap(), &[]);
+
+    let nii = nifti_u16(dims, &data);
+    let path = dir.write("v.nii", &nii);
+    assert_cli_store_identical(&dir, "nii", &path, &load_volume(&path).unwrap(), &[]);
+    let path = dir.write("v.nii.gz", &gzip(&nii));
+    assert_cli_store_identical(&dir, "nii-gz", &path, &load_volume(&path).unwrap(), &[]);
+
+    let root = dir.join("v.ome.zarr");
+    zarr_u16(&root, dims, &data);
+    let volume = load_volume(&root).unwrap();
+    assert_cli_store_identical(&dir, "zarr", &root, &volume, &["--level", "0"]);
+}
+
+#[test]
+fn failed_converts_leave_nothing_and_name_the_file() {
+    let dir = TempDir::new("fail");
+    let dims = [64u64, 64, 64];
+    let data = u16_voxels(dims);
+    // A gzip stream cut two thirds of the way in: found mid-way, after bricks were written.
+    let mut cut = nrrd_header("ushort", dims, "gzip");
+    let gz = gzip(&data);
+    cut.extend_from_slice(&gz[..gz.len() * 2 / 3]);
+    let input = dir.write("cut.nrrd", &cut);
+    let store = dir.join("cut.mvbs");
+    let out = convert(&input, &store, &["--brick-size", "8"]);
+    assert!(!out.status.success(), "{}", text(&out));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("cut.nrrd") && err.contains("sizes"), "{err}");
+    assert_nothing_at(&store);
+
+    // A destination whose folder is a file.
+    let mut whole = nrrd_header("ushort", dims, "raw");
+    whole.extend_from_slice(&data);
+    let input = dir.write("ok.nrrd", &whole);
+    let blocker = dir.write("not-a-folder", b"x");
+    let store = blocker.join("ok.mvbs");
+    let out = convert(&input, &store, &[]);
+    assert!(!out.status.success(), "{}", text(&out));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("ok.mvbs"), "{err}");
+    assert_nothing_at(&store);
+
+    // A budget that cannot hold one slab: refused before anything is created.
+    let store = dir.join("small-budget.mvbs");
+    let out = convert(&input, &store, &["--ram-budget-mb", "0"]);
+    assert!(!out.status.success(), "{}", text(&out));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("RAM budget") && err.contains("64x64"), "{err}");
+    assert_nothing_at(&store);
+
+    // An existing STORE is kept without --force and replaced with it.
+    let store = dir.write("existing.mvbs", b"precious");
+    let out = convert(&input, &store, &[]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--force"));
+    assert_eq!(std::fs::read(&store).unwrap(), b"precious");
+    let out = convert(&input, &store, &["--force"]);
+    assert!(out.status.success(), "{}", text(&out));
+    BrickStore::open(&store).unwrap();
+
+    // The input itself is never the store, even with --force.
+    let out = convert(&input, &input, &["--force"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("is the INPUT"));
+    assert_eq!(std::fs::read(&input).unwrap(), whole);
+
+    // A synthetic field larger than the budget is refused before it is generated.
+    let out = convert(
+        Path::new("ml"),
+        &dir.join("ml.mvbs"),
+        &["--dims", "512,512,512", "--ram-budget-mb", "16"],
+    );
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("generated whole"));
+    assert_nothing_at(&dir.join("ml.mvbs"));
+
+    // A missing input and a headerless file without --dims name the file.
+    let out = convert(&dir.join("missing.nrrd"), &dir.join("m.mvbs"), &[]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("missing.nrrd"));
+    let bare = dir.write("bare.bin", &data);
+    let out = convert(&bare, &dir.join("b.mvbs"), &[]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("bare.bin") && err.contains("--dims"), "{err}");
+    assert_nothing_at(&dir.join("b.mvbs"));
+}
+
+#[test]
+fn cut_or_corrupted_stores_give_typed_errors() {
+    let dir = TempDir::new("corrupt");
+    let dims = [40u64, 24, 24];
+    let mut nrrd = nrrd_header("ushort", dims, "raw");
+    nrrd.extend_from_slice(&u16_voxels(dims));
+    let input = dir.write("v.nrrd", &nrrd);
+    let store = dir.join("v.mvbs");
+    let out = convert(&input, &store, &["--brick-size", "8"]);
+    assert!(out.status.success(), "{}", text(&out));
+    let good = std::fs::read(&store).unwrap();
+    let opened = BrickStore::open(&store).unwrap();
+    let header = *opened.header();
+    let pair = header.hi_brick_bytes + header.lo_brick_bytes;
+    drop(opened);
+
+    // Cut inside brick 17: opening names the field and the first brick cut off.
+    let cut = dir.write(
+        "cut.mvbs",
+        &good[..(header.data_offset + 17 * pair + 5) as usize],
+    );
+    match BrickStore::open(&cut) {
+        Err(
+            e @ StoreError::Format {
+                field: "file_size", ..
+            },
+        ) => {
+            let m = e.to_string();
+            assert!(m.contains("brick 17 of") && m.contains("cut.mvbs"), "{m}");
+        }
+        other => panic!("{other:?}"),
+    }
+
+    // A byte of the offset table flipped: the table checksum catches it.
+    let mut bad = good.clone();
+    bad[header.offsets_offset as usize + 16 * 3 + 2] ^= 0x40;
+    let bad_table = dir.write("table.mvbs", &bad);
+    assert!(matches!(
+        BrickStore::open(&bad_table),
+        Err(StoreError::Format {
+            field: "table_checksum",
+            ..
+        })
+    ));
+
+    // Cut under an open store: reading a lost brick is an I/O error naming that brick.
+    let live = dir.write("live.mvbs", &good);
+    let opened = BrickStore::open(&live).unwrap();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&live)
+        .unwrap()
+        .set_len(header.data_offset + 20 * pair)
+        .unwrap();
+    assert!(opened.read_brick(19, Level::Lo).is_ok());
+    let e = opened.read_brick(21, Level::Hi).unwrap_err();
+    assert!(matches!(e, StoreError::Io { .. }), "{e:?}");
+    assert!(e.to_string().contains("brick 21 level Hi"), "{e}");
+
+    // Brick bytes carry no checksum in format version 1: a flipped texel reads back flipped.
+    let mut flipped = good.clone();
+    let at = (header.data_offset + 5 * pair + 3) as usize;
+    flipped[at] ^= 0xFF;
+    let path = dir.write("flipped.mvbs", &flipped);
+    let opened = BrickStore::open(&path).unwrap();
+    let hi = opened.read_brick(5, Level::Hi).unwrap();
+    let orig = BrickStore::open(&store)
+        .unwrap()
+        .read_brick(5, Level::Hi)
+        .unwrap();
+    assert_ne!(
+        hi, orig,
+        "the flipped byte is read as stored (no per-brick checksum)"
+    );
+}
+
+#[test]
+fn help_lists_the_convert_flags() {
+    let out = Command::new(env!("CARGO_BIN_EXE_mixvol"))
+        .args(["convert", "--help"])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let help = String::from_utf8_lossy(&out.stdout);
+    for flag in [
+        "--brick-size",
+        "--filter",
+        "--ram-budget-mb",
+        "--level",
+        "--force",
+        "--dims",
+        "--scalar",
+        "--stats-json",
+    ] {
+        assert!(help.contains(flag), "{flag} missing from:\n{help}");
+    }
+}

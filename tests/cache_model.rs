@@ -24,6 +24,66 @@ use mixvol::scene::Camera;
 use mixvol::volume::{ScalarType, Volume, VoxelData};
 use std::collections::BTreeSet;
 
+/// Neighbour bits of every brick of a `bricks` grid (x fastest) for `levels`, computed directly
+/// (see `check_tables`).
+fn independent_neighbour_bits(bricks: UVec3, levels: &[Level]) -> Vec<u32> {
+    let (nx, ny, nz) = (bricks.x as i32, bricks.y as i32, bricks.z as i32);
+    let at = |x: i32, y: i32, z: i32| levels[(x + nx * (y + ny * z)) as usize];
+    let mut out = Vec::with_capacity(levels.len());
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                let mut bits = 0u32;
+                if at(x, y, z) == Level::Hi {
+                    for dz in -1..=1 {
+                        for dy in -1..=1 {
+                            for dx in -1..=1 {
+                                let (u, v, w) = (x + dx, y + dy, z + dz);
+                                if (dx, dy, dz) == (0, 0, 0)
+                                    || !(0..nx).contains(&u)
+                                    || !(0..ny).contains(&v)
+                                    || !(0..nz).contains(&w)
+                                    || at(u, v, w) != Level::Lo
+                                {
+                                    continue;
+                                }
+                                let idx = (dx + 1) + 3 * (dy + 1) + 9 * (dz + 1);
+                                let k = if idx < 13 { idx } else { idx - 1 };
+                                bits |= 1 << k;
+                            }
+                        }
+                    }
+                }
+                out.push(bits);
+            }
+        }
+    }
+    out
+}
+
+/// The independent computation on a hand-checked 3 x 2 x 1 grid: the hi-res brick (0, 0, 0) with
+/// low-res neighbours (1, 0, 0) (offset +x: idx 14, bit 13) and (1, 1, 0) (offset +x+y: idx 17,
+/// bit 16); the absent brick (0, 1, 0) sets nothing, and lo-res bricks have no bits.
+#[test]
+fn independent_neighbour_bits_by_hand() {
+    use Level::{Absent, Hi, Lo};
+    let levels = [Hi, Lo, Hi, Absent, Lo, Lo];
+    let bits = independent_neighbour_bits(UVec3::new(3, 2, 1), &levels);
+    // Brick (2, 0, 0): neighbours (1, 0, 0) at -x (idx 12, bit 12), (1, 1, 0) at -x+y (idx 15,
+    // bit 14) and (2, 1, 0) at +y (idx 16, bit 15), all low-res.
+    assert_eq!(
+        bits,
+        vec![
+            (1 << 13) | (1 << 16),
+            0,
+            (1 << 12) | (1 << 14) | (1 << 15),
+            0,
+            0,
+            0
+        ]
+    );
+}
+
 const WIDTH: u32 = 640;
 const HEIGHT: u32 = 480;
 
@@ -312,9 +372,27 @@ impl Pipeline {
                 Residency::Absent => unreachable!(),
             }
         }
+        // The neighbour bits against a computation written here from the levels and the bit
+        // numbering of docs/cache-layout.md (not through `brick_neighbour_bits`, which both
+        // library functions use): bit `k` of a hi-res brick is set when its neighbour at offset
+        // `d` is inside the grid and low-res, `idx = (dx+1) + 3(dy+1) + 9(dz+1)`, `k = idx` below
+        // 13 and `idx - 1` above; lo-res and absent bricks have no bits.
+        let bits = self.cache.neighbour_bits();
+        let expected = independent_neighbour_bits(self.grid.bricks_per_axis(), &self.levels);
+        assert_eq!(bits.len(), expected.len());
+        for (i, (got, want)) in bits.iter().zip(&expected).enumerate() {
+            assert_eq!(
+                got,
+                want,
+                "brick {i} ({:?}, {:?}): neighbour bits {got:#028b}, expected {want:#028b}",
+                self.grid.brick_coords(i),
+                self.levels[i]
+            );
+        }
         assert_eq!(
-            self.cache.neighbour_bits(),
-            compute_neighbour_bits(&self.grid, &self.levels)
+            compute_neighbour_bits(&self.grid, &self.levels),
+            expected,
+            "compute_neighbour_bits"
         );
     }
 

@@ -9,13 +9,15 @@ mod common;
 mod embed_host;
 
 use ash::vk;
-use glam::{UVec3, Vec3};
+use glam::{UVec3, Vec3, Vec4};
 use gpu_allocator::vulkan::{
     Allocation, AllocationCreateDesc, AllocationScheme, Allocator, AllocatorCreateDesc,
 };
 use gpu_allocator::MemoryLocation;
 use mixvol::bricks::Level;
 use mixvol::embed::{MixedConfig, PassDesc, PassTarget, TargetLoad, VolumePass, VolumeSource};
+use mixvol::optics::{TfPreset, TransferFunction};
+use mixvol::reference::{self, ReferenceCache};
 use mixvol::scene::{Camera, RenderSettings};
 use mixvol::volume::{ScalarType, SyntheticField};
 use std::sync::Arc;
@@ -93,7 +95,7 @@ impl HostTarget {
             .array_layers(1)
             .samples(vk::SampleCountFlags::TYPE_1)
             .tiling(vk::ImageTiling::OPTIMAL)
-            .usage(vk::ImageUsageFlags::COLOR_ATTACHMENT);
+            .usage(vk::ImageUsageFlags::COLOR_ATTACHMENT | vk::ImageUsageFlags::TRANSFER_SRC);
         // SAFETY: valid create info on a live device.
         let image = unsafe { device.create_image(&info, None) }.unwrap();
         // SAFETY: `image` was just created.
@@ -135,6 +137,99 @@ impl HostTarget {
     }
 }
 
+/// A host-visible buffer one frame slot's image is copied into, read after the slot's fence.
+struct Readback {
+    buffer: vk::Buffer,
+    allocation: Option<Allocation>,
+}
+
+impl Readback {
+    fn new(device: &ash::Device, allocator: &mut Allocator, bytes: u64) -> Readback {
+        let info = vk::BufferCreateInfo::default()
+            .size(bytes)
+            .usage(vk::BufferUsageFlags::TRANSFER_DST);
+        // SAFETY: valid create info on a live device.
+        let buffer = unsafe { device.create_buffer(&info, None) }.unwrap();
+        // SAFETY: `buffer` was just created.
+        let requirements = unsafe { device.get_buffer_memory_requirements(buffer) };
+        let allocation = allocator
+            .allocate(&AllocationCreateDesc {
+                name: "test readback",
+                requirements,
+                location: MemoryLocation::GpuToCpu,
+                linear: true,
+                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+            })
+            .unwrap();
+        // SAFETY: memory from an allocation made for these requirements.
+        unsafe { device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }
+            .unwrap();
+        Readback {
+            buffer,
+            allocation: Some(allocation),
+        }
+    }
+
+    /// The first `size x size` RGBA8 pixels as unit floats; the copy into the buffer must have
+    /// completed (the slot's fence).
+    fn pixels(&self, size: u32) -> Vec<Vec4> {
+        let bytes = self.allocation.as_ref().unwrap().mapped_slice().unwrap();
+        bytes[..(size * size * 4) as usize]
+            .chunks_exact(4)
+            .map(|p| Vec4::new(p[0] as f32, p[1] as f32, p[2] as f32, p[3] as f32) / 255.0)
+            .collect()
+    }
+
+    fn destroy(mut self, device: &ash::Device, allocator: &mut Allocator) {
+        // SAFETY: the caller waited for the frames that copied into the buffer.
+        unsafe { device.destroy_buffer(self.buffer, None) };
+        allocator.free(self.allocation.take().unwrap()).unwrap();
+    }
+}
+
+/// What one frame drew: its index, size and the CPU reference of it (the pass's parameters and
+/// the reference cache of the residency state it was recorded with).
+struct InFlight {
+    index: usize,
+    size: u32,
+    expected: Vec<Vec4>,
+}
+
+/// Compares the frame read back from a slot with the reference of the frame recorded into it,
+/// and checks it is not the reference of the frame recorded into the other slot (the frames'
+/// cameras differ, so a slot showing the other slot's frame, or a stale one, fails).
+fn check_frame(slot: usize, frame: &InFlight, other: Option<&InFlight>, pixels: &[Vec4]) {
+    let name = format!("frame {} (slot {slot}, {}^2)", frame.index, frame.size);
+    let c = common::coverage(pixels, &frame.expected, 1.0 / 255.0, 1.5 / 255.0);
+    assert!(
+        c.expected_visible >= 0.2 && c.actual_visible >= 0.2,
+        "{name}: mostly empty: {c:?}"
+    );
+    // The reference tolerances over the covered pixels, plus half an 8-bit step.
+    assert!(
+        c.diff.mean < 1e-3 + 0.5 / 255.0
+            && c.diff.max < 6.5 / 255.0
+            && c.diff.large_fraction < 0.01,
+        "{name}: the frame read back differs from its reference: {c:?}"
+    );
+    if let Some(other) = other.filter(|o| o.size == frame.size) {
+        let between = common::diff(&frame.expected, &other.expected, 1.5 / 255.0);
+        assert!(
+            between.mean > 10.0 * c.diff.mean.max(1e-3),
+            "frames {} and {} are too alike to tell apart: {between:?}",
+            frame.index,
+            other.index
+        );
+        let swapped = common::coverage(pixels, &other.expected, 1.0 / 255.0, 1.5 / 255.0);
+        assert!(
+            swapped.diff.mean > c.diff.mean,
+            "{name}: looks more like frame {} of the other slot: {swapped:?} vs {c:?}",
+            other.index
+        );
+    }
+    eprintln!("{name}: {c:?}");
+}
+
 const COLOR_RANGE: vk::ImageSubresourceRange = vk::ImageSubresourceRange {
     aspect_mask: vk::ImageAspectFlags::COLOR,
     base_mip_level: 0,
@@ -144,7 +239,10 @@ const COLOR_RANGE: vk::ImageSubresourceRange = vk::ImageSubresourceRange {
 };
 
 /// Two frames in flight, residency changes staged between frames while the other frame may
-/// still run, and a target resize halfway: clean under synchronization validation.
+/// still run, and a target resize halfway: clean under synchronization validation. Each frame
+/// is copied into its slot's readback buffer in the same command buffer and read after the
+/// slot's fence: it equals the CPU reference of its own camera and residency state (covered
+/// pixels, at least 20 % visible), and not the frame of the other slot.
 #[test]
 fn frames_in_flight_with_residency_changes_and_a_resize_are_validation_clean() {
     let ctx = common::validated_context();
@@ -173,12 +271,15 @@ fn frames_in_flight_with_residency_changes_and_a_resize_are_validation_clean() {
                 .generate(UVec3::splat(32), ScalarType::U8)
                 .unwrap(),
         );
+        let config = MixedConfig {
+            brick_size: 8,
+            ..MixedConfig::default()
+        };
+        let tf = TransferFunction::preset(TfPreset::Bands);
+        pass.set_transfer_function(&tf);
         pass.set_source(VolumeSource::Mixed {
-            volume,
-            config: MixedConfig {
-                brick_size: 8,
-                ..MixedConfig::default()
-            },
+            volume: volume.clone(),
+            config,
         })
         .unwrap();
         let count = pass.brick_cache().unwrap().grid().brick_count();
@@ -217,6 +318,11 @@ fn frames_in_flight_with_residency_changes_and_a_resize_are_validation_clean() {
                 .collect()
         };
         let mut targets = make_targets(&mut allocator, 24);
+        let readbacks: Vec<Readback> = (0..frames)
+            .map(|_| Readback::new(device, &mut allocator, 40 * 40 * 4))
+            .collect();
+        let mut in_flight: Vec<Option<InFlight>> = (0..frames).map(|_| None).collect();
+        let mut checked = 0;
         let mut size = 24;
         for i in 0..12 {
             let slot = i % frames;
@@ -243,11 +349,20 @@ fn frames_in_flight_with_residency_changes_and_a_resize_are_validation_clean() {
                 targets = make_targets(&mut allocator, size);
             }
             let cmd = cmds[slot];
-            // SAFETY: the slot's fence guarantees its previous frame completed.
+            // SAFETY: waiting on our own fence.
             unsafe {
                 device
                     .wait_for_fences(&[fences[slot]], true, u64::MAX)
                     .unwrap();
+            }
+            // The slot's previous frame completed: its copy is in the slot's readback buffer.
+            if let Some(done) = in_flight[slot].take() {
+                let other = in_flight[(slot + 1) % frames].as_ref();
+                check_frame(slot, &done, other, &readbacks[slot].pixels(done.size));
+                checked += 1;
+            }
+            // SAFETY: the slot's fence guarantees its previous frame completed.
+            unsafe {
                 device.reset_fences(&[fences[slot]]).unwrap();
                 device
                     .reset_command_buffer(cmd, vk::CommandBufferResetFlags::empty())
@@ -258,8 +373,9 @@ fn frames_in_flight_with_residency_changes_and_a_resize_are_validation_clean() {
             }
             let target = &targets[slot];
             // Discard the old content and make the target a colour attachment.
+            // (After the slot's previous copy out of it: an execution dependency on that copy.)
             let barrier = [vk::ImageMemoryBarrier2::default()
-                .src_stage_mask(vk::PipelineStageFlags2::NONE)
+                .src_stage_mask(vk::PipelineStageFlags2::COPY)
                 .src_access_mask(vk::AccessFlags2::NONE)
                 .old_layout(vk::ImageLayout::UNDEFINED)
                 .dst_stage_mask(vk::PipelineStageFlags2::COLOR_ATTACHMENT_OUTPUT)
@@ -300,6 +416,77 @@ fn frames_in_flight_with_residency_changes_and_a_resize_are_validation_clean() {
                 )
                 .unwrap();
             assert!(recorded.variant.mixed_resolution);
+            // Copy the frame into the slot's readback buffer, visible to the host at the fence.
+            let to_copy = [vk::ImageMemoryBarrier2::default()
+                .src_stage_mask(vk::PipelineStageFlags2::COLOR_ATTACHMENT_OUTPUT)
+                .src_access_mask(vk::AccessFlags2::COLOR_ATTACHMENT_WRITE)
+                .old_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+                .dst_stage_mask(vk::PipelineStageFlags2::COPY)
+                .dst_access_mask(vk::AccessFlags2::TRANSFER_READ)
+                .new_layout(vk::ImageLayout::TRANSFER_SRC_OPTIMAL)
+                .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                .image(target.image)
+                .subresource_range(COLOR_RANGE)];
+            let region = vk::BufferImageCopy::default()
+                .image_subresource(vk::ImageSubresourceLayers {
+                    aspect_mask: vk::ImageAspectFlags::COLOR,
+                    mip_level: 0,
+                    base_array_layer: 0,
+                    layer_count: 1,
+                })
+                .image_extent(vk::Extent3D {
+                    width: size,
+                    height: size,
+                    depth: 1,
+                });
+            let to_host = [vk::BufferMemoryBarrier2::default()
+                .src_stage_mask(vk::PipelineStageFlags2::COPY)
+                .src_access_mask(vk::AccessFlags2::TRANSFER_WRITE)
+                .dst_stage_mask(vk::PipelineStageFlags2::HOST)
+                .dst_access_mask(vk::AccessFlags2::HOST_READ)
+                .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                .buffer(readbacks[slot].buffer)
+                .offset(0)
+                .size(vk::WHOLE_SIZE)];
+            // SAFETY: `cmd` is recording; the image and the buffer live until the fence.
+            unsafe {
+                device.cmd_pipeline_barrier2(
+                    cmd,
+                    &vk::DependencyInfo::default().image_memory_barriers(&to_copy),
+                );
+                device.cmd_copy_image_to_buffer(
+                    cmd,
+                    target.image,
+                    vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                    readbacks[slot].buffer,
+                    &[region],
+                );
+                device.cmd_pipeline_barrier2(
+                    cmd,
+                    &vk::DependencyInfo::default().buffer_memory_barriers(&to_host),
+                );
+            }
+            // The CPU reference of this frame: its parameters and the residency state it drew.
+            let reference = ReferenceCache::build(
+                &volume,
+                config.filter,
+                pass.brick_cache().unwrap(),
+                ScalarType::U8,
+                config.transition,
+            )
+            .unwrap();
+            in_flight[slot] = Some(InFlight {
+                index: i,
+                size,
+                expected: reference::render_mixed(
+                    &reference.view(),
+                    config.transition,
+                    &tf,
+                    &recorded.params,
+                ),
+            });
             let cmd_infos = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
             let submits = [vk::SubmitInfo2::default().command_buffer_infos(&cmd_infos)];
             // SAFETY: the command buffer is complete; the fence is unsignalled; only this thread
@@ -323,9 +510,21 @@ fn frames_in_flight_with_residency_changes_and_a_resize_are_validation_clean() {
                 assert!(t.raycast_ms.is_some_and(|ms| ms >= 0.0), "{t:?}");
             }
         }
-        // SAFETY: wait for everything, then destroy our objects.
+        // SAFETY: waiting for everything.
+        unsafe { device.device_wait_idle().unwrap() };
+        // The last frame of each slot.
+        for slot in 0..frames {
+            let done = in_flight[slot].take().unwrap();
+            let other = in_flight[(slot + 1) % frames].as_ref();
+            check_frame(slot, &done, other, &readbacks[slot].pixels(done.size));
+            checked += 1;
+        }
+        assert_eq!(checked, 12, "every frame read back");
+        for r in readbacks {
+            r.destroy(device, &mut allocator);
+        }
+        // SAFETY: the device is idle: destroy our objects.
         unsafe {
-            device.device_wait_idle().unwrap();
             for f in fences {
                 device.destroy_fence(f, None);
             }

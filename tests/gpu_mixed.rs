@@ -18,6 +18,16 @@ use std::sync::Arc;
 
 const N: u32 = 8;
 
+/// Least visible fraction of the 80 x 80 Marschner-Lobb images (the volume fills about a third
+/// of the frame; absent bricks remove part of it).
+const COVERAGE_FLOOR: f32 = 0.15;
+
+/// GPU probe vs CPU reference on a u8 cache: the 2e-3 of the f32 field test (8-bit sub-texel
+/// weights) plus one 8-bit step, because lavapipe filters 8-bit textures in 8-bit fixed point
+/// (measured: the probed u8 field is piecewise constant in steps of exactly 1/255, 4.1e-3 from
+/// the reference at worst, the same from a freshly built renderer).
+const U8_PROBE_TOLERANCE: f32 = 2e-3 + 1.0 / 255.0;
+
 fn smooth_random_volume(rng: &mut Rng, dims: UVec3, scalar: ScalarType) -> Volume {
     let count = (dims.x * dims.y * dims.z) as usize;
     let values: Vec<f32> = (0..count).map(|_| rng.unit()).collect();
@@ -291,6 +301,18 @@ fn mixed_images_match_the_reference_and_all_hi_matches_single_resolution() {
                     d.mean < 1e-3 && d.max < 6.0 / 255.0 && d.large_fraction < 0.005,
                     "{transition:?} absent {absent}: {d:?}"
                 );
+                // Not blank, and the same over the covered pixels alone (the mean above is
+                // diluted by the background).
+                let c = common::coverage(&gpu, &cpu, 1.0 / 255.0, 1.0 / 255.0);
+                eprintln!("{transition:?} absent {absent}: {c:?}");
+                assert!(
+                    c.expected_visible >= COVERAGE_FLOOR && c.actual_visible >= COVERAGE_FLOOR,
+                    "{transition:?} absent {absent}: image mostly empty: {c:?}"
+                );
+                assert!(
+                    c.diff.mean < 1e-3 && c.diff.large_fraction < 0.01,
+                    "{transition:?} absent {absent}: covered pixels differ: {c:?}"
+                );
             }
         }
         // Every brick hi-res: the variant has no transition code and the image equals the
@@ -314,10 +336,23 @@ fn mixed_images_match_the_reference_and_all_hi_matches_single_resolution() {
             d.mean < 1e-4 && d.max < 2.0 / 255.0,
             "all-hi mixed vs single: {d:?}"
         );
+        let c = common::coverage(&mixed, &frame.pixels, 1.0 / 255.0, 1.0 / 255.0);
+        assert!(
+            c.expected_visible >= COVERAGE_FLOOR && c.actual_visible >= COVERAGE_FLOOR,
+            "all-hi mixed vs single: image mostly empty: {c:?}"
+        );
+        assert!(c.diff.mean < 1e-4, "all-hi mixed vs single, covered: {c:?}");
     }
     common::finish(ctx);
 }
 
+/// A hundred residency changes (small edits, and a full reshuffle every tenth step) under
+/// validation; after every change the GPU field at 150 critical points (brick faces, texel
+/// centres, random) equals the CPU reference of that cache state ([`U8_PROBE_TOLERANCE`];
+/// residency exactly), and
+/// every fifth state's frame equals the reference render of that state over its covered pixels
+/// (RGBA8: reference tolerances plus half a quantisation step), with at least 15 % of the frame
+/// visible. A stale or misplaced brick changes the field where it lies.
 #[test]
 fn a_hundred_residency_changes_stay_validation_clean() {
     let ctx = common::validated_context();
@@ -329,15 +364,21 @@ fn a_hundred_residency_changes_stay_validation_clean() {
                 .unwrap(),
         );
         let count = BrickGrid::new(volume.dims(), N).unwrap().brick_count();
+        let tf = TransferFunction::preset(TfPreset::Bands);
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm).unwrap();
+        renderer.set_transfer_function(&tf).unwrap();
         renderer
             .set_source(VolumeSource::Mixed {
-                volume,
+                volume: volume.clone(),
                 config: config(Transition::Smooth),
             })
             .unwrap();
         let camera = Camera::default_view();
+        let settings = RenderSettings::default();
+        let size = 24u32;
         let mut previous = random_levels(&mut rng, count, true);
+        let mut compared_points = 0usize;
+        let mut compared_frames = 0usize;
         for step in 0..100 {
             // Small changes most of the time, a full reshuffle now and then.
             let levels = if step % 10 == 0 {
@@ -355,12 +396,59 @@ fn a_hundred_residency_changes_stay_validation_clean() {
                 report.hi_bricks,
                 levels.iter().filter(|l| **l == Level::Hi).count()
             );
-            let frame = renderer
-                .render(&camera, &RenderSettings::default(), 24, 24)
-                .unwrap();
+            let frame = renderer.render(&camera, &settings, size, size).unwrap();
             assert!(frame.pixels.iter().all(|p| p.is_finite()));
+            let reference = ReferenceCache::build(
+                &volume,
+                DownsampleFilter::Mean2,
+                renderer.brick_cache().unwrap(),
+                ScalarType::U8,
+                Transition::Smooth,
+            )
+            .unwrap();
+            let points = critical_points(&mut rng, volume.dims(), 150);
+            let gpu = renderer.probe_field(&points).unwrap();
+            for (p, g) in points.iter().zip(&gpu) {
+                let cpu = sample_mixed(&reference.view(), *p, Transition::Smooth);
+                match (g, cpu) {
+                    (Some(g), Some(c)) => {
+                        assert!(
+                            (g - c).abs() < U8_PROBE_TOLERANCE,
+                            "step {step} {p}: gpu field {g}, reference {c}"
+                        );
+                        compared_points += 1;
+                    }
+                    (g, c) => assert_eq!(
+                        g.is_some(),
+                        c.is_some(),
+                        "step {step} {p}: residency differs (gpu {g:?}, reference {c:?})"
+                    ),
+                }
+            }
+            if step % 5 == 4 {
+                let params = renderer.params(&camera, &settings, size, size).unwrap();
+                let expected =
+                    reference::render_mixed(&reference.view(), Transition::Smooth, &tf, &params);
+                let c = common::coverage(&frame.pixels, &expected, 1.0 / 255.0, 1.5 / 255.0);
+                assert!(
+                    c.expected_visible >= 0.15 && c.actual_visible >= 0.15,
+                    "step {step}: frame mostly empty: {c:?}"
+                );
+                assert!(
+                    c.diff.mean < 1.5e-3 + 0.5 / 255.0
+                        && c.diff.max < 6.5 / 255.0
+                        && c.diff.large_fraction < 0.01,
+                    "step {step}: frame differs from the reference of its cache state: {c:?}"
+                );
+                compared_frames += 1;
+            }
             previous = levels;
         }
+        assert!(
+            compared_points > 5000,
+            "few resident points: {compared_points}"
+        );
+        assert_eq!(compared_frames, 20);
     }
     common::finish(ctx);
 }

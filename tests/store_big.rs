@@ -2,7 +2,10 @@
 //! analytic field, then streamed under a 64 MiB budget while the process's peak RSS (VmHWM) is
 //! checked. VmHWM is process-wide, so this file holds a single test.
 //!
-//! The edge length defaults to 1024 (a 1.35 GiB store); `MIXVOL_STORE_BIG_DIM` overrides it.
+//! The edge length defaults to 1024 (a 1.35 GiB store); `MIXVOL_STORE_BIG_DIM` overrides it with
+//! a larger one. Smaller ones are refused (the test fails saying so): below 1024 the store is no
+//! longer 8 times the RAM budget, the views no longer exceed it and nothing is evicted, so the
+//! out-of-core test would silently become an in-core one.
 
 use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{
@@ -127,13 +130,33 @@ impl Drop for RemoveOnDrop {
     }
 }
 
+/// The smallest edge length for which the store is over 8 x the RAM budget, the views exceed it
+/// and the streamer has to evict (the default).
+const MIN_DIM: u32 = 1024;
+
+/// The edge length from `MIXVOL_STORE_BIG_DIM` (`None`: unset): the default [`MIN_DIM`], or a
+/// larger one; a smaller or unparsable one panics with the reason.
+fn big_dim(var: Option<&str>) -> u32 {
+    let Some(text) = var else {
+        return MIN_DIM;
+    };
+    let dim: u32 = text.trim().parse().unwrap_or_else(|_| {
+        panic!("MIXVOL_STORE_BIG_DIM={text:?} is not an edge length (unset it for {MIN_DIM})")
+    });
+    assert!(
+        dim >= MIN_DIM,
+        "MIXVOL_STORE_BIG_DIM={dim} is refused: below {MIN_DIM} the store is not 8 x the \
+         {} MiB RAM budget, the views do not exceed it and nothing is evicted, so the test \
+         would not test out-of-core streaming (unset it, or use {MIN_DIM} or more)",
+        RAM_BUDGET >> 20
+    );
+    dim
+}
+
 #[test]
 fn out_of_core_volume_streams_within_the_ram_budget() {
     let baseline = vm_hwm();
-    let dim: u32 = std::env::var("MIXVOL_STORE_BIG_DIM")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(1024);
+    let dim = big_dim(std::env::var("MIXVOL_STORE_BIG_DIM").ok().as_deref());
     let d = dim as i32;
     let field = Field::new(dim);
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("store-tests");
@@ -174,7 +197,10 @@ fn out_of_core_volume_streams_within_the_ram_budget() {
     let store = BrickStore::open(&path).unwrap();
     let grid = store.grid();
     let b = grid.bricks_per_axis();
-    assert!(file_size as usize > 8 * RAM_BUDGET || dim < 1024);
+    assert!(
+        file_size as usize > 8 * RAM_BUDGET,
+        "the store ({file_size} bytes) must be over 8 x the RAM budget"
+    );
     let samples = [
         UVec3::ZERO,
         b - UVec3::ONE,
@@ -301,12 +327,10 @@ fn out_of_core_volume_streams_within_the_ram_budget() {
         );
         assert!(stats.peak_bytes <= RAM_BUDGET, "{stats:?}");
         assert!(stats.resident_bytes <= RAM_BUDGET, "{stats:?}");
-        if dim >= 1024 {
-            assert!(
-                wanted_bytes > RAM_BUDGET,
-                "the views must exceed the budget"
-            );
-        }
+        assert!(
+            wanted_bytes > RAM_BUDGET,
+            "view {view}: the views must exceed the budget ({wanted_bytes} bytes wanted)"
+        );
         // The resident prefix is the plan's: every wanted level up to the first missing one.
         let first_missing = plan
             .iter()
@@ -340,9 +364,11 @@ fn out_of_core_volume_streams_within_the_ram_budget() {
         &*streamer.brick_bytes(some_hi.0, Level::Hi).unwrap().unwrap(),
         &expected_hi(&field, d, grid.brick_coords(some_hi.0 as usize))[..]
     );
-    if dim >= 1024 {
-        assert!(streamer.stats().evictions > 0);
-    }
+    assert!(
+        streamer.stats().evictions > 0,
+        "nothing was evicted: {:?}",
+        streamer.stats()
+    );
     let value_range: ValueRange = streamer.value_range();
     assert!(value_range.max > value_range.min);
     drop(streamer);

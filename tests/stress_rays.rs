@@ -198,6 +198,23 @@ fn cameras() -> Vec<(&'static str, Camera, (u32, u32))> {
     ]
 }
 
+/// Least visible fraction of each camera's mixed image (half or less of the measured fraction
+/// with two random plans), `None` for the camera that looks out of the volume from its corner,
+/// whose image must be exactly empty.
+fn min_visible(camera: &str) -> Option<f32> {
+    match camera {
+        "eye-on-volume-corner-out" => None,
+        // A quarter of the frame shows the volume (the edge at the image centre).
+        "grazing-edge" => Some(0.12),
+        // Measured 0.44 and 0.47 (the near and far planes cut most rays).
+        "near-far-cut" => Some(0.2),
+        // Half the frame looks into the volume.
+        "eye-on-volume-face-along" => Some(0.25),
+        // The rest see the volume over 0.78 of the frame or more.
+        _ => Some(0.4),
+    }
+}
+
 fn ml_volume() -> Volume {
     SyntheticField::MarschnerLobb
         .generate(UVec3::splat(DIM), ScalarType::F32)
@@ -229,7 +246,9 @@ fn single_resolution_rays_match_reference() {
 
 /// Mixed resolution (smooth): random plans with hi, lo and absent bricks, brick (2, 2, 2) absent
 /// (the eye-in-culled-brick camera sits inside it, and the brick-corner cameras on its corner):
-/// every camera's image is finite, bounded and equal to the CPU reference.
+/// every camera's image is finite, bounded and equal to the CPU reference, over the whole image
+/// and over its covered pixels, with at least the camera's [`min_visible`] fraction visible (the
+/// camera looking out of the volume sees an exactly empty image).
 #[test]
 fn mixed_resolution_rays_match_reference() {
     let ctx = common::validated_context();
@@ -270,10 +289,19 @@ fn mixed_resolution_rays_match_reference() {
                     &settings,
                     size,
                 );
+                let floor = min_visible(name);
                 let name = format!("rays-mixed{plan}-{name}");
                 assert_sane_pixels(&name, &gpu, 1.0, 1e-5);
                 assert_sane_pixels(&format!("{name}-cpu"), &cpu, 1.0, 1e-5);
-                assert_images_match(&name, size.0, size.1, &gpu, &cpu);
+                match floor {
+                    Some(floor) => {
+                        assert_images_match_covered(&name, size.0, size.1, &gpu, &cpu, floor)
+                    }
+                    None => assert!(
+                        gpu.iter().chain(&cpu).all(|p| *p == Vec4::ZERO),
+                        "{name}: the camera looks away from the volume: the image must be empty"
+                    ),
+                }
             }
         }
     }

@@ -125,3 +125,49 @@ impl Rng {
         (self.next() % n as u64) as u32
     }
 }
+
+/// Coverage of an image pair: the visible fraction of each image, and the differences over the
+/// covered pixels only (where either image has opacity above `covered_alpha`), so that a blank
+/// or mostly-background image can neither pass a coverage floor nor dilute a mean.
+#[derive(Debug)]
+pub struct Coverage {
+    /// Fraction of `actual`'s pixels with opacity above `VISIBLE_ALPHA`.
+    pub actual_visible: f32,
+    /// Fraction of `expected`'s pixels with opacity above `VISIBLE_ALPHA`.
+    pub expected_visible: f32,
+    /// Number of covered pixels compared.
+    pub covered: usize,
+    /// Differences over the covered pixels (all zero when none is covered).
+    pub diff: Diff,
+}
+
+/// Opacity above which a pixel counts as visible for coverage floors.
+pub const VISIBLE_ALPHA: f32 = 0.05;
+
+/// [`Coverage`] of `actual` against `expected`; `large` as in [`diff`].
+pub fn coverage(actual: &[Vec4], expected: &[Vec4], covered_alpha: f32, large: f32) -> Coverage {
+    assert_eq!(actual.len(), expected.len());
+    let n = actual.len().max(1) as f32;
+    let visible = |img: &[Vec4]| img.iter().filter(|p| p.w > VISIBLE_ALPHA).count() as f32 / n;
+    let (a, e): (Vec<Vec4>, Vec<Vec4>) = actual
+        .iter()
+        .zip(expected)
+        .filter(|(a, e)| a.w > covered_alpha || e.w > covered_alpha)
+        .map(|(a, e)| (*a, *e))
+        .unzip();
+    let diff = if a.is_empty() {
+        Diff {
+            max: 0.0,
+            mean: 0.0,
+            large_fraction: 0.0,
+        }
+    } else {
+        diff(&a, &e, large)
+    };
+    Coverage {
+        actual_visible: visible(actual),
+        expected_visible: visible(expected),
+        covered: a.len(),
+        diff,
+    }
+}

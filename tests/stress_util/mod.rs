@@ -21,6 +21,9 @@ pub const MEAN_TOLERANCE: f32 = 1.0 / 1000.0;
 pub const LARGE: f32 = 1.0 / 255.0;
 pub const LARGE_FRACTION_TOLERANCE: f32 = 0.005;
 pub const MAX_TOLERANCE: f32 = 6.0 / 255.0;
+/// The fraction of covered pixels' channels allowed above [`LARGE`]: twice
+/// [`LARGE_FRACTION_TOLERANCE`], as it is no longer diluted by the background.
+pub const COVERED_LARGE_FRACTION_TOLERANCE: f32 = 0.01;
 
 /// An f32 volume with unit spacing (or `spacing`) whose voxel `(x, y, z)` holds `f(x, y, z)`.
 pub fn f32_volume(dims: UVec3, spacing: Vec3, f: impl Fn(UVec3) -> f32) -> Volume {
@@ -128,6 +131,41 @@ pub fn assert_images_match(name: &str, width: u32, height: u32, gpu: &[Vec4], cp
     }
     let visible = cpu.iter().filter(|p| p.w > 0.05).count();
     eprintln!("{name}: {visible}/{} visible, {d:?}", cpu.len());
+}
+
+/// [`assert_images_match`], and: at least `min_visible` of the pixels of both images visible
+/// (opacity above [`common::VISIBLE_ALPHA`]), so a blank pair cannot pass, and the covered pixels
+/// alone (opacity above [`LARGE`] in either image) within the same tolerances, so the background
+/// cannot dilute the mean or the fraction of large differences.
+pub fn assert_images_match_covered(
+    name: &str,
+    width: u32,
+    height: u32,
+    gpu: &[Vec4],
+    cpu: &[Vec4],
+    min_visible: f32,
+) {
+    assert_images_match(name, width, height, gpu, cpu);
+    let c = common::coverage(gpu, cpu, LARGE, LARGE);
+    assert!(
+        c.expected_visible >= min_visible && c.actual_visible >= min_visible,
+        "{name}: less than {min_visible} of the image visible: {c:?}"
+    );
+    let d = &c.diff;
+    let ok = d.mean <= MEAN_TOLERANCE
+        && d.large_fraction <= COVERED_LARGE_FRACTION_TOLERANCE
+        && d.max <= MAX_TOLERANCE;
+    if !ok {
+        let dir = common::write_failure_images(name, width, height, gpu, cpu);
+        panic!(
+            "{name}: covered pixels differ from the CPU reference: {c:?} (images in {})",
+            dir.display()
+        );
+    }
+    eprintln!(
+        "{name}: visible {:.3} / {:.3}, covered {c:?}",
+        c.actual_visible, c.expected_visible
+    );
 }
 
 /// Renders `volume` single-resolution on the GPU and with the CPU reference; returns both images.

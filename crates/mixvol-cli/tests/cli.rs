@@ -75,8 +75,13 @@ fn bad_flag_values_are_rejected_with_the_reason() {
     let out = mixvol().args(["render", "--dims", "4,4"]).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("x,y,z"));
+    // An unknown preset is a usage error: refused while parsing the arguments (clap's exit code
+    // 2, not the 1 of a failed command), naming the value and the presets.
     let out = mixvol().args(["render", "--tf", "nope"]).output().unwrap();
-    assert!(String::from_utf8_lossy(&out.stderr).contains("grey"));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "--tf nope accepted: {err}");
+    assert_eq!(out.status.code(), Some(2), "--tf nope: {err}");
+    assert!(err.contains("nope") && err.contains("grey"), "{err}");
 }
 
 #[test]

@@ -9,6 +9,7 @@
 //! failed convert leaves nothing under STORE (with `--force`, an existing STORE stays as it was).
 
 use crate::args::ConvertArgs;
+use crate::stats::peak_rss_bytes;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use mixvol::store::{
     plan_slab_write, slab_store_desc, write_store_from_slabs,
@@ -224,14 +225,6 @@ fn update(bar: &ProgressBar, done: u64, total: u64) {
         bar.set_length(total);
     }
     bar.set_position(done);
-}
-
-/// The process's peak resident set (`VmHWM` of /proc/self/status), in bytes.
-pub fn peak_rss_bytes() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib * 1024)
 }
 
 /// Prints the summary and writes `--stats-json`.

@@ -9,7 +9,7 @@ use crate::files::create_parent;
 use crate::frame_log::{write_log, FrameRow};
 use crate::input::{open_input, window_of, Input};
 use crate::levels::level_pattern;
-use crate::stats::Summary;
+use crate::stats::{peak_rss_bytes, Summary};
 use mixvol::bricks::BrickGrid;
 use mixvol::gpu::{ContextDesc, GpuContext, MessageLog};
 use mixvol::optics::TransferFunction;
@@ -335,6 +335,9 @@ pub fn render(args: &RenderArgs) -> Result<()> {
             "  note: {} is a CPU implementation; these times are not GPU times",
             info.name
         );
+    }
+    if let Some(peak) = peak_rss_bytes() {
+        println!("peak RSS: {:.1} MB", peak as f64 / 1e6);
     }
     drop(renderer);
     drop(scene);

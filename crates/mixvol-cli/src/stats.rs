@@ -1,4 +1,5 @@
-//! Minimum, median, 95th percentile and maximum of a timing series: the one summary every command prints.
+//! Minimum, median, 95th percentile and maximum of a timing series: the one summary every
+//! command prints; and the process's peak RSS.
 
 /// min / median / max of a series of times.
 #[derive(Copy, Clone, Debug, PartialEq)]
@@ -28,6 +29,14 @@ impl Summary {
             max: v[v.len() - 1],
         })
     }
+}
+
+/// The process's peak resident set (`VmHWM` of /proc/self/status), in bytes.
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
 }
 
 #[cfg(test)]

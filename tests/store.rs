@@ -314,7 +314,7 @@ impl BrickStoreLayout {
         let (r, o) = (u64_at(72), u64_at(80));
         Self {
             ranges: r..r + 8 * count,
-            offsets: o..o + 16 * count,
+            offsets: o..o + format::OFFSET_ENTRY_BYTES as usize * count,
             data: u64_at(88),
         }
     }
@@ -331,7 +331,8 @@ fn header_fields_are_validated_by_name() {
     };
     let cases: Vec<(Vec<u8>, &str)> = vec![
         (patch(0, b"MIXVOLBX"), "magic"),
-        (patch(8, &2u32.to_le_bytes()), "version"),
+        (patch(8, &3u32.to_le_bytes()), "version"),
+        (patch(8, &1u32.to_le_bytes()), "version"),
         (patch(8, &0u32.to_le_bytes()), "version"),
         (patch(12, &64u32.to_le_bytes()), "header_size"),
         (patch(20, &0u32.to_le_bytes()), "dims"),
@@ -408,7 +409,8 @@ fn table_contents_are_validated() {
     reseal(&mut b);
     assert_eq!(field_of(open_bytes(&b, "range")), "value_ranges");
     let mut b = good.clone();
-    let at = layout.offsets.start + 16;
+    let entry = format::OFFSET_ENTRY_BYTES as usize;
+    let at = layout.offsets.start + entry;
     b[at..at + 8].copy_from_slice(&(good.len() as u64 - 10).to_le_bytes());
     reseal(&mut b);
     assert_eq!(field_of(open_bytes(&b, "offset-out")), "offsets");
@@ -423,10 +425,10 @@ fn table_contents_are_validated() {
     assert_eq!(field_of(open_bytes(&b, "offset-header")), "offsets");
     // A sealed permutation of the offsets is a valid (non-canonical) store.
     let mut b = good.clone();
-    let (x, y) = (layout.offsets.start, layout.offsets.start + 16);
-    let (first, second) = (b[x..x + 16].to_vec(), b[y..y + 16].to_vec());
-    b[x..x + 16].copy_from_slice(&second);
-    b[y..y + 16].copy_from_slice(&first);
+    let (x, y) = (layout.offsets.start, layout.offsets.start + entry);
+    let (first, second) = (b[x..x + entry].to_vec(), b[y..y + entry].to_vec());
+    b[x..x + entry].copy_from_slice(&second);
+    b[y..y + entry].copy_from_slice(&first);
     reseal(&mut b);
     let path = temp_path("permuted");
     std::fs::write(&path, &b).unwrap();
@@ -458,15 +460,35 @@ fn every_corrupted_header_or_table_byte_is_an_error_never_a_panic() {
             }
         }
     }
-    // Brick data is not checksummed: a flipped data byte opens and reads back flipped.
-    let mut b = good.clone();
-    b[layout.data] ^= 0xFF;
-    std::fs::write(&path, &b).unwrap();
-    let store = BrickStore::open(&path).unwrap();
-    assert_eq!(
-        store.read_brick(0, Level::Hi).unwrap()[0],
-        good[layout.data] ^ 0xFF
-    );
+    // Brick data carries a CRC-32 per level: a flipped data byte opens (the tables are intact)
+    // and the read of that brick level is an error naming it; the other levels read fine.
+    let original = open_bytes(&good, "fuzz-orig").unwrap();
+    let lo_of_0 = original.level_offset(0, Level::Lo).unwrap() as usize;
+    for (at, brick, level) in [
+        (layout.data, 0, Level::Hi),
+        (lo_of_0 + 3, 0, Level::Lo),
+        (good.len() - 1, original.brick_count() - 1, Level::Lo),
+    ] {
+        let mut b = good.clone();
+        b[at] ^= 0x10;
+        std::fs::write(&path, &b).unwrap();
+        let store = BrickStore::open(&path).unwrap();
+        match store.read_brick(brick, level) {
+            Err(StoreError::BrickChecksum {
+                brick: b, level: l, ..
+            }) => assert_eq!((b, l), (brick, level)),
+            other => panic!("byte {at}: {other:?}"),
+        }
+        let other = if level == Level::Hi {
+            Level::Lo
+        } else {
+            Level::Hi
+        };
+        assert_eq!(
+            store.read_brick(brick, other).unwrap(),
+            original.read_brick(brick, other).unwrap()
+        );
+    }
     std::fs::remove_file(&path).unwrap();
 }
 

@@ -1,16 +1,20 @@
-//! The brick store file format, version 1 (specified byte by byte in `docs/brick-store.md`).
+//! The brick store file format, version 2 (specified byte by byte in `docs/brick-store.md`).
 //!
 //! ```text
 //! [0, 128)                       header (little-endian, see StoreHeader / the docs)
 //! [ranges_offset, +8*count)      per brick: min f32, max f32
-//! [offsets_offset, +16*count)    per brick: hi_offset u64, lo_offset u64 (absolute file offsets)
+//! [offsets_offset, +24*count)    per brick: hi_offset u64, lo_offset u64 (absolute file offsets),
+//!                                hi_crc32 u32, lo_crc32 u32 (CRC-32 of each level's bytes)
 //! [data_offset, file_size)       brick data: per brick the hi-res brick then the low-res brick
 //! ```
 //!
 //! Every integer and float is little-endian. Brick texels are the storage scalar type
 //! (`u8` / `u16` UNORM or `f32`), x fastest, little-endian. The header and both tables are covered
-//! by a 64-bit FNV-1a checksum; brick data is not checksummed (a brick level is one positioned read
-//! of `hi_brick_bytes` / `lo_brick_bytes` at its offset).
+//! by a 64-bit FNV-1a checksum; every brick level by its CRC-32 (IEEE, as `crc32fast` computes
+//! it), checked on every read, so a corrupt brick is an error naming the brick, never a wrong
+//! image. A brick level is one positioned read of `hi_brick_bytes` / `lo_brick_bytes` at its
+//! offset. Version 1 (no CRCs, 16-byte offset entries) is refused with a message to convert
+//! again.
 //!
 //! [`parse_header`] and [`parse_tables`] validate every field with checked arithmetic and name the
 //! field at fault in [`StoreError::Format`]; they never panic on any input.
@@ -29,7 +33,7 @@ use std::path::Path;
 pub const MAGIC: [u8; 8] = *b"MIXVOLBS";
 
 /// The format version this crate writes and reads.
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
 
 /// Bytes of the fixed header.
 pub const HEADER_SIZE: usize = 128;
@@ -37,8 +41,13 @@ pub const HEADER_SIZE: usize = 128;
 /// Bytes per brick of the value-range table (min f32, max f32).
 pub const RANGE_ENTRY_BYTES: u64 = 8;
 
-/// Bytes per brick of the offset table (hi u64, lo u64).
-pub const OFFSET_ENTRY_BYTES: u64 = 16;
+/// Bytes per brick of the offset table (hi u64, lo u64, hi CRC-32 u32, lo CRC-32 u32).
+pub const OFFSET_ENTRY_BYTES: u64 = 24;
+
+/// The CRC-32 a store records for a brick level's (little-endian) bytes.
+pub fn brick_crc(bytes: &[u8]) -> u32 {
+    crc32fast::hash(bytes)
+}
 
 /// The writer aligns the start of the brick data to this many bytes.
 pub const DATA_ALIGNMENT: u64 = 4096;
@@ -246,14 +255,18 @@ pub fn encode_ranges(ranges: &[ValueRange]) -> Vec<u8> {
         .collect()
 }
 
-/// Encodes the offset table (`hi, lo` u64 per brick).
-pub fn encode_offsets(offsets: &[[u64; 2]]) -> Vec<u8> {
+/// Encodes the offset table (`hi, lo` u64 and their CRC-32s per brick; `crcs` has one pair per
+/// brick of `offsets`).
+pub fn encode_offsets(offsets: &[[u64; 2]], crcs: &[[u32; 2]]) -> Vec<u8> {
     offsets
         .iter()
-        .flat_map(|[hi, lo]| {
-            let mut e = [0u8; 16];
+        .zip(crcs)
+        .flat_map(|([hi, lo], [hi_crc, lo_crc])| {
+            let mut e = [0u8; OFFSET_ENTRY_BYTES as usize];
             e[..8].copy_from_slice(&hi.to_le_bytes());
-            e[8..].copy_from_slice(&lo.to_le_bytes());
+            e[8..16].copy_from_slice(&lo.to_le_bytes());
+            e[16..20].copy_from_slice(&hi_crc.to_le_bytes());
+            e[20..].copy_from_slice(&lo_crc.to_le_bytes());
             e
         })
         .collect()
@@ -564,6 +577,8 @@ pub struct StoreTables {
     pub ranges: Vec<ValueRange>,
     /// Per-brick `[hi, lo]` absolute file offsets.
     pub offsets: Vec<[u64; 2]>,
+    /// Per-brick `[hi, lo]` CRC-32s of the levels' bytes ([`brick_crc`]).
+    pub crcs: Vec<[u32; 2]>,
 }
 
 /// Parses and validates the value-range and offset tables against `header` and the checksum in
@@ -608,9 +623,14 @@ pub fn parse_tables(
     }
     let lens = [header.hi_brick_bytes, header.lo_brick_bytes];
     let mut offsets = Vec::with_capacity(count);
+    let mut crcs = Vec::with_capacity(count);
     let mut extents = Vec::with_capacity(2 * count);
-    for (i, e) in offsets_bytes.chunks_exact(16).enumerate() {
+    for (i, e) in offsets_bytes
+        .chunks_exact(OFFSET_ENTRY_BYTES as usize)
+        .enumerate()
+    {
         let pair = [le_u64(e, 0), le_u64(e, 8)];
+        crcs.push([le_u32(e, 16), le_u32(e, 20)]);
         for (level, (&start, &len)) in ["hi", "lo"].iter().zip(pair.iter().zip(&lens)) {
             let inside = start >= header.data_offset
                 && start
@@ -642,5 +662,9 @@ pub fn parse_tables(
             ));
         }
     }
-    Ok(StoreTables { ranges, offsets })
+    Ok(StoreTables {
+        ranges,
+        offsets,
+        crcs,
+    })
 }

@@ -91,6 +91,24 @@ pub enum StoreError {
         /// Bricks in the store.
         count: u32,
     },
+    /// A brick level's bytes do not match the CRC-32 the store recorded for them: the file was
+    /// altered or damaged after it was written.
+    #[error(
+        "{path}: brick {brick} level {level:?} is corrupt: its bytes hash to CRC-32 {computed:#010x} \
+         but the store recorded {stored:#010x} (convert the source again)"
+    )]
+    BrickChecksum {
+        /// The store file.
+        path: PathBuf,
+        /// The brick.
+        brick: u32,
+        /// The level.
+        level: crate::bricks::Level,
+        /// The CRC-32 the store recorded.
+        stored: u32,
+        /// The CRC-32 of the bytes read.
+        computed: u32,
+    },
     /// `Level::Absent` was asked for; only `Hi` and `Lo` have bytes.
     #[error("brick {brick}: level Absent has no bytes")]
     AbsentLevel {

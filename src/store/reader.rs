@@ -1,8 +1,8 @@
 //! Opening a brick store and reading brick levels with positioned reads.
 
 use super::format::{
-    format_error, parse_header, parse_tables, StoreHeader, HEADER_SIZE, OFFSET_ENTRY_BYTES,
-    RANGE_ENTRY_BYTES,
+    brick_crc, format_error, parse_header, parse_tables, StoreHeader, HEADER_SIZE,
+    OFFSET_ENTRY_BYTES, RANGE_ENTRY_BYTES,
 };
 use super::StoreError;
 use crate::bricks::{BrickGrid, DownsampleFilter, Level, ValueRange};
@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 /// An open, validated brick store file (the on-disk counterpart of the in-memory
 /// [`crate::bricks::PackedBricks`]).
 ///
-/// Holds the header, the per-brick value ranges and the offset table in RAM (24 bytes per
+/// Holds the header, the per-brick value ranges and the offset table in RAM (32 bytes per
 /// brick); brick texels stay on disk until [`BrickStore::read_brick`] reads one level of one brick
 /// with one positioned read. `&self` methods are safe to call from several threads at once.
 #[derive(Debug)]
@@ -28,6 +28,7 @@ pub struct BrickStore {
     grid: BrickGrid,
     ranges: Vec<ValueRange>,
     offsets: Vec<[u64; 2]>,
+    crcs: Vec<[u32; 2]>,
 }
 
 impl BrickStore {
@@ -70,6 +71,7 @@ impl BrickStore {
             grid,
             ranges: tables.ranges,
             offsets: tables.offsets,
+            crcs: tables.crcs,
         })
     }
 
@@ -147,8 +149,8 @@ impl BrickStore {
     /// Reads `brick` at `level`: `(n+2)^3` (Hi) or `(n/2+1)^3` (Lo) texels of the storage type, x
     /// fastest, native-endian (what [`crate::bricks::quantize_to`] returns), with one positioned
     /// read. A failed read (a file cut after opening) is a [`StoreError::Io`] whose message names
-    /// the brick, the level and the byte range. Brick bytes carry no checksum (format version 1):
-    /// a brick whose bytes were altered in place reads as those bytes.
+    /// the brick, the level and the byte range; bytes that do not match the level's recorded
+    /// CRC-32 are a [`StoreError::BrickChecksum`] naming the brick and the level.
     pub fn read_brick(&self, brick: u32, level: Level) -> Result<Vec<u8>, StoreError> {
         let mut out = vec![0u8; self.level_bytes(level)];
         self.read_brick_into(brick, level, &mut out)?;
@@ -192,6 +194,17 @@ impl BrickStore {
                     ),
                 ),
             })?;
+        let stored = self.crcs[brick as usize][usize::from(level == Level::Lo)];
+        let computed = brick_crc(out);
+        if computed != stored {
+            return Err(StoreError::BrickChecksum {
+                path: self.path.clone(),
+                brick,
+                level,
+                stored,
+                computed,
+            });
+        }
         le_to_native(out, self.header.scalar);
         Ok(())
     }

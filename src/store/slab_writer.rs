@@ -196,6 +196,7 @@ pub fn write_store_from_slabs(
     assemble(path, desc, plan.threads, &mut |target| {
         let total = u64::from(target.header.brick_count);
         let mut ranges = vec![ValueRange::EMPTY; target.header.brick_count as usize];
+        let mut crcs = vec![[0u32; 2]; target.header.brick_count as usize];
         let mut value_range = ValueRange::EMPTY;
         let mut done = 0u64;
         progress(0, total);
@@ -242,13 +243,14 @@ pub fn write_store_from_slabs(
                 &mut |chunk| {
                     let first = chunk.first as usize;
                     ranges[first..first + chunk.ranges.len()].copy_from_slice(&chunk.ranges);
+                    crcs[first..first + chunk.crcs.len()].copy_from_slice(&chunk.crcs);
                     done += chunk.ranges.len() as u64;
                     progress(done, total);
                 },
             )?;
         }
         reader.finish()?;
-        Ok((ranges, value_range))
+        Ok((ranges, value_range, crcs))
     })
 }
 

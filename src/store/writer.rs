@@ -20,8 +20,8 @@
 //! exactly the bytes and ranges those functions produce.
 
 use super::format::{
-    canonical_brick_offset, canonical_header, encode_header, encode_offsets, encode_ranges,
-    finish_checksum, StoreHeader,
+    brick_crc, canonical_brick_offset, canonical_header, encode_header, encode_offsets,
+    encode_ranges, finish_checksum, StoreHeader,
 };
 use super::StoreError;
 use crate::bricks::kernel::texel::Texel;
@@ -159,8 +159,9 @@ pub(super) struct Target<'a> {
     pub path: &'a Path,
 }
 
-/// What a brick producer returns: the per-brick value ranges and the volume's value range.
-pub(super) type Written = (Vec<ValueRange>, ValueRange);
+/// What a brick producer returns: the per-brick value ranges, the volume's value range and the
+/// per-brick `[hi, lo]` CRC-32s.
+pub(super) type Written = (Vec<ValueRange>, ValueRange, Vec<[u32; 2]>);
 
 /// Checks `desc`, creates `<path>.partial` at its final length, lets `bricks` write every brick
 /// into it (returning the per-brick ranges and the volume's value range), then writes the tables
@@ -213,7 +214,7 @@ pub(super) fn assemble(
             header: &header,
             path: &partial,
         };
-        let (ranges, value_range) = bricks(&target)?;
+        let (ranges, value_range, crcs) = bricks(&target)?;
         header.value_range = value_range;
         let offsets: Vec<[u64; 2]> = (0..header.brick_count)
             .map(|i| {
@@ -222,7 +223,7 @@ pub(super) fn assemble(
             })
             .collect();
         let ranges_bytes = encode_ranges(&ranges);
-        let offsets_bytes = encode_offsets(&offsets);
+        let offsets_bytes = encode_offsets(&offsets, &crcs);
         let mut header_bytes = encode_header(&header);
         finish_checksum(&mut header_bytes, &ranges_bytes, &offsets_bytes);
         file.write_all_at(&ranges_bytes, header.ranges_offset)
@@ -344,6 +345,8 @@ pub(super) struct ChunkDone {
     pub(super) first: u32,
     pub(super) ranges: Vec<ValueRange>,
     pub(super) voxels: ValueRange,
+    /// Per brick of the chunk, the `[hi, lo]` CRC-32s of the bytes written.
+    pub(super) crcs: Vec<[u32; 2]>,
 }
 
 /// The chunks of brick layer `bz` (every `by`, runs along x as long as [`CHUNK_WINDOW_BYTES`]
@@ -371,12 +374,13 @@ fn write_bricks(
     voxels: Voxels<'_>,
     threads: usize,
     progress: &mut dyn FnMut(u64, u64),
-) -> Result<(Vec<ValueRange>, ValueRange), StoreError> {
+) -> Result<Written, StoreError> {
     let chunks: Vec<Chunk> = (0..target.grid.bricks_per_axis().z)
         .flat_map(|bz| layer_chunks(target.grid, bz))
         .collect();
     let total = target.header.brick_count as u64;
     let mut ranges = vec![ValueRange::EMPTY; target.header.brick_count as usize];
+    let mut crcs = vec![[0u32; 2]; target.header.brick_count as usize];
     let mut value_range = ValueRange::EMPTY;
     let mut done = 0u64;
     progress(0, total);
@@ -386,6 +390,7 @@ fn write_bricks(
     pack_chunks(target, voxels, &chunks, &mut workers, &mut |chunk| {
         let first = chunk.first as usize;
         ranges[first..first + chunk.ranges.len()].copy_from_slice(&chunk.ranges);
+        crcs[first..first + chunk.crcs.len()].copy_from_slice(&chunk.crcs);
         value_range.include(chunk.voxels.min);
         value_range.include(chunk.voxels.max);
         done += chunk.ranges.len() as u64;
@@ -395,7 +400,7 @@ fn write_bricks(
         let (min, max) = volume.value_range();
         value_range = ValueRange { min, max };
     }
-    Ok((ranges, value_range))
+    Ok((ranges, value_range, crcs))
 }
 
 /// Packs and writes `chunks` on one thread per worker of `workers` (whose buffers are reused from
@@ -433,10 +438,18 @@ pub(super) fn pack_chunks(
                                 source,
                             }
                         })?;
+                        let pair = (header.hi_brick_bytes + header.lo_brick_bytes) as usize;
+                        let hi = header.hi_brick_bytes as usize;
+                        let crcs = worker
+                            .out
+                            .chunks_exact(pair)
+                            .map(|b| [brick_crc(&b[..hi]), brick_crc(&b[hi..])])
+                            .collect();
                         Ok(ChunkDone {
                             first,
                             ranges: std::mem::take(&mut worker.ranges),
                             voxels: worker.voxels,
+                            crcs,
                         })
                     });
                     if tx.send(result).is_err() {

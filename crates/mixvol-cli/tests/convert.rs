@@ -9,8 +9,8 @@
 //!   budget too small) exit non-zero, name the file, and leave neither STORE nor STORE.partial.
 //! - A converted store that is cut or corrupted gives typed errors: truncation names the first
 //!   missing brick, table corruption the checksum field, a read under a cut file the brick.
-//!   Brick bytes themselves carry no checksum (store format version 1): altered brick bytes are
-//!   not detected, which the last test pins down.
+//!   Altered brick bytes fail their level's CRC-32 when read, naming the brick and the level
+//!   (format version 2).
 use flate2::write::GzEncoder;
 use flate2::Compression;
 use mixvol::bricks::{DownsampleFilter, Level};
@@ -466,20 +466,30 @@ fn cut_or_corrupted_stores_give_typed_errors() {
     assert!(matches!(e, StoreError::Io { .. }), "{e:?}");
     assert!(e.to_string().contains("brick 21 level Hi"), "{e}");
 
-    // Brick bytes carry no checksum in format version 1: a flipped texel reads back flipped.
+    // Every brick level carries a CRC-32: a flipped texel is an error naming the brick and the
+    // level when that level is read; its other level still reads.
     let mut flipped = good.clone();
     let at = (header.data_offset + 5 * pair + 3) as usize;
     flipped[at] ^= 0xFF;
     let path = dir.write("flipped.mvbs", &flipped);
     let opened = BrickStore::open(&path).unwrap();
-    let hi = opened.read_brick(5, Level::Hi).unwrap();
-    let orig = BrickStore::open(&store)
-        .unwrap()
-        .read_brick(5, Level::Hi)
-        .unwrap();
-    assert_ne!(
-        hi, orig,
-        "the flipped byte is read as stored (no per-brick checksum)"
+    let e = opened.read_brick(5, Level::Hi).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            StoreError::BrickChecksum {
+                brick: 5,
+                level: Level::Hi,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    assert!(e.to_string().contains("brick 5 level Hi"), "{e}");
+    let orig = BrickStore::open(&store).unwrap();
+    assert_eq!(
+        opened.read_brick(5, Level::Lo).unwrap(),
+        orig.read_brick(5, Level::Lo).unwrap()
     );
 }
 

@@ -387,3 +387,47 @@ fn convert_then_render_a_volume_larger_than_the_ram_budget_in_bounded_memory() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A store whose hi-res bricks are corrupt still renders: every brick falls back to its
+/// low-res level, the run succeeds, and the residency summary names a failing brick.
+#[test]
+fn corrupt_bricks_in_a_store_are_reported_and_drawn_at_their_fallback() {
+    let dir = temp_dir("corrupt");
+    let volume = SyntheticField::MarschnerLobb
+        .generate(glam::UVec3::splat(64), ScalarType::U8)
+        .unwrap();
+    let store = dir.join("ml.mvbs");
+    let summary = write_store_from_volume(&store, &volume, 16, DownsampleFilter::Mean2).unwrap();
+    let h = summary.header;
+    let mut bytes = std::fs::read(&store).unwrap();
+    for brick in 0..u64::from(h.brick_count) {
+        let at = h.data_offset + brick * (h.hi_brick_bytes + h.lo_brick_bytes) + 7;
+        bytes[at as usize] ^= 0x5A;
+    }
+    std::fs::write(&store, &bytes).unwrap();
+    let png = dir.join("r.png");
+    let (out, text) = run(&[
+        "render",
+        "--volume",
+        store.to_str().unwrap(),
+        "--gpu-budget-mb",
+        "0.3",
+        "--width",
+        "48",
+        "--height",
+        "48",
+        "--frames",
+        "1",
+        "--validation",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{text}");
+    let (hi, lo) = drawn(&text);
+    assert_eq!(hi, 0, "no hi-res brick can load\n{text}");
+    assert!(lo > 0, "{text}");
+    assert!(text.contains("failed to load (first:"), "{text}");
+    assert!(text.contains("is corrupt"), "{text}");
+    assert!(covered(&pixels(&png), BACKGROUND) > 0.2, "{text}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -46,7 +46,7 @@ pub enum Input {
     /// An in-memory volume (a file, raw data or a synthetic field).
     Volume(Arc<Volume>),
     /// A brick store (`mixvol convert` writes them), opened and validated.
-    Store(BrickStore),
+    Store(Box<BrickStore>),
 }
 
 /// True when `path` is a regular file that starts with the brick store's magic bytes.
@@ -73,7 +73,7 @@ pub fn open_input(args: &RenderArgs) -> Result<Input> {
                 args.volume
             )));
         }
-        return Ok(Input::Store(BrickStore::open(path)?));
+        return Ok(Input::Store(Box::new(BrickStore::open(path)?)));
     }
     Ok(Input::Volume(Arc::new(load_volume(args)?)))
 }

@@ -18,7 +18,9 @@
 //!
 //! Only `plan_frame` is timed. Every run starts from a fresh planner. Run:
 //! `cargo bench --bench planner`. Environment: `MIXVOL_BENCH_RUNS` (repeats, default 5); the
-//! per-frame times of all repeats are pooled. Prints a Markdown table.
+//! per-frame times of all repeats are pooled. Prints a Markdown table (median, p95, max and min
+//! milliseconds per frame; the machine's load average is printed with it, as other processes on
+//! the cores inflate the times).
 
 mod common;
 
@@ -100,6 +102,15 @@ fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown CPU".into())
 }
 
+/// The 1-minute load average (`/proc/loadavg`): other processes on the cores inflate the
+/// times; the `min` column is the least disturbed.
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|s| s.split_whitespace().next().map(str::to_string))
+        .unwrap_or_else(|| "unknown".into())
+}
+
 fn date() -> String {
     std::process::Command::new("date")
         .args(["-u", "+%Y-%m-%d %H:%M UTC"])
@@ -151,14 +162,15 @@ fn main() {
         UPLOAD_BYTES >> 20,
     );
     println!(
-        "Machine: {} cores (nproc), {}; {}",
+        "Machine: {} cores (nproc), {}; {}; load average at start {}",
         std::thread::available_parallelism().map_or(0, |n| n.get()),
         cpu_model(),
-        date()
+        date(),
+        load_average()
     );
     println!();
-    println!("| source | camera | frames | median ms | p95 ms | max ms | culled | drawn hi | drawn lo | uploads/frame |");
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("| source | camera | frames | median ms | p95 ms | max ms | min ms | culled | drawn hi | drawn lo | uploads/frame |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
 
     for (source, lo_only) in [("all loaded", false), ("only Lo loaded", true)] {
         let loaded = move |_: u32, level: Level| match level {
@@ -206,12 +218,13 @@ fn main() {
             times.sort_by(f64::total_cmp);
             let r = last.expect("one run");
             println!(
-                "| {source} | {} | {} | {:.3} | {:.3} | {:.3} | {} | {} | {} | {:.0} |",
+                "| {source} | {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {} | {} | {} | {:.0} |",
                 path.name(),
                 times.len(),
                 percentile(&times, 0.5),
                 percentile(&times, 0.95),
                 times[times.len() - 1],
+                times[0],
                 r.culled,
                 r.drawn_hi,
                 r.drawn_lo,

@@ -312,8 +312,9 @@ struct Work {
     /// What `culled` and `width` were computed from: geometry, culling criteria, value ranges.
     cull_inputs: Option<(BrickGeometry, CullParams)>,
     cull_ranges: Vec<ValueRange>,
-    /// The culling result.
+    /// The culling result, and how many bricks it keeps.
     culled: Vec<bool>,
+    culled_count: usize,
     /// The culling result, then also cleared for dropped bricks.
     active: Vec<bool>,
     /// Per brick, what the error is the projected pixel size times ([`width_factor`]).
@@ -329,12 +330,12 @@ struct Work {
     order: Vec<u32>,
     /// Per brick, the rank for `Hi` (smaller first; `u32::MAX` for none).
     rank: Vec<u32>,
-    rank_scratch: Vec<u32>,
+    rank_scratch: Vec<(u32, u32)>,
     /// Candidates whose rank is the boundary rank of the `Hi` selection.
     ties: Vec<u32>,
     /// Bricks drawn `Hi` but not wanted `Hi`.
     extra: Vec<u32>,
-    /// Kept bricks by descending error: `key << 32 | brick`.
+    /// Bricks by descending error, then the kept ones: `key << 32 | brick`.
     by_error: Vec<u64>,
     sort_scratch: Vec<u64>,
     coarsen: Vec<u32>,
@@ -466,6 +467,7 @@ impl ResidencyPlanner {
             work.cull_inputs = None;
             cull_bricks_into(geometry, frame.ranges, frame.cull, &mut work.culled)?;
             work.cull_inputs = Some((*geometry, frame.cull.clone()));
+            work.culled_count = work.culled.iter().filter(|&&a| a).count();
             work.cull_ranges.clear();
             work.cull_ranges.extend_from_slice(frame.ranges);
             work.width.clear();
@@ -491,7 +493,7 @@ impl ResidencyPlanner {
 
         // Errors and distances (of every brick; only the active ones are read).
         compute_errors(geometry, frame.view, work);
-        let active_count = work.active.iter().filter(|&&a| a).count();
+        let active_count = work.culled_count;
         report.culled = count - active_count;
 
         // Dropping: keep the 8 x slots most important active bricks.
@@ -538,61 +540,54 @@ impl ResidencyPlanner {
         let refine_above = error_threshold * boost;
         let keep_above = error_threshold / boost;
         let is_candidate = |e: f32, was_hi: bool| {
-            error_threshold == 0.0 || e > refine_above || (was_hi && e > keep_above) || e.is_nan()
+            (error_threshold == 0.0) | (e > refine_above) | (was_hi & (e > keep_above)) | e.is_nan()
         };
         // A brick wanted Hi last frame ranks with its error times `1 + m`.
         let rank_key = |e: f32, was_hi: bool| if was_hi { e * boost } else { e };
         // Ranks, smaller first: the key descending (`u32::MAX` is left to non-candidates);
         // equal ranks are ordered by `rank_order` below.
-        let mut candidate_count = 0;
-        rank.clear();
-        rank.extend(
-            active
-                .iter()
-                .zip(error)
-                .zip(prev_wanted)
-                .map(|((&a, &e), &p)| {
-                    let was_hi = p == Level::Hi;
-                    if a && is_candidate(e, was_hi) {
-                        candidate_count += 1;
-                        descending_key(rank_key(e, was_hi)).min(u32::MAX - 1)
-                    } else {
-                        u32::MAX
-                    }
-                }),
-        );
+        let mut candidate_count = 0usize;
+        rank.resize(count, 0);
+        // And, for the requests, every brick keyed by descending error (NaN lowest), inactive
+        // ones last: `key << 32 | brick`.
+        by_error.resize(count, 0);
+        for (((r, &a), &e), &p) in rank
+            .iter_mut()
+            .zip(active.iter())
+            .zip(error)
+            .zip(prev_wanted)
+        {
+            let was_hi = p == Level::Hi;
+            let candidate = a & is_candidate(e, was_hi);
+            let key = descending_key(rank_key(e, was_hi)).min(u32::MAX - 1);
+            *r = if candidate { key } else { u32::MAX };
+            candidate_count += usize::from(candidate);
+        }
+        for (i, ((k, &a), &e)) in by_error
+            .iter_mut()
+            .zip(active.iter())
+            .zip(error)
+            .enumerate()
+        {
+            let e = if e.is_nan() { f32::NEG_INFINITY } else { e };
+            let request_key = if a { descending_key(e) } else { u32::MAX };
+            *k = (u64::from(request_key) << 32) | i as u64;
+        }
         let hi = max_hi_bricks(kept, candidate_count, budget.slots).unwrap_or(0);
         // The `hi` best candidates are those with a rank below `boundary` and `take` of those
-        // with rank `boundary`.
+        // with rank `boundary` (collected in `ties`).
+        ties.clear();
         let (boundary, take) = if hi == 0 {
             (0, 0)
         } else if hi >= candidate_count {
             (u32::MAX, 0)
         } else {
-            radix_select(rank, hi, rank_scratch)
+            radix_select(rank, hi, rank_scratch, ties)
         };
-        let mut wanted = std::mem::take(spare_wanted);
-        wanted.clear();
-        ties.clear();
-        wanted.extend(
-            active
-                .iter()
-                .zip(rank.iter())
-                .enumerate()
-                .map(|(i, (&a, &r))| {
-                    if !a {
-                        Level::Absent
-                    } else if r < boundary {
-                        Level::Hi
-                    } else {
-                        if r == boundary && take > 0 {
-                            ties.push(i as u32);
-                        }
-                        Level::Lo
-                    }
-                }),
-        );
-        if !ties.is_empty() {
+        // A kept brick is wanted `Hi` when its rank is below `hi_below`: the ties not taken are
+        // moved above it.
+        let mut hi_below = boundary;
+        if take > 0 {
             // The full rank order: key descending, a brick wanted Hi last frame first, then
             // importance.
             let rank_order = |a: &u32, b: &u32| {
@@ -607,9 +602,10 @@ impl ResidencyPlanner {
             if take < ties.len() {
                 ties.select_nth_unstable_by(take, rank_order);
             }
-            for &i in &ties[..take] {
-                wanted[i as usize] = Level::Hi;
+            for &i in &ties[take..] {
+                rank[i as usize] = boundary + 1;
             }
+            hi_below = boundary + 1;
         }
         report.wanted_hi = hi;
         report.wanted_lo = kept - hi;
@@ -626,12 +622,26 @@ impl ResidencyPlanner {
         refine.clear();
         let (mut target_hi, mut target_lo) = (0usize, 0usize);
         let (mut drawn_hi, mut drawn_lo) = (0usize, 0usize);
-        for (i, ((t, d), &w)) in target
+        // Bricks whose drawn level differs from the target, and the largest error of a brick
+        // drawn `Lo` that staging leaves alone (drawn and targeted `Lo`).
+        let mut deferred = 0usize;
+        let mut max_lo_error = 0.0f32;
+        let mut wanted = std::mem::take(spare_wanted);
+        wanted.resize(count, Level::Absent);
+        let bricks = target
             .iter_mut()
             .zip(draw.iter_mut())
-            .zip(&wanted)
-            .enumerate()
-        {
+            .zip(wanted.iter_mut())
+            .zip(active.iter().zip(rank.iter()));
+        for (i, (((t, d), w), (&a, &r))) in bricks.enumerate() {
+            *w = if !a {
+                Level::Absent
+            } else if r < hi_below {
+                Level::Hi
+            } else {
+                Level::Lo
+            };
+            let w = *w;
             let b = i as u32;
             let mut keep = false;
             *t = match w {
@@ -664,6 +674,12 @@ impl ResidencyPlanner {
                 Level::Hi => drawn_hi += 1,
                 Level::Lo => drawn_lo += 1,
                 Level::Absent => {}
+            }
+            if !keep {
+                deferred += usize::from(*d != *t);
+                if (*d, *t) == (Level::Lo, Level::Lo) {
+                    max_lo_error = max_lo_error.max(error[i]);
+                }
             }
         }
         // The kept Hi levels take the slots the targets leave free, most important first.
@@ -702,8 +718,12 @@ impl ResidencyPlanner {
         let mut uploads = std::mem::take(&mut plan.uploads);
         uploads.clear();
         let mut next_coarsen = 0;
+        let mut deferred_change = 0isize;
         let mut apply = |stage: &mut Stage, draw: &mut [Level], i: u32, to: Level| {
-            let (dh, dl) = stage.change(draw[i as usize], to);
+            let from = draw[i as usize];
+            let t = target[i as usize];
+            deferred_change += isize::from(to != t) - isize::from(from != t);
+            let (dh, dl) = stage.change(from, to);
             stage.hi = (stage.hi as isize + dh) as usize;
             stage.lo = (stage.lo as isize + dl) as usize;
             stage.slots = slots_needed(stage.hi, stage.lo);
@@ -724,7 +744,8 @@ impl ResidencyPlanner {
             };
             apply(&mut stage, &mut draw, i, to);
         }
-        if stage.slots > budget.slots {
+        let emergency = stage.slots > budget.slots;
+        if emergency {
             // Unreachable while the targets fit the budget; kept so the budget holds regardless.
             let mut resident: Vec<u32> = (0..count as u32)
                 .filter(|&i| draw[i as usize] != Level::Absent)
@@ -779,44 +800,44 @@ impl ResidencyPlanner {
             apply(&mut stage, &mut draw, c, Level::Lo);
         }
 
-        // Report, and the bricks drawn `Hi` but not wanted `Hi`.
+        // Report: staging kept the counts; only bricks it touched can have become drawn `Lo`.
+        report.drawn_hi = stage.hi;
+        report.drawn_lo = stage.lo;
+        // A brick drawn at a resident level is wanted at one.
+        report.drawn_absent = kept - stage.hi - stage.lo;
+        report.deferred = (deferred as isize + deferred_change) as usize;
+        report.max_drawn_error = if emergency {
+            draw.iter()
+                .zip(error)
+                .filter(|(&d, _)| d == Level::Lo)
+                .fold(0.0, |m, (_, &e)| m.max(e))
+        } else {
+            coarsen
+                .iter()
+                .chain(holes.iter())
+                .chain(refine.iter())
+                .filter(|&&i| draw[i as usize] == Level::Lo)
+                .fold(max_lo_error, |m, &i| m.max(error[i as usize]))
+        };
+        // The bricks drawn `Hi` but not wanted `Hi` (pending coarsenings and kept `Hi` levels),
+        // in brick order.
         extra.clear();
-        for (i, ((&d, &t), &w)) in draw.iter().zip(target).zip(&wanted).enumerate() {
-            match d {
-                Level::Hi => {
-                    report.drawn_hi += 1;
-                    if w != Level::Hi {
-                        extra.push(i as u32);
-                    }
-                }
-                Level::Lo => {
-                    report.drawn_lo += 1;
-                    report.max_drawn_error = report.max_drawn_error.max(error[i]);
-                }
-                Level::Absent if w.is_resident() => report.drawn_absent += 1,
-                Level::Absent => {}
-            }
-            report.deferred += usize::from(d != t);
-        }
+        extra.extend(
+            coarsen
+                .iter()
+                .chain(keep_hi.iter())
+                .copied()
+                .filter(|&i| draw[i as usize] == Level::Hi),
+        );
+        extra.sort_unstable();
         report.slots_used = slots_needed(report.drawn_hi, report.drawn_lo);
         report.upload_bytes = budget.upload_bytes_per_frame - stage.bytes_left;
 
         // Requests: the wanted levels as `request_plan` ranks them (every kept brick's `Lo`
         // level, then the `Hi` levels, each by descending error, equal errors in brick order),
         // then what is drawn `Hi` but not wanted `Hi` (in brick order), cut to the RAM budget.
-        by_error.clear();
-        by_error.extend(
-            active
-                .iter()
-                .zip(error)
-                .enumerate()
-                .filter(|(_, (&a, _))| a)
-                .map(|(i, (_, &e))| {
-                    let e = if e.is_nan() { f32::NEG_INFINITY } else { e };
-                    (u64::from(descending_key(e)) << 32) | i as u64
-                }),
-        );
         radix_sort_by_high_word(by_error, sort_scratch);
+        by_error.truncate(kept);
         let lo_count = by_error.len();
         let hi_count = report.wanted_hi + extra.len();
         // Every Lo level costs `cost_lo` and comes first, every Hi level `cost_hi`: the longest
@@ -848,6 +869,7 @@ impl ResidencyPlanner {
             .iter()
             .map(|&k| k as u32)
             .filter(|&i| wanted[i as usize] == Level::Hi)
+            .take(report.wanted_hi)
             .chain(extra.iter().copied())
             .take(fit_hi)
             .map(|i| (i, Level::Hi));
@@ -956,12 +978,9 @@ fn same_bits(a: &[ValueRange], b: &[ValueRange]) -> bool {
 /// A key whose ascending order is the descending [`f32::total_cmp`] order of `v`.
 fn descending_key(v: f32) -> u32 {
     let bits = v.to_bits();
-    let ascending = if bits >> 31 == 1 {
-        !bits
-    } else {
-        bits | 0x8000_0000
-    };
-    !ascending
+    // Negative: all bits flipped; positive: the sign bit set.
+    let flip = ((bits as i32) >> 31) as u32 | 0x8000_0000;
+    !(bits ^ flip)
 }
 
 /// Sorts `v` by the upper 32 bits of its entries, stably (an LSD radix sort, three passes of 11
@@ -998,18 +1017,29 @@ fn radix_sort_by_high_word(v: &mut Vec<u64>, scratch: &mut Vec<u64>) {
 }
 
 /// For `0 < h < values.len()`: the value `b` and count `take` such that the `h` smallest of
-/// `values` are those below `b` and `take` of those equal to `b` (a radix selection, rounds of
-/// 11, 11 and 10 bits).
-fn radix_select(values: &[u32], h: usize, scratch: &mut Vec<u32>) -> (u32, usize) {
+/// `values` are those below `b` and `take` of those equal to `b`, whose indices it leaves in
+/// `ties` (a radix selection, rounds of 11, 11 and 10 bits).
+fn radix_select(
+    values: &[u32],
+    h: usize,
+    scratch: &mut Vec<(u32, u32)>,
+    ties: &mut Vec<u32>,
+) -> (u32, usize) {
     const BUCKETS: usize = 1 << 11;
     let mut remaining = h;
     let mut prefix = 0u32;
+    let mut hist = [0usize; BUCKETS];
+    for &v in values {
+        hist[(v >> 21) as usize] += 1;
+    }
+    scratch.clear();
     for (round, (shift, bits)) in [(21u32, 11u32), (10, 11), (0, 10)].into_iter().enumerate() {
         let mask = (1usize << bits) - 1;
-        let source: &[u32] = if round == 0 { values } else { scratch };
-        let mut hist = [0usize; BUCKETS];
-        for &v in source {
-            hist[(v >> shift) as usize & mask] += 1;
+        if round > 0 {
+            hist = [0; BUCKETS];
+            for &(v, _) in scratch.iter() {
+                hist[(v >> shift) as usize & mask] += 1;
+            }
         }
         let mut below = 0;
         let mut digit = mask;
@@ -1022,16 +1052,21 @@ fn radix_select(values: &[u32], h: usize, scratch: &mut Vec<u32>) -> (u32, usize
         }
         remaining -= below;
         prefix = (prefix << bits) | digit as u32;
-        if shift > 0 {
-            let matches = |v: u32| (v >> shift) as usize & mask == digit;
-            if round == 0 {
-                scratch.clear();
-                scratch.extend(values.iter().copied().filter(|&v| matches(v)));
-            } else {
-                scratch.retain(|&v| matches(v));
-            }
+        let matches = |v: u32| (v >> shift) as usize & mask == digit;
+        if round == 0 {
+            scratch.extend(
+                values
+                    .iter()
+                    .enumerate()
+                    .filter(|&(_, &v)| matches(v))
+                    .map(|(i, &v)| (v, i as u32)),
+            );
+        } else {
+            scratch.retain(|&(v, _)| matches(v));
         }
     }
+    ties.clear();
+    ties.extend(scratch.iter().map(|&(_, i)| i));
     (prefix, remaining)
 }
 

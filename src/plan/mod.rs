@@ -1016,7 +1016,7 @@ fn radix_sort_by_high_word(v: &mut Vec<u64>, scratch: &mut Vec<u64>) {
     scratch.clear();
     scratch.resize(v.len(), 0);
     for (pass, counts) in hist.iter_mut().enumerate() {
-        if counts.iter().any(|&c| c == v.len()) {
+        if counts.contains(&v.len()) {
             continue;
         }
         let mut offset = 0;

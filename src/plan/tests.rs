@@ -1129,7 +1129,7 @@ fn the_fast_paths_match_reference_computations() {
                 .fold(0.0f32, |m, i| m.max(work.error[i]));
             assert_eq!(r.max_drawn_error, max_lo);
             // Targets: the loaded fallback, or a kept Hi level (drawn Hi before, wanted Lo).
-            for i in 0..bricks {
+            for (i, &before) in prev_draw.iter().enumerate() {
                 let (w, t, bi) = (plan.wanted[i], work.target[i], i as u32);
                 let fallback = match w {
                     Level::Hi if loaded(bi, Level::Hi) => Level::Hi,
@@ -1138,7 +1138,7 @@ fn the_fast_paths_match_reference_computations() {
                 };
                 if t != fallback {
                     assert_eq!((w, fallback, t), (Level::Lo, Level::Absent, Level::Hi));
-                    assert_eq!(prev_draw[i], Level::Hi);
+                    assert_eq!(before, Level::Hi);
                     assert!(loaded(bi, Level::Hi));
                 }
             }

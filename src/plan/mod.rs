@@ -5,7 +5,9 @@
 //! [`ResidencyPlanner::plan_frame`] runs these steps, each O(bricks) or O(changes log changes):
 //!
 //! 1. **Culling** ([`crate::lod::cull_bricks`]) with the [`CullParams`] of the render settings
-//!    ([`cull_params`]): culled bricks are [`Level::Absent`] in every output.
+//!    ([`cull_params`]): culled bricks are [`Level::Absent`] in every output. The planner keeps
+//!    the culling result with a copy of its inputs (geometry, criteria, value ranges) and culls
+//!    again only when one of them changed.
 //! 2. **Dropping.** When even all-low-res does not fit the slot budget (eight `Lo` bricks per
 //!    slot), only the `8 x slots` most important active bricks are kept; the rest are dropped
 //!    (drawn `Absent`) and counted in [`PlanReport::dropped`]. This is never an error.
@@ -13,16 +15,23 @@
 //! 3. **Wanted levels**, budget-driven as in [`crate::lod::LodSelector`]: every kept brick is at
 //!    least `Lo` and the `h` best-ranked candidates are `Hi`, `h` the largest count with
 //!    `h + ceil((kept - h) / 8) <= slots` ([`max_hi_bricks`]). With hysteresis margin `m`
-//!    ([`PlanOptions::hysteresis`]):
+//!    ([`PlanOptions::hysteresis`]; the `h` best are found by a radix selection on the ranking
+//!    key, equal keys ordered as below):
 //!    - a brick wanted `Hi` last frame ranks with its error times `1 + m` (and wins exact ties),
 //!      so two bricks of nearly equal error do not swap levels back and forth;
 //!    - with an error threshold `t > 0` ([`PlanOptions::error_threshold`]) a brick becomes a
 //!      candidate for `Hi` only when its error exceeds `t (1 + m)`, and stays one while it
 //!      exceeds `t / (1 + m)`; with `t = 0` every kept brick is a candidate.
-//! 4. **Fallback** (as [`crate::bricks::fallback_levels`]): the *target* of a brick is its wanted
-//!    level when the source has it loaded, else `Lo` when that is loaded, else `Absent`.
-//!    [`PlanReport::waiting_for_source`] counts the bricks whose target is below their wanted
-//!    level.
+//! 4. **Fallback**: the *target* of a brick is its wanted level when the source has it loaded,
+//!    else `Lo` when that is loaded (as [`crate::bricks::fallback_levels`]), with one addition
+//!    for zooming out: a brick wanted `Lo` whose `Lo` level is not loaded but that is drawn `Hi`
+//!    with its `Hi` level loaded keeps the target `Hi`, so it stays drawn instead of leaving a
+//!    hole until its `Lo` bytes arrive. Such kept `Hi` levels take only the slots the other
+//!    targets leave free, the most important first; under that slot pressure the rest are
+//!    targeted (and drawn) `Absent`, as is every brick none of whose usable levels is loaded.
+//!    The targets therefore always fit the slot budget. [`PlanReport::waiting_for_source`]
+//!    counts the bricks whose target differs from their wanted level (a lower fallback, a kept
+//!    `Hi`, or `Absent`).
 //! 5. **Staging** the change from the previous frame's drawn levels to the targets, under the
 //!    upload budget. Uploading a brick costs `(n+2)^3` texels (`Hi`) or `(n/2+1)^3` (`Lo`) times
 //!    the bytes per texel ([`upload_bytes`]); a change to `Absent` costs nothing and is always
@@ -44,7 +53,15 @@
 //!    then the `Hi` levels, each by descending error), followed by the levels drawn now that are
 //!    not wanted (a pending coarsening keeps its `Hi` bytes in RAM for re-uploads), re-ranked so
 //!    that the priorities are `len - position`. With a RAM budget
-//!    ([`PlanBudget::ram_bytes`]) the list is cut to the longest prefix whose bytes fit.
+//!    ([`PlanBudget::ram_bytes`]) the list is cut to the longest prefix whose bytes fit. The
+//!    order by error comes from one radix sort of the kept bricks (equal errors in brick order,
+//!    as `request_plan` keeps them).
+//!
+//! Errors and box distances are computed from per-axis squared distance components (the same
+//! floating-point operations as [`screen_space_error`], so the same values), and every buffer is
+//! kept in the planner between frames (the vectors of the returned [`FramePlan`] are the previous
+//! frame's, refilled): once they have grown, a frame allocates nothing.
+//! `benches/planner.rs` times a frame of about 10^5 bricks.
 //!
 //! # Guarantees
 //!
@@ -69,16 +86,20 @@
 //!
 //! Everything here is CPU-only bookkeeping; wiring it into the pass is the host's job.
 
-use crate::bricks::{
-    hi_res_brick_extent, low_res_brick_extent, request_plan, BrickSource, Level, ValueRange,
-};
+use crate::bricks::{hi_res_brick_extent, low_res_brick_extent, BrickSource, Level, ValueRange};
 use crate::cache::{CacheError, CacheGeometry};
 use crate::lod::{
-    cull_bricks_into, max_hi_bricks, screen_space_error, slots_needed, BrickGeometry, CullParams,
-    LodError, LodView, TfCullTable, ValueCulling,
+    cull_bricks_into, max_hi_bricks, slots_needed, BrickGeometry, CullParams, LodError, LodView,
+    TfCullTable, ValueCulling, ViewProjection,
 };
 use crate::optics::TransferFunction;
 use crate::scene::{RenderMode, RenderSettings};
+// Named by the documentation, and compared against by the tests.
+#[cfg(any(test, doc))]
+use crate::bricks::request_plan;
+#[cfg(any(test, doc))]
+use crate::lod::screen_space_error;
+#[cfg(test)]
 use glam::Vec3;
 use std::cmp::Ordering;
 
@@ -246,7 +267,9 @@ pub struct PlanReport {
     /// Wanted (not culled, not dropped) bricks drawn `Absent` this frame: not loaded yet, or
     /// their upload did not fit this frame.
     pub drawn_absent: usize,
-    /// Bricks whose wanted level is not loaded by the source (drawn at a fallback, or absent).
+    /// Bricks whose wanted level is not loaded by the source, so that their target differs from
+    /// it: a lower loaded level, a kept `Hi` level (a brick wanted `Lo` but drawn `Hi`, see the
+    /// module documentation), or absent.
     pub waiting_for_source: usize,
     /// Bricks whose drawn level differs from their target and follows in a later frame.
     pub deferred: usize,
@@ -297,11 +320,47 @@ pub struct FramePlan {
 pub struct ResidencyPlanner {
     options: PlanOptions,
     plan: FramePlan,
+    /// Reused per-frame buffers.
+    work: Work,
+}
+
+/// Buffers the planner reuses from frame to frame, so that a frame allocates nothing once they
+/// have grown.
+#[derive(Clone, Debug, Default)]
+struct Work {
+    /// What `culled` and `width` were computed from: geometry, culling criteria, value ranges.
+    cull_inputs: Option<(BrickGeometry, CullParams)>,
+    cull_ranges: Vec<ValueRange>,
+    /// The culling result, and how many bricks it keeps.
+    culled: Vec<bool>,
+    culled_count: usize,
+    /// The culling result, then also cleared for dropped bricks.
     active: Vec<bool>,
+    /// Per brick, what the error is the projected pixel size times ([`width_factor`]).
+    width: Vec<f32>,
+    /// Squared per-axis components of the box distance from the eye, one per brick slab.
+    axis_sq: [Vec<f32>; 3],
     error: Vec<f32>,
     distance: Vec<f32>,
     target: Vec<Level>,
+    /// The buffer of the wanted levels before the previous frame's, reused for this frame's.
+    spare_wanted: Vec<Level>,
+    /// Active bricks (only when dropping).
     order: Vec<u32>,
+    /// Per brick, the rank for `Hi` (smaller first; `u32::MAX` for none).
+    rank: Vec<u32>,
+    rank_scratch: Vec<(u32, u32)>,
+    /// Candidates whose rank is the boundary rank of the `Hi` selection.
+    ties: Vec<u32>,
+    /// Bricks drawn `Hi` but not wanted `Hi`.
+    extra: Vec<u32>,
+    /// Bricks by descending error, then the kept ones: `key << 32 | brick`.
+    by_error: Vec<u64>,
+    sort_scratch: Vec<u64>,
+    coarsen: Vec<u32>,
+    holes: Vec<u32>,
+    refine: Vec<u32>,
+    keep_hi: Vec<u32>,
 }
 
 /// Running counts of the drawn levels and the upload budget while staging.
@@ -433,10 +492,33 @@ impl ResidencyPlanner {
         }
         let geometry = frame.geometry;
         let count = geometry.grid().brick_count();
-        cull_bricks_into(geometry, frame.ranges, frame.cull, &mut self.active)?;
-        if self.plan.draw.len() != count || self.plan.wanted.len() != count {
-            self.plan.draw = vec![Level::Absent; count];
-            self.plan.wanted = vec![Level::Absent; count];
+        let Self { plan, work, .. } = self;
+        // Culling (and the range widths) only when its inputs changed.
+        let cull_unchanged = work
+            .cull_inputs
+            .as_ref()
+            .is_some_and(|(g, c)| g == geometry && c == frame.cull)
+            && same_bits(&work.cull_ranges, frame.ranges);
+        if !cull_unchanged {
+            work.cull_inputs = None;
+            cull_bricks_into(geometry, frame.ranges, frame.cull, &mut work.culled)?;
+            work.cull_inputs = Some((*geometry, frame.cull.clone()));
+            work.culled_count = work.culled.iter().filter(|&&a| a).count();
+            work.cull_ranges.clear();
+            work.cull_ranges.extend_from_slice(frame.ranges);
+            work.width.clear();
+            work.width.extend(
+                frame
+                    .ranges
+                    .iter()
+                    .zip(&work.culled)
+                    .map(|(&r, &a)| width_factor(r, a)),
+            );
+        }
+        work.active.clone_from(&work.culled);
+        if plan.draw.len() != count || plan.wanted.len() != count {
+            plan.draw = vec![Level::Absent; count];
+            plan.wanted = vec![Level::Absent; count];
         }
         let mut report = PlanReport {
             bricks: count,
@@ -445,138 +527,239 @@ impl ResidencyPlanner {
             ..PlanReport::default()
         };
 
-        // Errors and distances of the active bricks.
-        let eye = frame.view.eye();
-        self.error.clear();
-        self.error.resize(count, f32::NEG_INFINITY);
-        self.distance.clear();
-        self.distance.resize(count, f32::INFINITY);
-        self.order.clear();
-        {
-            let (active, error, distance, order) = (
-                &self.active,
-                &mut self.error,
-                &mut self.distance,
-                &mut self.order,
-            );
-            geometry.for_each_brick_box(|i, min, max| {
-                if active[i] {
-                    error[i] = screen_space_error(geometry, frame.view, min, max, frame.ranges[i]);
-                    distance[i] = box_distance(eye, min, max);
-                    order.push(i as u32);
-                }
-            });
-        }
-        let active_count = self.order.len();
+        // Errors and distances (of every brick; only the active ones are read).
+        compute_errors(geometry, frame.view, work);
+        let active_count = work.culled_count;
         report.culled = count - active_count;
 
         // Dropping: keep the 8 x slots most important active bricks.
         let capacity = budget
             .slots
             .saturating_mul(crate::bricks::SUB_SLOTS_PER_SLOT as usize);
-        let (error, distance) = (&self.error, &self.distance);
+        let Work {
+            active,
+            error,
+            distance,
+            target,
+            spare_wanted,
+            order,
+            rank,
+            rank_scratch,
+            ties,
+            extra,
+            by_error,
+            sort_scratch,
+            coarsen,
+            holes,
+            refine,
+            keep_hi,
+            ..
+        } = work;
+        let (error, distance) = (&*error, &*distance);
         let importance = |a: &u32, b: &u32| more_important(error, distance, *a, *b);
         if active_count > capacity {
+            order.clear();
+            order.extend((0..count as u32).filter(|&i| active[i as usize]));
             if capacity > 0 {
-                self.order.select_nth_unstable_by(capacity, importance);
+                order.select_nth_unstable_by(capacity, importance);
             }
-            for &i in &self.order[capacity..] {
-                self.active[i as usize] = false;
+            for &i in &order[capacity..] {
+                active[i as usize] = false;
             }
             report.dropped = active_count - capacity;
-            self.order.truncate(capacity);
         }
-        let kept = self.order.len();
+        let kept = active_count - report.dropped;
 
         // Wanted levels.
-        let prev_wanted = &self.plan.wanted;
+        let prev_wanted = &plan.wanted;
         let boost = 1.0 + hysteresis;
         let refine_above = error_threshold * boost;
         let keep_above = error_threshold / boost;
-        let mut ranked: Vec<(f32, bool, u32)> = Vec::with_capacity(kept);
-        for &i in &self.order {
-            let e = error[i as usize];
-            let was_hi = prev_wanted[i as usize] == Level::Hi;
-            let candidate = error_threshold == 0.0
-                || e > refine_above
-                || (was_hi && e > keep_above)
-                || e.is_nan();
-            if candidate {
-                let key = if was_hi { e * boost } else { e };
-                ranked.push((key, was_hi, i));
-            }
-        }
-        let hi = max_hi_bricks(kept, ranked.len(), budget.slots).unwrap_or(0);
-        let rank = |a: &(f32, bool, u32), b: &(f32, bool, u32)| {
-            b.0.total_cmp(&a.0)
-                .then(b.1.cmp(&a.1))
-                .then_with(|| more_important(error, distance, a.2, b.2))
+        let is_candidate = |e: f32, was_hi: bool| {
+            (error_threshold == 0.0) | (e > refine_above) | (was_hi & (e > keep_above)) | e.is_nan()
         };
-        if hi > 0 && hi < ranked.len() {
-            ranked.select_nth_unstable_by(hi - 1, rank);
+        // A brick wanted Hi last frame ranks with its error times `1 + m`.
+        let rank_key = |e: f32, was_hi: bool| if was_hi { e * boost } else { e };
+        // Ranks, smaller first: the key descending (`u32::MAX` is left to non-candidates);
+        // equal ranks are ordered by `rank_order` below.
+        let mut candidate_count = 0usize;
+        rank.resize(count, 0);
+        // And, for the requests, every brick keyed by descending error (NaN lowest), inactive
+        // ones last: `key << 32 | brick`.
+        by_error.resize(count, 0);
+        for (((r, &a), &e), &p) in rank
+            .iter_mut()
+            .zip(active.iter())
+            .zip(error)
+            .zip(prev_wanted)
+        {
+            let was_hi = p == Level::Hi;
+            let candidate = a & is_candidate(e, was_hi);
+            let key = descending_key(rank_key(e, was_hi)).min(u32::MAX - 1);
+            *r = if candidate { key } else { u32::MAX };
+            candidate_count += usize::from(candidate);
         }
-        let mut wanted = vec![Level::Absent; count];
-        for &i in &self.order {
-            wanted[i as usize] = Level::Lo;
+        for (i, ((k, &a), &e)) in by_error
+            .iter_mut()
+            .zip(active.iter())
+            .zip(error)
+            .enumerate()
+        {
+            let e = if e.is_nan() { f32::NEG_INFINITY } else { e };
+            let request_key = if a { descending_key(e) } else { u32::MAX };
+            *k = (u64::from(request_key) << 32) | i as u64;
         }
-        for &(_, _, i) in &ranked[..hi.min(ranked.len())] {
-            wanted[i as usize] = Level::Hi;
-        }
-        report.wanted_hi = hi.min(ranked.len());
-        report.wanted_lo = kept - report.wanted_hi;
-
-        // Targets: the best loaded level at or below the wanted one.
-        self.target.clear();
-        self.target.extend(wanted.iter().enumerate().map(|(i, &w)| {
-            let b = i as u32;
-            match w {
-                Level::Hi if is_loaded(b, Level::Hi) => Level::Hi,
-                Level::Hi | Level::Lo if is_loaded(b, Level::Lo) => Level::Lo,
-                _ => Level::Absent,
+        let hi = max_hi_bricks(kept, candidate_count, budget.slots).unwrap_or(0);
+        // The `hi` best candidates are those with a rank below `boundary` and `take` of those
+        // with rank `boundary` (collected in `ties`).
+        ties.clear();
+        let (boundary, take) = if hi == 0 {
+            (0, 0)
+        } else if hi >= candidate_count {
+            (u32::MAX, 0)
+        } else {
+            radix_select(rank, hi, rank_scratch, ties)
+        };
+        // A kept brick is wanted `Hi` when its rank is below `hi_below`: the ties not taken are
+        // moved above it.
+        let mut hi_below = boundary;
+        if take > 0 {
+            // The full rank order: key descending, a brick wanted Hi last frame first, then
+            // importance.
+            let rank_order = |a: &u32, b: &u32| {
+                let (ia, ib) = (*a as usize, *b as usize);
+                let (ha, hb) = (prev_wanted[ia] == Level::Hi, prev_wanted[ib] == Level::Hi);
+                rank_key(error[ib], hb)
+                    .total_cmp(&rank_key(error[ia], ha))
+                    .then(hb.cmp(&ha))
+                    .then_with(|| importance(a, b))
+            };
+            let take = take.min(ties.len());
+            if take < ties.len() {
+                ties.select_nth_unstable_by(take, rank_order);
             }
-        }));
-        report.waiting_for_source = wanted
-            .iter()
-            .zip(&self.target)
-            .filter(|(w, t)| w != t)
-            .count();
+            for &i in &ties[take..] {
+                rank[i as usize] = boundary + 1;
+            }
+            hi_below = boundary + 1;
+        }
+        report.wanted_hi = hi;
+        report.wanted_lo = kept - hi;
+
+        // Targets: the best loaded level at or below the wanted one; a brick wanted `Lo` but
+        // drawn `Hi` whose `Lo` level is not loaded keeps `Hi` while that is loaded and the
+        // slots allow (decided below).
+        let mut draw = std::mem::take(&mut plan.draw);
+        target.clear();
+        target.resize(count, Level::Absent);
+        keep_hi.clear();
+        coarsen.clear();
+        holes.clear();
+        refine.clear();
+        let (mut target_hi, mut target_lo) = (0usize, 0usize);
+        let (mut drawn_hi, mut drawn_lo) = (0usize, 0usize);
+        // Bricks whose drawn level differs from the target, and the largest error of a brick
+        // drawn `Lo` that staging leaves alone (drawn and targeted `Lo`).
+        let mut deferred = 0usize;
+        let mut max_lo_error = 0.0f32;
+        let mut wanted = std::mem::take(spare_wanted);
+        wanted.resize(count, Level::Absent);
+        let bricks = target
+            .iter_mut()
+            .zip(draw.iter_mut())
+            .zip(wanted.iter_mut())
+            .zip(active.iter().zip(rank.iter()));
+        for (i, (((t, d), w), (&a, &r))) in bricks.enumerate() {
+            *w = if !a {
+                Level::Absent
+            } else if r < hi_below {
+                Level::Hi
+            } else {
+                Level::Lo
+            };
+            let w = *w;
+            let b = i as u32;
+            let mut keep = false;
+            *t = match w {
+                Level::Absent => Level::Absent,
+                Level::Hi if is_loaded(b, Level::Hi) => Level::Hi,
+                _ if is_loaded(b, Level::Lo) => Level::Lo,
+                Level::Lo if *d == Level::Hi && is_loaded(b, Level::Hi) => {
+                    keep = true;
+                    Level::Absent
+                }
+                _ => Level::Absent,
+            };
+            if *t != w {
+                report.waiting_for_source += 1;
+            }
+            match (*d, *t) {
+                _ if keep => keep_hi.push(b),
+                (_, Level::Absent) => *d = Level::Absent,
+                (Level::Hi, Level::Lo) => coarsen.push(b),
+                (Level::Absent, _) => holes.push(b),
+                (Level::Lo, Level::Hi) => refine.push(b),
+                _ => {}
+            }
+            match *t {
+                Level::Hi => target_hi += 1,
+                Level::Lo => target_lo += 1,
+                Level::Absent => {}
+            }
+            match *d {
+                Level::Hi => drawn_hi += 1,
+                Level::Lo => drawn_lo += 1,
+                Level::Absent => {}
+            }
+            if !keep {
+                deferred += usize::from(*d != *t);
+                if (*d, *t) == (Level::Lo, Level::Lo) {
+                    max_lo_error = max_lo_error.max(error[i]);
+                }
+            }
+        }
+        // The kept Hi levels take the slots the targets leave free, most important first.
+        let free = budget
+            .slots
+            .saturating_sub(slots_needed(target_hi, target_lo));
+        if keep_hi.len() > free {
+            if free > 0 {
+                keep_hi.select_nth_unstable_by(free, importance);
+            }
+            for &i in &keep_hi[free..] {
+                draw[i as usize] = Level::Absent;
+                drawn_hi -= 1;
+            }
+            keep_hi.truncate(free);
+        }
+        for &i in keep_hi.iter() {
+            target[i as usize] = Level::Hi;
+        }
+        let target = &*target;
 
         // Staging.
         let n = geometry.grid().brick_size();
-        let mut draw = std::mem::take(&mut self.plan.draw);
-        let target = &self.target;
-        for (d, &t) in draw.iter_mut().zip(target) {
-            if t == Level::Absent {
-                *d = Level::Absent;
-            }
-        }
         let mut stage = Stage {
-            hi: draw.iter().filter(|&&l| l == Level::Hi).count(),
-            lo: draw.iter().filter(|&&l| l == Level::Lo).count(),
-            slots: 0,
+            hi: drawn_hi,
+            lo: drawn_lo,
+            slots: slots_needed(drawn_hi, drawn_lo),
             bytes_left: budget.upload_bytes_per_frame,
             cost_hi: upload_bytes(Level::Hi, n, budget.bytes_per_texel),
             cost_lo: upload_bytes(Level::Lo, n, budget.bytes_per_texel),
         };
-        stage.slots = slots_needed(stage.hi, stage.lo);
-        let mut coarsen: Vec<u32> = Vec::new();
-        let mut holes: Vec<u32> = Vec::new();
-        let mut refine: Vec<u32> = Vec::new();
-        for (i, (&d, &t)) in draw.iter().zip(target).enumerate() {
-            match (d, t) {
-                (Level::Hi, Level::Lo) => coarsen.push(i as u32),
-                (Level::Absent, Level::Hi | Level::Lo) => holes.push(i as u32),
-                (Level::Lo, Level::Hi) => refine.push(i as u32),
-                _ => {}
-            }
-        }
+        let (cost_hi, cost_lo) = (stage.cost_hi, stage.cost_lo);
         coarsen.sort_unstable_by(|a, b| importance(b, a));
         holes.sort_unstable_by(importance);
         refine.sort_unstable_by(importance);
-        let mut uploads = Vec::new();
+        let mut uploads = std::mem::take(&mut plan.uploads);
+        uploads.clear();
         let mut next_coarsen = 0;
+        let mut deferred_change = 0isize;
         let mut apply = |stage: &mut Stage, draw: &mut [Level], i: u32, to: Level| {
-            let (dh, dl) = stage.change(draw[i as usize], to);
+            let from = draw[i as usize];
+            let t = target[i as usize];
+            deferred_change += isize::from(to != t) - isize::from(from != t);
+            let (dh, dl) = stage.change(from, to);
             stage.hi = (stage.hi as isize + dh) as usize;
             stage.lo = (stage.lo as isize + dl) as usize;
             stage.slots = slots_needed(stage.hi, stage.lo);
@@ -597,7 +780,8 @@ impl ResidencyPlanner {
             };
             apply(&mut stage, &mut draw, i, to);
         }
-        if stage.slots > budget.slots {
+        let emergency = stage.slots > budget.slots;
+        if emergency {
             // Unreachable while the targets fit the budget; kept so the budget holds regardless.
             let mut resident: Vec<u32> = (0..count as u32)
                 .filter(|&i| draw[i as usize] != Level::Absent)
@@ -652,66 +836,274 @@ impl ResidencyPlanner {
             apply(&mut stage, &mut draw, c, Level::Lo);
         }
 
-        // Requests: the wanted levels, then what is drawn but not wanted.
-        let mut requests = request_plan(&wanted, error);
-        let extra = draw
-            .iter()
-            .zip(&wanted)
-            .enumerate()
-            .filter(|(_, (&d, &w))| d == Level::Hi && w != Level::Hi)
-            .map(|(i, (&d, _))| (i as u32, d, 0.0));
-        requests.extend(extra);
-        let mut request_bytes = 0u64;
-        if let Some(ram) = budget.ram_bytes {
-            let mut fit = requests.len();
-            for (pos, &(_, level, _)) in requests.iter().enumerate() {
-                let bytes = upload_bytes(level, n, budget.bytes_per_texel);
-                if request_bytes.saturating_add(bytes) > ram {
-                    fit = pos;
-                    break;
-                }
-                request_bytes += bytes;
-            }
-            report.requests_cut = requests.len() - fit;
-            requests.truncate(fit);
+        // Report: staging kept the counts; only bricks it touched can have become drawn `Lo`.
+        report.drawn_hi = stage.hi;
+        report.drawn_lo = stage.lo;
+        // A brick drawn at a resident level is wanted at one.
+        report.drawn_absent = kept - stage.hi - stage.lo;
+        report.deferred = (deferred as isize + deferred_change) as usize;
+        report.max_drawn_error = if emergency {
+            draw.iter()
+                .zip(error)
+                .filter(|(&d, _)| d == Level::Lo)
+                .fold(0.0, |m, (_, &e)| m.max(e))
         } else {
-            request_bytes = requests
+            coarsen
                 .iter()
-                .map(|&(_, level, _)| upload_bytes(level, n, budget.bytes_per_texel))
-                .fold(0u64, u64::saturating_add);
-        }
-        let total = requests.len();
-        for (pos, r) in requests.iter_mut().enumerate() {
-            r.2 = (total - pos) as f32;
-        }
-        report.request_bytes = request_bytes;
-
-        // Report.
-        for (i, (&d, &t)) in draw.iter().zip(target).enumerate() {
-            match d {
-                Level::Hi => report.drawn_hi += 1,
-                Level::Lo => {
-                    report.drawn_lo += 1;
-                    report.max_drawn_error = report.max_drawn_error.max(error[i]);
-                }
-                Level::Absent if wanted[i].is_resident() => report.drawn_absent += 1,
-                Level::Absent => {}
-            }
-            if d != t {
-                report.deferred += 1;
-            }
-        }
+                .chain(holes.iter())
+                .chain(refine.iter())
+                .filter(|&&i| draw[i as usize] == Level::Lo)
+                .fold(max_lo_error, |m, &i| m.max(error[i as usize]))
+        };
+        // The bricks drawn `Hi` but not wanted `Hi` (pending coarsenings of bricks wanted `Lo`,
+        // and kept `Hi` levels), in brick order.
+        extra.clear();
+        extra.extend(
+            coarsen
+                .iter()
+                .chain(keep_hi.iter())
+                .copied()
+                .filter(|&i| draw[i as usize] == Level::Hi && wanted[i as usize] != Level::Hi),
+        );
+        extra.sort_unstable();
         report.slots_used = slots_needed(report.drawn_hi, report.drawn_lo);
         report.upload_bytes = budget.upload_bytes_per_frame - stage.bytes_left;
-        self.plan = FramePlan {
-            draw,
-            wanted,
-            uploads,
-            requests,
-            report,
+
+        // Requests: the wanted levels as `request_plan` ranks them (every kept brick's `Lo`
+        // level, then the `Hi` levels, each by descending error, equal errors in brick order),
+        // then what is drawn `Hi` but not wanted `Hi` (in brick order), cut to the RAM budget.
+        radix_sort_by_high_word(by_error, sort_scratch);
+        by_error.truncate(kept);
+        let lo_count = by_error.len();
+        let hi_count = report.wanted_hi + extra.len();
+        // Every Lo level costs `cost_lo` and comes first, every Hi level `cost_hi`: the longest
+        // prefix that fits the RAM budget follows from two divisions.
+        let (fit_lo, fit_hi) = match budget.ram_bytes {
+            None => (lo_count, hi_count),
+            Some(ram) => {
+                let fit_lo = (ram / cost_lo.max(1)).min(lo_count as u64) as usize;
+                if fit_lo < lo_count {
+                    (fit_lo, 0)
+                } else {
+                    let left = ram - lo_count as u64 * cost_lo;
+                    (
+                        lo_count,
+                        (left / cost_hi.max(1)).min(hi_count as u64) as usize,
+                    )
+                }
+            }
         };
+        report.requests_cut = lo_count + hi_count - fit_lo - fit_hi;
+        report.request_bytes = (fit_lo as u64)
+            .saturating_mul(cost_lo)
+            .saturating_add((fit_hi as u64).saturating_mul(cost_hi));
+        let total = fit_lo + fit_hi;
+        let mut requests = std::mem::take(&mut plan.requests);
+        requests.clear();
+        requests.reserve(total);
+        let hi_levels = by_error
+            .iter()
+            .map(|&k| k as u32)
+            .filter(|&i| wanted[i as usize] == Level::Hi)
+            .take(report.wanted_hi)
+            .chain(extra.iter().copied())
+            .take(fit_hi)
+            .map(|i| (i, Level::Hi));
+        requests.extend(
+            by_error[..fit_lo]
+                .iter()
+                .map(|&k| (k as u32, Level::Lo))
+                .chain(hi_levels)
+                .enumerate()
+                .map(|(pos, (i, level))| (i, level, (total - pos) as f32)),
+        );
+        let prev_wanted = std::mem::replace(&mut plan.wanted, wanted);
+        *spare_wanted = prev_wanted;
+        plan.draw = draw;
+        plan.uploads = uploads;
+        plan.requests = requests;
+        plan.report = report;
         Ok(&self.plan)
     }
+}
+
+/// What the screen-space error of a brick with value range `range` is its projected pixel size
+/// times, as [`screen_space_error`] computes it: the range width, `+inf` for a NaN width, 0 for
+/// an empty or zero width; `-inf` for an inactive brick.
+fn width_factor(range: ValueRange, active: bool) -> f32 {
+    let width = range.max - range.min;
+    if !active {
+        f32::NEG_INFINITY
+    } else if width.is_nan() {
+        f32::INFINITY
+    } else if width > 0.0 {
+        width
+    } else {
+        0.0
+    }
+}
+
+/// Fills `work.error` and `work.distance` for every brick from `work.width`: the box distance
+/// from the eye and [`screen_space_error`], with the same floating-point operations (so the
+/// same values) but from per-axis squared distance components, so that the per-brick work is
+/// two additions, a square root, a division and a multiplication.
+fn compute_errors(geometry: &BrickGeometry, view: &LodView, work: &mut Work) {
+    let count = geometry.grid().brick_count();
+    if count == 0 {
+        return;
+    }
+    let eye = view.eye();
+    let bounds = geometry.axis_bounds();
+    for (axis, (sq, slabs)) in work.axis_sq.iter_mut().zip(&bounds).enumerate() {
+        let p = eye[axis];
+        sq.clear();
+        sq.extend(slabs.iter().map(|&(lo, hi)| {
+            // As `(min - p).max(p - max).max(0)` of `box_distance`, one axis.
+            let (a, b) = (lo - p, p - hi);
+            let c = if a > b { a } else { b };
+            let c = if c > 0.0 { c } else { 0.0 };
+            c * c
+        }));
+    }
+    let lo_voxel = 2.0 * geometry.voxel_size().max_element();
+    let height = view.image_height() as f32;
+    // `lo_voxel * pixels_per_world_unit(d.max(lo_voxel))`, split by projection.
+    let (scale, constant) = match view.projection() {
+        ViewProjection::Perspective { tan_half_y, .. } => (2.0 * tan_half_y, None),
+        ViewProjection::Orthographic { height: h } => (0.0, Some(lo_voxel * (height / h))),
+    };
+    work.error.resize(count, 0.0);
+    work.distance.resize(count, 0.0);
+    let [sx, sy, sz] = &work.axis_sq;
+    let nx = sx.len();
+    let mut rows = work
+        .error
+        .chunks_exact_mut(nx)
+        .zip(work.distance.chunks_exact_mut(nx))
+        .zip(work.width.chunks_exact(nx));
+    for &z2 in sz {
+        for &y2 in sy {
+            let Some(((error, distance), width)) = rows.next() else {
+                return;
+            };
+            for (((e, d), &w), &x2) in error.iter_mut().zip(distance).zip(width).zip(sx) {
+                let dist = ((x2 + y2) + z2).sqrt();
+                *d = dist;
+                let pixels = match constant {
+                    Some(c) => c,
+                    None => lo_voxel * (height / (scale * dist.max(lo_voxel))),
+                };
+                *e = if w == 0.0 || w.is_infinite() {
+                    w
+                } else {
+                    pixels * w
+                };
+            }
+        }
+    }
+}
+
+/// True when `a` and `b` hold the same bits.
+fn same_bits(a: &[ValueRange], b: &[ValueRange]) -> bool {
+    a.len() == b.len()
+        && a.iter().zip(b).fold(0u32, |acc, (x, y)| {
+            acc | (x.min.to_bits() ^ y.min.to_bits()) | (x.max.to_bits() ^ y.max.to_bits())
+        }) == 0
+}
+
+/// A key whose ascending order is the descending [`f32::total_cmp`] order of `v`.
+fn descending_key(v: f32) -> u32 {
+    let bits = v.to_bits();
+    // Negative: all bits flipped; positive: the sign bit set.
+    let flip = ((bits as i32) >> 31) as u32 | 0x8000_0000;
+    !(bits ^ flip)
+}
+
+/// Sorts `v` by the upper 32 bits of its entries, stably (an LSD radix sort, three passes of 11
+/// bits; a pass whose digit is the same for every entry is skipped).
+fn radix_sort_by_high_word(v: &mut Vec<u64>, scratch: &mut Vec<u64>) {
+    const BUCKETS: usize = 1 << 11;
+    let mut hist = [[0usize; BUCKETS]; 3];
+    for &x in v.iter() {
+        let k = (x >> 32) as usize;
+        hist[0][k & (BUCKETS - 1)] += 1;
+        hist[1][(k >> 11) & (BUCKETS - 1)] += 1;
+        hist[2][k >> 22] += 1;
+    }
+    scratch.clear();
+    scratch.resize(v.len(), 0);
+    for (pass, counts) in hist.iter_mut().enumerate() {
+        if counts.contains(&v.len()) {
+            continue;
+        }
+        let mut offset = 0;
+        for c in counts.iter_mut() {
+            let n = *c;
+            *c = offset;
+            offset += n;
+        }
+        let shift = 32 + 11 * pass;
+        for &x in v.iter() {
+            let d = (x >> shift) as usize & (BUCKETS - 1);
+            scratch[counts[d]] = x;
+            counts[d] += 1;
+        }
+        std::mem::swap(v, scratch);
+    }
+}
+
+/// For `0 < h < values.len()`: the value `b` and count `take` such that the `h` smallest of
+/// `values` are those below `b` and `take` of those equal to `b`, whose indices it leaves in
+/// `ties` (a radix selection, rounds of 11, 11 and 10 bits).
+fn radix_select(
+    values: &[u32],
+    h: usize,
+    scratch: &mut Vec<(u32, u32)>,
+    ties: &mut Vec<u32>,
+) -> (u32, usize) {
+    const BUCKETS: usize = 1 << 11;
+    let mut remaining = h;
+    let mut prefix = 0u32;
+    let mut hist = [0usize; BUCKETS];
+    for &v in values {
+        hist[(v >> 21) as usize] += 1;
+    }
+    scratch.clear();
+    for (round, (shift, bits)) in [(21u32, 11u32), (10, 11), (0, 10)].into_iter().enumerate() {
+        let mask = (1usize << bits) - 1;
+        if round > 0 {
+            hist = [0; BUCKETS];
+            for &(v, _) in scratch.iter() {
+                hist[(v >> shift) as usize & mask] += 1;
+            }
+        }
+        let mut below = 0;
+        let mut digit = mask;
+        for (d, &c) in hist[..=mask].iter().enumerate() {
+            if below + c >= remaining {
+                digit = d;
+                break;
+            }
+            below += c;
+        }
+        remaining -= below;
+        prefix = (prefix << bits) | digit as u32;
+        let matches = |v: u32| (v >> shift) as usize & mask == digit;
+        if round == 0 {
+            scratch.extend(
+                values
+                    .iter()
+                    .enumerate()
+                    .filter(|&(_, &v)| matches(v))
+                    .map(|(i, &v)| (v, i as u32)),
+            );
+        } else {
+            scratch.retain(|&(v, _)| matches(v));
+        }
+    }
+    ties.clear();
+    ties.extend(scratch.iter().map(|&(_, i)| i));
+    (prefix, remaining)
 }
 
 /// Importance order, most important first: larger error, then smaller distance, then lower index.
@@ -724,6 +1116,7 @@ fn more_important(error: &[f32], distance: &[f32], a: u32, b: u32) -> Ordering {
 }
 
 /// Distance from `p` to the nearest point of the box `[min, max]` (0 inside).
+#[cfg(test)]
 fn box_distance(p: Vec3, min: Vec3, max: Vec3) -> f32 {
     (min - p).max(p - max).max(Vec3::ZERO).length()
 }

@@ -1,0 +1,235 @@
+//! CPU time of the residency planner (`plan::ResidencyPlanner::plan_frame`) per frame, for about
+//! 10^5 bricks.
+//!
+//! Setup: a 64 x 64 x 25 grid of 16^3 bricks (102 400 bricks, a 1024 x 1024 x 400 volume of u16
+//! voxels, spacing 1), random per-brick value ranges culled by a transfer function that is
+//! transparent below 0.25 (about a tenth of the bricks culled), a 1920x1080 perspective camera
+//! that sees the whole volume, a slot budget that holds 1/8 of the bricks hi-res and the rest
+//! low-res, and an upload budget of 4 MiB per frame. Default planner options (budget-driven,
+//! 10 % hysteresis).
+//!
+//! Rows, each with a source that has every level loaded and with one that has only the `Lo`
+//! levels loaded:
+//! - still camera: the plan is first run until it settles, then timed at the same view;
+//! - orbit: from the settled plan, the eye orbits the target about +y by 1 degree per frame for
+//!   60 frames;
+//! - dolly: from the settled plan, the eye moves towards the target, 1 % of the start distance
+//!   per frame, for 60 frames.
+//!
+//! Only `plan_frame` is timed. Every run starts from a fresh planner. Run:
+//! `cargo bench --bench planner`. Environment: `MIXVOL_BENCH_RUNS` (repeats, default 5); the
+//! per-frame times of all repeats are pooled. Prints a Markdown table (median, p95, max and min
+//! milliseconds per frame; the machine's load average is printed with it, as other processes on
+//! the cores inflate the times).
+
+mod common;
+
+use common::env_u32;
+use glam::{Quat, UVec3, Vec3, Vec4};
+use mixvol::bricks::{BrickGrid, Level, ValueRange};
+use mixvol::lod::{BrickGeometry, CullParams, LodView, TfCullTable};
+use mixvol::optics::{TransferFunction, TF_SIZE};
+use mixvol::plan::{upload_bytes, FrameInput, PlanBudget, PlanOptions, ResidencyPlanner};
+use mixvol::scene::Camera;
+use std::hint::black_box;
+use std::time::Instant;
+
+const BRICK_SIZE: u32 = 16;
+const BRICKS: UVec3 = UVec3::new(64, 64, 25);
+const WIDTH: u32 = 1920;
+const HEIGHT: u32 = 1080;
+const BYTES_PER_TEXEL: u32 = 2;
+const UPLOAD_BYTES: u64 = 4 << 20;
+const FRAMES: usize = 60;
+
+/// Deterministic pseudo-random numbers (xorshift64).
+struct Rng(u64);
+
+impl Rng {
+    fn f32(&mut self) -> f32 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+#[derive(Copy, Clone)]
+enum Path {
+    Still,
+    Orbit,
+    Dolly,
+}
+
+impl Path {
+    fn name(self) -> &'static str {
+        match self {
+            Path::Still => "still camera (settled)",
+            Path::Orbit => "orbit 1 deg/frame",
+            Path::Dolly => "dolly in 1 %/frame",
+        }
+    }
+
+    fn camera(self, start: &Camera, frame: usize) -> Camera {
+        let mut c = *start;
+        let offset = c.eye - c.target;
+        match self {
+            Path::Still => {}
+            Path::Orbit => {
+                let angle = (frame as f32 + 1.0).to_radians();
+                c.eye = c.target + Quat::from_rotation_y(angle) * offset;
+            }
+            Path::Dolly => c.eye = c.target + offset * (1.0 - 0.01 * (frame as f32 + 1.0)),
+        }
+        c
+    }
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    let i = ((sorted.len() as f64 - 1.0) * p).round() as usize;
+    sorted[i.min(sorted.len() - 1)]
+}
+
+fn cpu_model() -> String {
+    std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|m| m.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into())
+}
+
+/// The 1-minute load average (`/proc/loadavg`): other processes on the cores inflate the
+/// times; the `min` column is the least disturbed.
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|s| s.split_whitespace().next().map(str::to_string))
+        .unwrap_or_else(|| "unknown".into())
+}
+
+fn date() -> String {
+    std::process::Command::new("date")
+        .args(["-u", "+%Y-%m-%d %H:%M UTC"])
+        .output()
+        .ok()
+        .and_then(|o| String::from_utf8(o.stdout).ok())
+        .map(|s| s.trim().to_string())
+        .unwrap_or_else(|| "unknown date".into())
+}
+
+fn main() {
+    let runs = env_u32("MIXVOL_BENCH_RUNS", 5).max(1) as usize;
+    let grid = BrickGrid::new(BRICKS * BRICK_SIZE, BRICK_SIZE).expect("grid");
+    let geometry = BrickGeometry::new(grid, Vec3::ONE).expect("geometry");
+    let bricks = grid.brick_count();
+    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    let ranges: Vec<ValueRange> = (0..bricks)
+        .map(|_| {
+            let a = rng.f32();
+            ValueRange {
+                min: a,
+                max: a + rng.f32() * 0.3,
+            }
+        })
+        .collect();
+    let mut entries = vec![Vec4::ZERO; TF_SIZE];
+    for e in &mut entries[TF_SIZE / 4..] {
+        *e = Vec4::splat(0.5);
+    }
+    let tf = TransferFunction::from_entries(entries).expect("tf");
+    let cull = CullParams::transfer_function(TfCullTable::new(&tf, (0.0, 1.0)).expect("table"));
+    let hi_bricks = bricks / 8;
+    let budget = PlanBudget {
+        slots: hi_bricks + (bricks - hi_bricks).div_ceil(8),
+        upload_bytes_per_frame: UPLOAD_BYTES,
+        bytes_per_texel: BYTES_PER_TEXEL,
+        ram_bytes: None,
+    };
+    let start = Camera::perspective(Vec3::new(1.1, 0.8, 1.5), Vec3::ZERO, 40.0);
+    let hi_per_frame = UPLOAD_BYTES / upload_bytes(Level::Hi, BRICK_SIZE, BYTES_PER_TEXEL);
+
+    println!(
+        "Residency planner, {bricks} bricks of {BRICK_SIZE}^3 ({} x {} x {}), {WIDTH}x{HEIGHT} \
+         perspective, {} slots, {} MiB uploads/frame ({hi_per_frame} hi-res bricks), {runs} runs",
+        BRICKS.x,
+        BRICKS.y,
+        BRICKS.z,
+        budget.slots,
+        UPLOAD_BYTES >> 20,
+    );
+    println!(
+        "Machine: {} cores (nproc), {}; {}; load average at start {}",
+        std::thread::available_parallelism().map_or(0, |n| n.get()),
+        cpu_model(),
+        date(),
+        load_average()
+    );
+    println!();
+    println!("| source | camera | frames | median ms | p95 ms | max ms | min ms | culled | drawn hi | drawn lo | uploads/frame |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+
+    for (source, lo_only) in [("all loaded", false), ("only Lo loaded", true)] {
+        let loaded = move |_: u32, level: Level| match level {
+            Level::Hi => !lo_only,
+            Level::Lo => true,
+            Level::Absent => false,
+        };
+        for path in [Path::Still, Path::Orbit, Path::Dolly] {
+            let mut times = Vec::new();
+            let mut last = None;
+            let mut uploads = 0usize;
+            for _ in 0..runs {
+                let mut planner = ResidencyPlanner::new(PlanOptions::default());
+                let view = LodView::new(&start, WIDTH, HEIGHT).expect("view");
+                let input = FrameInput {
+                    geometry: &geometry,
+                    view: &view,
+                    ranges: &ranges,
+                    cull: &cull,
+                    budget,
+                };
+                let mut settled = false;
+                for _ in 0..1000 {
+                    let plan = planner.plan_frame(&input, loaded).expect("plan");
+                    if plan.report.is_settled() {
+                        settled = true;
+                        break;
+                    }
+                }
+                assert!(settled, "the plan did not settle");
+                for f in 0..FRAMES {
+                    let view = LodView::new(&path.camera(&start, f), WIDTH, HEIGHT).expect("view");
+                    let input = FrameInput {
+                        view: &view,
+                        ..input
+                    };
+                    let t = Instant::now();
+                    let plan = planner.plan_frame(&input, loaded).expect("plan");
+                    times.push(t.elapsed().as_secs_f64() * 1e3);
+                    uploads += plan.uploads.len();
+                    black_box(plan);
+                }
+                last = Some(planner.last_plan().report);
+            }
+            times.sort_by(f64::total_cmp);
+            let r = last.expect("one run");
+            println!(
+                "| {source} | {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {} | {} | {} | {:.0} |",
+                path.name(),
+                times.len(),
+                percentile(&times, 0.5),
+                percentile(&times, 0.95),
+                times[times.len() - 1],
+                times[0],
+                r.culled,
+                r.drawn_hi,
+                r.drawn_lo,
+                uploads as f64 / times.len() as f64,
+            );
+        }
+    }
+}

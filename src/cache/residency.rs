@@ -322,6 +322,56 @@ impl BrickCache {
         table
     }
 
+    /// Marks in `stale` (one flag per brick) the hi-res bricks whose fixed-up border `update`
+    /// made stale, given the levels `before` it: every brick `update` uploads (a new, re-levelled,
+    /// moved or border-restored brick arrives with raw borders), and every brick among the 26
+    /// neighbours of a brick that became low-res (its border must now take that brick's
+    /// low-res samples). A low-res brick that was only moved keeps its samples, and a lost
+    /// low-res neighbour is a border restore (an upload), so nothing else is stale. Flags already
+    /// set stay set (a host may stage several updates before the fixup runs).
+    pub fn mark_stale_borders(&self, update: &CacheUpdate, before: &[Level], stale: &mut [bool]) {
+        let size = self.grid.bricks_per_axis().as_ivec3();
+        for upload in &update.uploads {
+            let brick = upload.brick as usize;
+            if let Some(flag) = stale.get_mut(brick) {
+                *flag = true;
+            }
+            if upload.level != Level::Lo || before.get(brick) == Some(&Level::Lo) {
+                continue;
+            }
+            let at = self.grid.brick_coords(brick).as_ivec3();
+            for k in 0..super::tables::NEIGHBOUR_COUNT {
+                let nb = at + super::tables::neighbour_offset(k);
+                if nb.cmpge(glam::IVec3::ZERO).all() && nb.cmplt(size).all() {
+                    if let Some(flag) = stale.get_mut(self.grid.linear_index(nb.as_uvec3())) {
+                        *flag = true;
+                    }
+                }
+            }
+        }
+    }
+
+    /// The fixup dispatch list restricted to the bricks flagged in `stale`
+    /// ([`BrickCache::mark_stale_borders`]): slot indices (ascending) of the flagged hi-res
+    /// bricks with any neighbour bit set. The fixup is idempotent, so running it over these
+    /// alone leaves the cache as [`BrickCache::fixup_slots`] would.
+    pub fn stale_fixup_slots(&self, stale: &[bool]) -> Vec<u32> {
+        let bits = self.neighbour_bits();
+        let mut slots: Vec<u32> = self
+            .state
+            .residency
+            .iter()
+            .zip(&bits)
+            .zip(stale)
+            .filter_map(|((r, &b), &flag)| match r {
+                Residency::Hi { slot } if b != 0 && flag => Some(*slot),
+                _ => None,
+            })
+            .collect();
+        slots.sort_unstable();
+        slots
+    }
+
     /// The fixup dispatch list: slot indices (ascending) of the hi-res bricks with any neighbour
     /// bit set.
     pub fn fixup_slots(&self) -> Vec<u32> {
@@ -525,6 +575,45 @@ mod tests {
     use super::*;
     use glam::{UVec3, Vec3};
     use std::collections::BTreeMap;
+
+    /// Only the bricks whose border a change made stale are fixed up again: the uploaded ones and
+    /// the hi-res neighbours of a brick that became low-res; a far hi-res brick is left alone,
+    /// and a second update before the fixup keeps the first one's flags.
+    #[test]
+    fn stale_borders_are_the_uploads_and_the_neighbours_of_new_low_res_bricks() {
+        let grid = BrickGrid::new(UVec3::new(16, 4, 4), 4).unwrap();
+        let geometry = CacheGeometry::new(4, UVec3::splat(32)).unwrap();
+        let mut cache = BrickCache::new(grid, geometry).unwrap();
+        let hi = vec![Level::Hi; 4];
+        let first = cache.update(&hi).unwrap();
+        let mut stale = vec![false; 4];
+        cache.mark_stale_borders(&first, &[Level::Absent; 4], &mut stale);
+        assert_eq!(stale, [true; 4], "a first upload makes every border stale");
+        assert!(
+            cache.stale_fixup_slots(&stale).is_empty(),
+            "no low-res neighbour yet"
+        );
+        // Brick 3 becomes low-res: brick 2 next to it must take its samples; 0 and 1 must not.
+        let mut stale = vec![false; 4];
+        let levels = [Level::Hi, Level::Hi, Level::Hi, Level::Lo];
+        let update = cache.update(&levels).unwrap();
+        cache.mark_stale_borders(&update, &hi, &mut stale);
+        assert_eq!(stale, [false, false, true, true]);
+        let slot_of = |cache: &BrickCache, b: usize| match cache.residencies()[b] {
+            Residency::Hi { slot } => slot,
+            r => panic!("brick {b}: {r:?}"),
+        };
+        assert_eq!(cache.stale_fixup_slots(&stale), vec![slot_of(&cache, 2)]);
+        assert_eq!(cache.fixup_slots(), vec![slot_of(&cache, 2)]);
+        // Brick 0 becomes low-res too, before a fixup ran: 1 joins, 2 stays flagged.
+        let update = cache
+            .update(&[Level::Lo, Level::Hi, Level::Hi, Level::Lo])
+            .unwrap();
+        cache.mark_stale_borders(&update, &levels, &mut stale);
+        let mut expected = vec![slot_of(&cache, 1), slot_of(&cache, 2)];
+        expected.sort_unstable();
+        assert_eq!(cache.stale_fixup_slots(&stale), expected);
+    }
 
     /// Xorshift64 for reproducible randomized tests.
     struct Rng(u64);

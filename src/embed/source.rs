@@ -177,6 +177,9 @@ pub(crate) struct MixedState {
     /// Whether tables were ever staged for the GPU cache (until then even an unchanged
     /// residency must be staged: the GPU tables hold nothing yet).
     tables_staged: bool,
+    /// Per brick: its fixed-up border is stale and the next fixup must rewrite it
+    /// ([`BrickCache::mark_stale_borders`]); cleared once a staged update was recorded.
+    stale_borders: Vec<bool>,
 }
 
 /// The source on the GPU.
@@ -413,6 +416,7 @@ impl VolumePass {
             geometry,
             planner: ResidencyPlanner::new(self.residency.options),
             tables_staged: false,
+            stale_borders: vec![false; grid.brick_count()],
         }));
         Ok(())
     }
@@ -461,7 +465,15 @@ impl MixedState {
         let levels = fallback_levels(wanted, &*state.source);
         let fallback_bricks = levels.iter().zip(wanted).filter(|(a, b)| a != b).count();
         let before = state.cache.residencies().to_vec();
+        let before_levels: Vec<Level> = before.iter().map(|r| r.level()).collect();
         let update = state.cache.update(&levels)?;
+        if !state.gpu.has_pending() {
+            // The last staged update was recorded with its fixup: every border is current.
+            state.stale_borders.fill(false);
+        }
+        state
+            .cache
+            .mark_stale_borders(&update, &before_levels, &mut state.stale_borders);
         // Nothing moved (a still camera once converged): the GPU cache and its tables are
         // current, so nothing is staged and the next record copies nothing and skips the fixup.
         let unchanged =
@@ -493,11 +505,15 @@ impl MixedState {
         let neighbours = state.cache.neighbour_bits();
         let reverse = state.cache.reverse_table();
         let fixup_slots = state.cache.fixup_slots();
+        // The fixup runs only over the hi-res bricks whose border this update (and any staged
+        // before it, not yet recorded) made stale: a still or slowly moving camera re-fixes a
+        // handful of bricks instead of every brick next to a low-res one.
+        let stale_slots = state.cache.stale_fixup_slots(&state.stale_borders);
         let tables = CacheTables {
             layout: &layout,
             neighbours: &neighbours,
             reverse: &reverse,
-            fixup_slots: &fixup_slots,
+            fixup_slots: &stale_slots,
             bricks: grid.bricks_per_axis(),
             brick_size: grid.brick_size(),
             slots_per_axis: state.cache.geometry().slots_per_axis(),
@@ -516,7 +532,7 @@ impl MixedState {
             uploaded_bytes: regions.iter().map(|r| r.bytes.len()).sum(),
             hi_bricks: current.iter().filter(|l| **l == Level::Hi).count(),
             lo_bricks: current.iter().filter(|l| **l == Level::Lo).count(),
-            fixup_bricks: if smooth { fixup_slots.len() } else { 0 },
+            fixup_bricks: if smooth { stale_slots.len() } else { 0 },
             fallback_bricks,
             pack_ms,
             update_ms: 0.0,

@@ -58,6 +58,8 @@ pub struct Panel {
     pub y_range: Option<(f64, f64)>,
     /// The series.
     pub series: Vec<Series>,
+    /// Legend in the upper left corner instead of the upper right.
+    pub legend_left: bool,
 }
 
 /// Panels side by side under a title.
@@ -170,7 +172,11 @@ impl Chart {
                         .draw_series(DashedLineSeries::new(inside.clone(), 7, 5, style))
                         .map_err(draw_err)?
                         .label(&s.name)
-                        .legend(legend);
+                        .legend(move |(x, y)| {
+                            EmptyElement::at((x, y))
+                                + PathElement::new(vec![(0, 0), (8, 0)], colour.stroke_width(2))
+                                + PathElement::new(vec![(14, 0), (24, 0)], colour.stroke_width(2))
+                        });
                 } else {
                     chart
                         .draw_series(LineSeries::new(inside.clone(), style))
@@ -196,7 +202,11 @@ impl Chart {
             }
             chart
                 .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
+                .position(if panel.legend_left {
+                    SeriesLabelPosition::UpperLeft
+                } else {
+                    SeriesLabelPosition::UpperRight
+                })
                 .background_style(WHITE.mix(0.85))
                 .border_style(BLACK)
                 .label_font((FONT, 12))
@@ -257,6 +267,7 @@ mod tests {
                     points: vec![(1.0, 0.3), (2.0, 0.1), (f64::NAN, 1.0)],
                     labels: vec!["0.5".into(), "1".into(), String::new()],
                 }],
+                legend_left: false,
             }],
             panel_size: (320, 240),
         }

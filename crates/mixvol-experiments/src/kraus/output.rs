@@ -263,6 +263,7 @@ impl KrausReport {
                     }
                 })
                 .collect(),
+            legend_left: true,
         };
         Chart {
             title: "Kraus Figure 1: deviation from the exact integral vs sampling distance".into(),

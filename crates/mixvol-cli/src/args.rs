@@ -22,7 +22,7 @@ pub struct KrausArgs {
 
 #[derive(Args, Debug)]
 pub struct ReportArgs {
-    /// Folder for accuracy-vs-time.md, .csv and .png.
+    /// Folder for accuracy-vs-time.{md,csv,json,png,svg} and seams-vs-time.{png,svg}.
     #[arg(long, default_value = "docs/report")]
     pub output_dir: PathBuf,
     /// Image width and height.
@@ -40,6 +40,9 @@ pub struct ReportArgs {
     /// Enable the validation layers.
     #[arg(long)]
     pub validation: bool,
+    /// The quick report of the test suite (48x48 image, 32^3 volume, bricks of 8, 1 frame).
+    #[arg(long)]
+    pub quick: bool,
 }
 
 #[derive(Args, Debug)]

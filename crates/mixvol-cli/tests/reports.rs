@@ -25,8 +25,33 @@ fn command_writes_report_files() {
     let png = image::open(dir.join("kraus.png")).unwrap().to_rgb8();
     assert!(png.width() >= 640 && png.height() >= 300);
     // The chart holds the four tau colours.
-    for colour in [[30, 90, 220], [20, 160, 60], [240, 140, 20], [200, 30, 30]] {
-        assert!(png.pixels().any(|p| p.0 == colour), "{colour:?} missing");
+    for colour in &mixvol_experiments::plot::PALETTE[..4] {
+        assert!(png.pixels().any(|p| p.0 == *colour), "{colour:?} missing");
     }
+    let svg = std::fs::read_to_string(dir.join("kraus.svg")).unwrap();
+    assert!(svg.contains("sampling distance d = d0"));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// `mixvol report --quick` writes every file of the accuracy report.
+#[test]
+fn quick_accuracy_report_writes_its_files() {
+    let dir = std::env::temp_dir().join(format!("mixvol-accuracy-cli-{}", std::process::id()));
+    let out = Command::new(env!("CARGO_BIN_EXE_mixvol"))
+        .args(["report", "--quick", "--output-dir"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for name in mixvol_experiments::accuracy::REPORT_FILES {
+        assert!(dir.join(name).is_file(), "{name} missing");
+    }
+    let md = std::fs::read_to_string(dir.join("accuracy-vs-time.md")).unwrap();
+    assert!(md.contains("`cargo run --release -- report --quick`"));
+    assert!(md.contains("| transition, shaded | Smooth"));
     std::fs::remove_dir_all(&dir).ok();
 }

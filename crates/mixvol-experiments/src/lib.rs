@@ -3,11 +3,14 @@
 //! - [`kraus`]: Kraus & Bürger's opacity- vs extinction-based sampling experiments (CPU), the
 //!   report behind `mixvol kraus` (`docs/report/kraus.*`).
 //! - [`accuracy`]: the accuracy-versus-time report behind `mixvol report`
-//!   (`docs/report/accuracy-vs-time.*`): one scene under every setting that trades accuracy for
-//!   time, against a high-quality reference.
-//! - [`chart`]: the drawing primitives both reports' charts use.
+//!   (`docs/report/accuracy-vs-time.*`, `docs/report/seams-vs-time.*`): one scene under every
+//!   setting that trades accuracy for time, against a high-quality reference.
+//! - [`metrics`]: the image metrics of the accuracy report (RMSE/PSNR, gradient error, SSIM,
+//!   the seam measure).
+//! - [`plot`]: the charts of both reports (plotters, PNG and SVG).
 #![warn(missing_docs)]
 
 pub mod accuracy;
-pub mod chart;
 pub mod kraus;
+pub mod metrics;
+pub mod plot;

@@ -1,7 +1,7 @@
 //! The report of the sweep: Markdown, CSV, the chart, and the files of `mixvol kraus`.
 
 use super::*;
-use crate::chart::{draw_label, draw_polyline};
+use crate::plot::{Chart, Panel, Series, PALETTE};
 use std::path::{Path, PathBuf};
 
 /// The command that regenerates the checked-in report.
@@ -71,7 +71,7 @@ impl KrausReport {
         let mut out =
             String::from("# Kraus experiments: opacity-based vs extinction-based sampling\n\n");
         out.push_str(&format!(
-            "Regenerate: `{COMMAND}` (CPU only, deterministic; writes `kraus.md`, `kraus.csv`, `kraus.png`). \
+            "Regenerate: `{COMMAND}` (CPU only, deterministic; writes `kraus.md`, `kraus.csv`, `kraus.png`, `kraus.svg`). \
              The harness is `crates/mixvol-experiments/src/kraus/`; the assertions on these numbers are in `crates/mixvol-experiments/tests/kraus.rs`.\n\n"
         ));
         out.push_str(
@@ -129,7 +129,7 @@ impl KrausReport {
             ));
         }
         out.push_str("\n## Figure 1: deviation against sampling distance\n\n");
-        out.push_str("Chart (`kraus.png`): left the maximum, right the mean deviation over `r`, against `d`; solid = opacity-based, dashed = extinction-based; colour = `tau_max` (blue 1, green 2, orange 4, red 8).\n\n");
+        out.push_str("Chart (`kraus.png`, `kraus.svg`): left the maximum, right the mean deviation over `r`, against `d`; solid = opacity-based, dashed = extinction-based; one colour per `tau_max` (legend).\n\n");
         for &tau in &o.tau_max {
             let exact_alpha = self
                 .rows_of("figure1", Model::OPACITY, tau)
@@ -226,149 +226,65 @@ impl KrausReport {
         out
     }
 
-    /// The chart: deviation (y, 0 to 1) against sampling distance (x, 0 to the largest `d`), the
-    /// maximum over `r` left and the mean right; solid opacity-based, dashed extinction-based, one
-    /// colour per `tau_max`, with a legend.
-    pub fn chart(&self) -> image::RgbImage {
-        let (panel_w, panel_h, margin, top, legend_h) = (460u32, 360u32, 48u32, 36u32, 64u32);
-        let (w, h) = (2 * panel_w, top + panel_h + legend_h);
-        let mut img = image::RgbImage::from_pixel(w, h, image::Rgb([255, 255, 255]));
-        let black = image::Rgb([0, 0, 0]);
-        let x_max = self
-            .options
-            .distances
-            .iter()
-            .copied()
-            .fold(0.0f32, f32::max)
-            .max(0.5) as f64;
-        draw_label(
-            &mut img,
-            12,
-            8,
-            "KRAUS FIGURE 1: DEVIATION FROM EXACT VS SAMPLING DISTANCE D = D0",
-            black,
-        );
-        for (panel, title) in ["MAX DEVIATION OVER R", "MEAN DEVIATION OVER R"]
-            .iter()
-            .enumerate()
-        {
-            let x0 = panel as u32 * panel_w;
-            let (left, right) = (x0 + margin, x0 + panel_w - 16);
-            let (upper, lower) = (top + 16, top + panel_h - 28);
-            let to_px = |d: f64, dev: f64| {
-                let x = left as f64 + d / x_max * (right - left) as f64;
-                let y = lower as f64 - dev.clamp(0.0, 1.0) * (lower - upper) as f64;
-                (x, y)
-            };
-            draw_label(&mut img, left as i64 + 8, top as i64, title, black);
-            for x in left..=right {
-                img.put_pixel(x, lower, black);
-            }
-            for y in upper..=lower {
-                img.put_pixel(left, y, black);
-            }
-            for i in 0..=4 {
-                let dev = i as f64 / 4.0;
-                let (_, y) = to_px(0.0, dev);
-                draw_label(
-                    &mut img,
-                    x0 as i64 + 4,
-                    y as i64 - 4,
-                    &format!("{dev:.2}"),
-                    black,
-                );
-                for x in left.saturating_sub(3)..left {
-                    img.put_pixel(x, y as u32, black);
-                }
-            }
-            let mut d = 0.0;
-            while d <= x_max + 1e-9 {
-                let (x, _) = to_px(d, 0.0);
-                draw_label(
-                    &mut img,
-                    x as i64 - 10,
-                    lower as i64 + 8,
-                    &format!("{d:.1}"),
-                    black,
-                );
-                for y in lower..lower + 4 {
-                    img.put_pixel(x as u32, y, black);
-                }
-                d += 0.5;
-            }
-            draw_label(
-                &mut img,
-                (left + right) as i64 / 2 - 76,
-                lower as i64 + 22,
-                "SAMPLING DISTANCE D",
-                black,
-            );
-            for &tau in &self.options.tau_max {
-                let colour = tau_colour(tau);
-                for (model, dashed) in [(Model::OPACITY, false), (Model::EXTINCTION, true)] {
+    /// The chart: deviation (y, 0 to 1) against sampling distance (x), the maximum over `r`
+    /// left and the mean right; solid opacity-based, dashed extinction-based, one colour per
+    /// `tau_max`, with a legend.
+    pub fn chart(&self) -> Chart {
+        let panel = |title: &str, y_label: &str, mean: bool| Panel {
+            title: title.into(),
+            x_label: "sampling distance d = d0 (grid spacings)".into(),
+            y_label: y_label.into(),
+            y_range: Some((0.0, 1.0)),
+            series: self
+                .options
+                .tau_max
+                .iter()
+                .enumerate()
+                .flat_map(|(i, &tau)| {
+                    [
+                        (Model::OPACITY, "opacity"),
+                        (Model::EXTINCTION, "extinction"),
+                    ]
+                    .into_iter()
+                    .map(move |(model, name)| (i, tau, model, name))
+                })
+                .map(|(i, tau, model, name)| {
                     let points: Vec<(f64, f64)> = self
                         .rows_of("figure1", model, tau)
                         .filter(|r| r.stats.non_finite == 0)
-                        .map(|r| {
-                            let dev = if panel == 0 {
-                                r.stats.max
-                            } else {
-                                r.stats.mean
-                            };
-                            to_px(r.d as f64, dev)
-                        })
+                        .map(|r| (r.d as f64, if mean { r.stats.mean } else { r.stats.max }))
                         .collect();
-                    draw_polyline(&mut img, &points, colour, dashed);
-                }
-            }
+                    Series {
+                        name: format!("{name}-based, tau_max = {tau}"),
+                        colour: PALETTE[i % PALETTE.len()],
+                        dashed: model == Model::EXTINCTION,
+                        labels: vec![String::new(); points.len()],
+                        points,
+                    }
+                })
+                .collect(),
+            legend_left: true,
+        };
+        Chart {
+            title: "Kraus Figure 1: deviation from the exact integral vs sampling distance".into(),
+            panels: vec![
+                panel(
+                    "Largest deviation over r",
+                    "max |colour or opacity - exact| (0-1)",
+                    false,
+                ),
+                panel(
+                    "Mean deviation over r",
+                    "mean |colour or opacity - exact| (0-1)",
+                    true,
+                ),
+            ],
+            panel_size: (560, 440),
         }
-        // Legend.
-        let y = (top + panel_h + 14) as i64;
-        draw_polyline(
-            &mut img,
-            &[(16.0, y as f64 + 5.0), (56.0, y as f64 + 5.0)],
-            black,
-            false,
-        );
-        draw_label(&mut img, 64, y, "OPACITY-BASED", black);
-        draw_polyline(
-            &mut img,
-            &[(200.0, y as f64 + 5.0), (240.0, y as f64 + 5.0)],
-            black,
-            true,
-        );
-        draw_label(&mut img, 248, y, "EXTINCTION-BASED", black);
-        let y2 = y + 22;
-        draw_label(&mut img, 16, y2, "TAU MAX", black);
-        let mut x = 80i64;
-        for &tau in &self.options.tau_max {
-            let colour = tau_colour(tau);
-            draw_polyline(
-                &mut img,
-                &[
-                    (x as f64, y2 as f64 + 5.0),
-                    (x as f64 + 28.0, y2 as f64 + 5.0),
-                ],
-                colour,
-                false,
-            );
-            draw_label(&mut img, x + 34, y2, &format!("{tau}"), colour);
-            x += 80;
-        }
-        img
     }
 }
 
-fn tau_colour(tau: f32) -> image::Rgb<u8> {
-    match tau {
-        t if t <= 1.0 => image::Rgb([30, 90, 220]),
-        t if t <= 2.0 => image::Rgb([20, 160, 60]),
-        t if t <= 4.0 => image::Rgb([240, 140, 20]),
-        _ => image::Rgb([200, 30, 30]),
-    }
-}
-
-/// Runs [`run`] and writes `kraus.md`, `kraus.csv` and `kraus.png` into `dir` (created if
+/// Runs [`run`] and writes `kraus.md`, `kraus.csv`, `kraus.png` and `kraus.svg` into `dir` (created if
 /// missing). Returns the report.
 pub fn write_report(dir: &Path, options: &KrausOptions) -> Result<KrausReport> {
     let report = run(options)?;
@@ -385,7 +301,12 @@ pub fn write_report(dir: &Path, options: &KrausOptions) -> Result<KrausReport> {
         mixvol::output::write_file_atomically(&path, text.as_bytes())
             .map_err(|e| io(path.clone(), &e))?;
     }
-    let path = dir.join("kraus.png");
-    mixvol::renderer::save_png(&report.chart(), &path)?;
+    report
+        .chart()
+        .write(dir, "kraus")
+        .map_err(|e| Error::ImageWrite {
+            path: dir.join("kraus.{png,svg}"),
+            message: e.to_string(),
+        })?;
     Ok(report)
 }

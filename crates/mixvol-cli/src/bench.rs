@@ -3,7 +3,6 @@
 //! budget or a brick store it benchmarks camera-driven residency instead (`path_bench`).
 
 use crate::args::BenchArgs;
-use crate::files::write_text;
 use crate::input::{is_brick_store, load_volume};
 use crate::levels::{level_pattern, swapped};
 use crate::stats::Summary;
@@ -138,12 +137,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
             None => println!("| {name} | 0 | - | - | - |"),
         }
     }
-    if info.device_type == ash::vk::PhysicalDeviceType::CPU {
-        println!(
-            "note: {} is a CPU implementation; compare ratios, not absolute times",
-            info.name
-        );
-    }
+    crate::files::note_cpu_device(info);
     if let Some(path) = &args.json {
         let json = BenchJson {
             device: &info.name,
@@ -154,14 +148,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
             volume: &r.volume,
             passes,
         };
-        let text = serde_json::to_string(&json)
-            .map_err(|e| Error::InvalidInput(format!("bench results as JSON: {e}")))?
-            + "\n";
-        if path.as_os_str() == "-" {
-            print!("{text}");
-        } else {
-            write_text(path, &text)?;
-        }
+        crate::files::write_json(path, &json)?;
     }
     Ok(())
 }

@@ -23,3 +23,26 @@ pub fn write_text(path: &Path, text: &str) -> Result<()> {
         message: e.to_string(),
     })
 }
+
+/// Writes `value` as one line of JSON to `path`, or to standard output for `-`.
+pub fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
+    let text = serde_json::to_string(value)
+        .map_err(|e| Error::InvalidInput(format!("results as JSON: {e}")))?
+        + "\n";
+    if path.as_os_str() == "-" {
+        print!("{text}");
+        Ok(())
+    } else {
+        write_text(path, &text)
+    }
+}
+
+/// Says that timings from a CPU implementation (lavapipe) are CPU times.
+pub fn note_cpu_device(info: &mixvol::gpu::DeviceInfo) {
+    if info.device_type == ash::vk::PhysicalDeviceType::CPU {
+        println!(
+            "note: {} is a CPU implementation; compare ratios, not absolute times",
+            info.name
+        );
+    }
+}

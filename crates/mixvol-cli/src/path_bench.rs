@@ -6,7 +6,6 @@
 //! after the camera stops; a table and JSON.
 
 use crate::args::BenchArgs;
-use crate::files::write_text;
 use crate::frame_log::FrameRow;
 use crate::input::open_input;
 use crate::render::{set_up_scene, views, Scene};
@@ -218,12 +217,7 @@ pub fn bench_path(args: &BenchArgs) -> Result<()> {
     if let Some(x) = ratio(|s| s.median, |r| r.gpu_raycast_ms) {
         println!("smooth / discontinuous ray-cast (median): {x:.3}x");
     }
-    if info.device_type == ash::vk::PhysicalDeviceType::CPU {
-        println!(
-            "note: {} is a CPU implementation; compare ratios, not absolute times",
-            info.name
-        );
-    }
+    crate::files::note_cpu_device(info);
     if let Some(path) = &args.json {
         let json = PathBenchJson {
             device: &info.name,
@@ -234,14 +228,7 @@ pub fn bench_path(args: &BenchArgs) -> Result<()> {
             path_frames: cameras.len(),
             transitions: out,
         };
-        let text = serde_json::to_string(&json)
-            .map_err(|e| Error::InvalidInput(format!("bench results as JSON: {e}")))?
-            + "\n";
-        if path.as_os_str() == "-" {
-            print!("{text}");
-        } else {
-            write_text(path, &text)?;
-        }
+        crate::files::write_json(path, &json)?;
     }
     drop(runs);
     Ok(())

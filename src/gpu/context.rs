@@ -500,6 +500,7 @@ impl GpuContext {
             unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
         let mut candidates = Vec::new();
         let mut rejected = Vec::new();
+        let mut present = Vec::new();
         for pd in devices {
             // SAFETY: `pd` was enumerated from `instance`.
             let props = unsafe { instance.get_physical_device_properties(pd) };
@@ -507,6 +508,7 @@ impl GpuContext {
                 .device_name_as_c_str()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default();
+            present.push(name.clone());
             if let Some(w) = &wanted {
                 if !name.to_lowercase().contains(w) {
                     continue;
@@ -548,12 +550,26 @@ impl GpuContext {
         }
         candidates.sort_by_key(|c| c.0);
         candidates.first().map(|c| (c.1, c.2)).ok_or_else(|| {
+            let found = if present.is_empty() {
+                "the Vulkan loader reports no devices (is a driver installed?)".to_string()
+            } else {
+                format!("devices present: {}", present.join(", "))
+            };
+            let why = if rejected.is_empty() {
+                String::new()
+            } else {
+                format!("; rejected: {}", rejected.join("; "))
+            };
+            let hint = if wanted.is_some() && candidates.is_empty() && rejected.is_empty() {
+                " (matched case-insensitively as a substring of the device name)"
+            } else {
+                ""
+            };
             Error::Unsupported(format!(
-                "no usable Vulkan device{}; rejected: [{}]",
+                "no usable Vulkan device{}{hint}; {found}{why}",
                 wanted
                     .map(|w| format!(" matching '{w}'"))
                     .unwrap_or_default(),
-                rejected.join("; ")
             ))
         })
     }

@@ -25,6 +25,22 @@ pub enum Error {
         #[source]
         source: gpu_allocator::AllocationError,
     },
+    /// A GPU memory request exceeds a device limit; refused before anything is allocated.
+    #[error(
+        "GPU allocation '{name}' needs {bytes} bytes but {limit_name} is {limit} bytes: request \
+         less GPU memory (a smaller volume or scalar type, a smaller cache budget, or the brick \
+         cache, which streams bricks through a cache of bounded size)"
+    )]
+    GpuMemoryLimit {
+        /// The debug name of the request (what it is for).
+        name: String,
+        /// Bytes requested (the driver's memory requirements).
+        bytes: u64,
+        /// Which limit: `maxMemoryAllocationSize`, the largest heap, or the heap budget.
+        limit_name: &'static str,
+        /// The limit in bytes.
+        limit: u64,
+    },
     /// A GLSL source did not compile.
     #[error("{file}:{line}: {message}")]
     ShaderCompile {

@@ -19,7 +19,7 @@ pub mod shared_defs;
 mod upload;
 mod validation;
 
-pub use context::{ContextDesc, DeviceInfo, GpuContext, HostDevice};
+pub use context::{ContextDesc, DeviceInfo, GpuContext, HostDevice, MemoryLimits};
 pub use shaders::ShaderStage;
 pub use validation::{DebugMessage, MessageLog, Severity};
 

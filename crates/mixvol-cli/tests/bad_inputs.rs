@@ -6,7 +6,7 @@
 //! fails the test instead of hanging it. `MIXVOL_BIN` points the table at another build of the
 //! binary (how the cases were checked against the code before the fixes).
 
-use std::io::Write;
+use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -19,9 +19,9 @@ struct Case {
     env: &'static [(&'static str, &'static str)],
     /// The expected exit code (1: a refused command, 2: a usage error).
     code: i32,
-    /// Fragments the stderr must contain (case-sensitive).
+    /// Fragments the output (stdout, then stderr) must contain (case-sensitive).
     fragments: &'static [&'static str],
-    /// Fragments the stderr must not contain (the misleading old message).
+    /// Fragments the output must not contain (the misleading old message).
     absent: &'static [&'static str],
 }
 
@@ -49,6 +49,11 @@ const CASES: &[Case] = &[
     Case { name: "NaN in an NRRD", args: &["render", "--volume", "{d}/nan.nrrd"], env: NO_ENV, code: 1, fragments: &["nan.nrrd: voxel 2", "NaN"], absent: &[] },
     Case { name: "folder without Zarr metadata", args: &["render", "--volume", "{d}/plain_folder"], env: NO_ENV, code: 1, fragments: &["plain_folder", "folder without Zarr metadata"], absent: &["not a regular file"] },
     Case { name: "unknown extension read as raw", args: &["render", "--volume", "{d}/v.xyz"], env: NO_ENV, code: 1, fragments: &["v.xyz", "matches no known format", "headerless raw", "--dims 128,128,128"], absent: &[] },
+    // Item 8: validation summaries on success and failure, and a logger.
+    Case { name: "bench --validation prints the summary", args: &["bench", "--volume", "ml", "--dims", "16,16,16", "--frames", "2", "--validation"], env: NO_ENV, code: 0, fragments: &["validation: 0 warnings/errors"], absent: &[] },
+    Case { name: "a failing render prints the summary", args: &["render", "--volume", "ml", "--dims", "16,16,16", "--validation", "-o", "/dev/full"], env: NO_ENV, code: 1, fragments: &["validation (the command failed): 0 warnings/errors", "/dev/full"], absent: &[] },
+    Case { name: "RUST_LOG reaches the library's log", args: &["render", "--volume", "ml", "--dims", "8,8,8"], env: &[("RUST_LOG", "info")], code: 0, fragments: &["[INFO mixvol::gpu::context] device: "], absent: &[] },
+    Case { name: "--verbose logs at info", args: &["render", "--verbose", "--volume", "ml", "--dims", "8,8,8"], env: NO_ENV, code: 0, fragments: &["[INFO mixvol::gpu::context] device: "], absent: &[] },
     Case { name: "--device matching nothing", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--device", "no-such-gpu-x"], env: NO_ENV, code: 1, fragments: &["matching 'no-such-gpu-x'", "devices present: "], absent: &["rejected: []"] },
 ];
 
@@ -137,30 +142,35 @@ fn fixtures(d: &Path) {
     std::fs::write(d.join("v.xyz"), [0u8; 64]).unwrap();
 }
 
-/// Runs `args` with `env` and a deadline; returns the exit code and stderr, or `None` when the
-/// run did not end in time (it is killed).
+/// Runs `args` with `env` and a deadline; returns the exit code and the output (stdout, then
+/// stderr), or `None` when the run did not end in time (it is killed).
 fn run(args: &[String], env: &[(&str, &str)], deadline: Duration) -> Option<(i32, String)> {
     let mut cmd = Command::new(binary());
     cmd.args(args)
         .stdin(Stdio::null())
-        .stdout(Stdio::null())
+        .stdout(Stdio::piped())
         .stderr(Stdio::piped())
-        .env_remove("MIXVOL_HOST_MEMORY_MB");
+        .env_remove("MIXVOL_HOST_MEMORY_MB")
+        .env_remove("RUST_LOG");
     for (k, v) in env {
         cmd.env(k, v);
     }
     let mut child = cmd.spawn().unwrap();
-    let mut stderr = child.stderr.take().unwrap();
-    // Read stderr on a thread, so a chatty child never blocks on a full pipe.
-    let reader = std::thread::spawn(move || {
-        let mut s = String::new();
-        std::io::Read::read_to_string(&mut stderr, &mut s).ok();
-        s
-    });
+    // Read both pipes on threads, so a chatty child never blocks on a full pipe.
+    let drain = |mut pipe: Box<dyn std::io::Read + Send>| {
+        std::thread::spawn(move || {
+            let mut s = String::new();
+            pipe.read_to_string(&mut s).ok();
+            s
+        })
+    };
+    let out = drain(Box::new(child.stdout.take().unwrap()));
+    let err = drain(Box::new(child.stderr.take().unwrap()));
     let start = Instant::now();
     loop {
         if let Some(status) = child.try_wait().unwrap() {
-            return Some((status.code().unwrap_or(-1), reader.join().unwrap()));
+            let text = out.join().unwrap() + &err.join().unwrap();
+            return Some((status.code().unwrap_or(-1), text));
         }
         if start.elapsed() > deadline {
             child.kill().ok();
@@ -181,7 +191,9 @@ fn every_bad_input_is_refused_with_its_reason() {
     let mut failures = Vec::new();
     for case in CASES {
         let mut args: Vec<String> = case.args.iter().map(|a| a.replace("{d}", d)).collect();
-        args.extend(["-o".to_string(), format!("{d}/out.png")]);
+        if args[0] == "render" && !args.iter().any(|a| a == "-o") {
+            args.extend(["-o".to_string(), format!("{d}/out.png")]);
+        }
         match run(&args, case.env, Duration::from_secs(60)) {
             None => failures.push(format!(
                 "{}: still running after 60 s (it hangs)",
@@ -197,7 +209,7 @@ fn every_bad_input_is_refused_with_its_reason() {
                 if code != case.code || !missing.is_empty() || !present.is_empty() {
                     failures.push(format!(
                         "{}: exit {code} (want {}), missing {missing:?}, misleading {present:?}; \
-                         stderr:\n{err}",
+                         output:\n{err}",
                         case.name, case.code
                     ));
                 }

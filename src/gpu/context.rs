@@ -244,7 +244,9 @@ impl Drop for DeviceShared {
         // alive now; waiting idle makes sure the GPU no longer uses freed memory. Destruction
         // runs in reverse creation order: allocator, device, messenger, instance.
         unsafe {
-            let _ = self.device.device_wait_idle();
+            if let Err(e) = self.device.device_wait_idle() {
+                log::error!("vkDeviceWaitIdle at shutdown: {e}");
+            }
             let report = allocator
                 .lock()
                 .unwrap_or_else(|e| e.into_inner())

@@ -24,6 +24,9 @@ pub use shaders::ShaderStage;
 pub use validation::{DebugMessage, MessageLog, Severity};
 
 pub(crate) use brick_cache::{CacheRegion, CacheTables, FieldProbe, GpuBrickCache};
+pub use commands::GPU_TIMEOUT_ENV;
+#[cfg(test)]
+pub(crate) use commands::INJECT_WAIT_RESULT;
 pub(crate) use commands::{image_barrier, Access, Submitter, TimestampPool};
 pub(crate) use memory::{Buffer, Image, ImageDesc};
 pub(crate) use pipeline_cache::PipelineCache;

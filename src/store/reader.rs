@@ -45,7 +45,7 @@ impl BrickStore {
             }
         };
         // The file type is checked before opening: opening a FIFO would block.
-        let kind = std::fs::metadata(&path).map_err(io("stat"))?;
+        let kind = std::fs::metadata(&path).map_err(io("open"))?;
         if !kind.is_file() {
             return Err(io("open")(std::io::Error::new(
                 std::io::ErrorKind::InvalidInput,

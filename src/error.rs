@@ -25,6 +25,45 @@ pub enum Error {
         #[source]
         source: gpu_allocator::AllocationError,
     },
+    /// The device was lost (`VK_ERROR_DEVICE_LOST`: a driver reset, a hung or removed GPU).
+    /// Nothing made from the context works any more: drop the renderers and the context, then
+    /// create a new [`crate::gpu::GpuContext`] (and renderers) to go on.
+    #[error(
+        "the GPU device was lost during {call}: drop the renderer and its GPU context and \
+         create new ones to continue"
+    )]
+    DeviceLost {
+        /// The call that reported the loss.
+        call: &'static str,
+    },
+    /// GPU work did not finish within the wait's timeout (the GPU may be hung, or the work far
+    /// too large): the submission is still pending; a later call waits for it again.
+    #[error(
+        "GPU work did not finish within {timeout_ms} ms ({call}); the device may be hung, or \
+         the frame too expensive (set MIXVOL_GPU_TIMEOUT_MS to wait longer)"
+    )]
+    GpuTimeout {
+        /// The wait that timed out.
+        call: &'static str,
+        /// The timeout in milliseconds.
+        timeout_ms: u64,
+    },
+    /// A GPU memory request exceeds a device limit; refused before anything is allocated.
+    #[error(
+        "GPU allocation '{name}' needs {bytes} bytes but {limit_name} is {limit} bytes: request \
+         less GPU memory (a smaller volume or scalar type, a smaller cache budget, or the brick \
+         cache, which streams bricks through a cache of bounded size)"
+    )]
+    GpuMemoryLimit {
+        /// The debug name of the request (what it is for).
+        name: String,
+        /// Bytes requested (the driver's memory requirements).
+        bytes: u64,
+        /// Which limit: `maxMemoryAllocationSize`, the largest heap, or the heap budget.
+        limit_name: &'static str,
+        /// The limit in bytes.
+        limit: u64,
+    },
     /// A GLSL source did not compile.
     #[error("{file}:{line}: {message}")]
     ShaderCompile {
@@ -76,6 +115,14 @@ pub enum Error {
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 /// Attaches the Vulkan entry point name to a `vk::Result` error.
+/// The error of the Vulkan call `call` returning `result`: device loss is its own variant.
+pub(crate) fn vk_error(call: &'static str, result: ash::vk::Result) -> Error {
+    match result {
+        ash::vk::Result::ERROR_DEVICE_LOST => Error::DeviceLost { call },
+        result => Error::Vulkan { call, result },
+    }
+}
+
 pub(crate) trait VkResultExt<T> {
     /// Maps the error into [`Error::Vulkan`] naming `call`.
     fn vk(self, call: &'static str) -> Result<T>;
@@ -83,6 +130,6 @@ pub(crate) trait VkResultExt<T> {
 
 impl<T> VkResultExt<T> for std::result::Result<T, ash::vk::Result> {
     fn vk(self, call: &'static str) -> Result<T> {
-        self.map_err(|result| Error::Vulkan { call, result })
+        self.map_err(|result| vk_error(call, result))
     }
 }

@@ -452,6 +452,88 @@ impl Renderer {
 impl Drop for Renderer {
     fn drop(&mut self) {
         // Afterwards no GPU work uses our objects, which the field drops then destroy.
-        let _ = self.ctx.shared.wait_idle();
+        if let Err(e) = self.ctx.shared.wait_idle() {
+            log::error!("dropping the renderer: {e}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod device_loss_tests {
+    use super::*;
+    use crate::gpu::{ContextDesc, INJECT_WAIT_RESULT};
+    use crate::optics::TfPreset;
+    use crate::volume::{marschner_lobb, ScalarType};
+    use glam::{UVec3, Vec3};
+
+    fn renderer(ctx: &GpuContext, volume: &crate::volume::Volume) -> Renderer {
+        let mut r = Renderer::new(ctx, TargetFormat::Rgba8Unorm).unwrap();
+        r.set_transfer_function(&TransferFunction::preset(TfPreset::Fire))
+            .unwrap();
+        r.set_source(VolumeSource::Volume(volume)).unwrap();
+        r
+    }
+
+    /// Device loss and a timed-out wait (injected after the real fence wait, which a healthy
+    /// device cannot be made to fail) come back as typed errors, never a panic; the renderer is
+    /// dropped without a leak and a new one renders on.
+    #[test]
+    fn a_lost_device_and_a_timeout_are_typed_errors_and_a_new_renderer_works() {
+        let ctx = GpuContext::new(&ContextDesc {
+            validation: true,
+            device_name: None,
+        })
+        .unwrap();
+        let log = ctx.message_log();
+        let volume = marschner_lobb(UVec3::splat(16), ScalarType::U8).unwrap();
+        let camera = Camera::perspective(Vec3::new(1.0, 1.3, 1.4), Vec3::ZERO, 35.0);
+        let settings = RenderSettings::default();
+
+        let mut r = renderer(&ctx, &volume);
+        let good = r.render(&camera, &settings, 32, 32).unwrap();
+        assert!(good.pixels.iter().any(|p| p.w > 0.05), "the ball is drawn");
+        INJECT_WAIT_RESULT.with(|c| c.set(Some(vk::Result::ERROR_DEVICE_LOST)));
+        match r.render(&camera, &settings, 32, 32) {
+            Err(Error::DeviceLost { call }) => assert_eq!(call, "vkWaitForFences"),
+            other => panic!("expected DeviceLost, got {:?}", other.map(|_| ())),
+        }
+        // A timeout: the submission is left pending, and the next frame waits for it first.
+        INJECT_WAIT_RESULT.with(|c| c.set(Some(vk::Result::TIMEOUT)));
+        match r.render(&camera, &settings, 32, 32) {
+            Err(Error::GpuTimeout { timeout_ms, .. }) => assert!(timeout_ms > 0),
+            other => panic!("expected GpuTimeout, got {:?}", other.map(|_| ())),
+        }
+        let again = r.render(&camera, &settings, 32, 32).unwrap();
+        assert_eq!(again.pixels, good.pixels);
+        drop(r);
+        assert_eq!(
+            ctx.live_allocation_count(),
+            0,
+            "the dropped renderer leaked"
+        );
+
+        // A new renderer on the context renders the same image.
+        let mut r = renderer(&ctx, &volume);
+        let fresh = r.render(&camera, &settings, 32, 32).unwrap();
+        assert_eq!(fresh.pixels, good.pixels);
+        drop(r);
+        assert_eq!(ctx.live_allocation_count(), 0);
+        drop(ctx);
+        let problems = log.warnings_and_errors();
+        assert!(problems.is_empty(), "{problems:?}");
+    }
+
+    #[test]
+    fn device_lost_results_map_to_the_typed_error() {
+        use crate::error::VkResultExt;
+        let lost: std::result::Result<(), vk::Result> = Err(vk::Result::ERROR_DEVICE_LOST);
+        assert!(matches!(
+            lost.vk("vkQueueSubmit2"),
+            Err(Error::DeviceLost {
+                call: "vkQueueSubmit2"
+            })
+        ));
+        let other: std::result::Result<(), vk::Result> = Err(vk::Result::ERROR_OUT_OF_HOST_MEMORY);
+        assert!(matches!(other.vk("x"), Err(Error::Vulkan { .. })));
     }
 }

@@ -137,6 +137,7 @@ fn non_finite_voxels_are_rejected_naming_the_voxel() {
                     y: ey,
                     z: ez,
                     value,
+                    ..
                 } => {
                     assert_eq!((i, ex, ey, ez), (index, x, y, z), "{how} case {k}");
                     assert!(!value.is_finite(), "{how} case {k}: {value}");
@@ -154,6 +155,7 @@ fn non_finite_voxels_are_rejected_naming_the_voxel() {
                 "{how} case {k}: message does not name the voxel: {message}"
             );
             let wrapped = mixvol::Error::from(VolumeError::NonFinite {
+                file: None,
                 index,
                 x,
                 y,

@@ -342,6 +342,12 @@ impl VolumePass {
                 Ok(())
             }
             VolumeSource::Mixed { volume, config } => {
+                // The cache geometry is checked before the bricking work it would waste.
+                self.check_cache_geometry(
+                    &config,
+                    volume.scalar_type().size_bytes() as u32,
+                    volume.dims(),
+                )?;
                 let source = VolumeBrickSource::new(volume, config.brick_size, config.filter)?;
                 self.attach_brick_source(Arc::new(source), config, None)
             }
@@ -353,10 +359,34 @@ impl VolumePass {
                 model,
                 config,
             } => {
+                self.check_cache_geometry(&config, 4 * 4, volume.dims())?;
                 let source = RgbaBrickSource::new(volume, model, config.brick_size, config.filter)?;
                 self.attach_brick_source(Arc::new(source), config, Some(model))
             }
         }
+    }
+
+    /// Refuses a `config` whose cache geometry cannot exist (a slot beyond the device's 3D image
+    /// limit, a budget below one slot) for a volume of `dims` with `bytes_per_texel`, before the
+    /// bricking that would come first.
+    fn check_cache_geometry(
+        &self,
+        config: &MixedConfig,
+        bytes_per_texel: u32,
+        dims: glam::UVec3,
+    ) -> Result<()> {
+        // An invalid brick size or volume is left to the source's own (named) error.
+        let Ok(grid) = crate::bricks::BrickGrid::new(dims, config.brick_size) else {
+            return Ok(());
+        };
+        CacheGeometry::choose(
+            config.brick_size,
+            bytes_per_texel,
+            config.cache_budget_bytes,
+            self.ctx.shared.info.limits.max_image_dimension3_d,
+            u32::try_from(grid.brick_count()).unwrap_or(u32::MAX),
+        )?;
+        Ok(())
     }
 
     /// Renders bricks from `source` through a new brick cache (`rgba_model`: the sampling model

@@ -3,7 +3,7 @@
 
 use super::context::DeviceShared;
 use super::memory::COLOR_RANGE;
-use crate::error::{Result, VkResultExt};
+use crate::error::{vk_error, Error, Result, VkResultExt};
 use ash::vk;
 use std::sync::Arc;
 
@@ -110,11 +110,39 @@ pub(crate) fn memory_barrier(
     unsafe { device.cmd_pipeline_barrier2(cmd, &dependency) };
 }
 
-/// One command pool, one command buffer and one fence: records, submits and waits.
+/// The environment variable that sets the GPU wait timeout in milliseconds.
+pub const GPU_TIMEOUT_ENV: &str = "MIXVOL_GPU_TIMEOUT_MS";
+
+/// The default GPU wait timeout: generous for CPU implementations (lavapipe) on big frames, yet
+/// a hung GPU is reported instead of blocking forever.
+const DEFAULT_GPU_TIMEOUT_MS: u64 = 120_000;
+
+/// The timeout of every fence wait, in milliseconds (`MIXVOL_GPU_TIMEOUT_MS`, else 120 s).
+pub(crate) fn gpu_timeout_ms() -> u64 {
+    std::env::var(GPU_TIMEOUT_ENV)
+        .ok()
+        .and_then(|v| v.trim().parse::<u64>().ok())
+        .filter(|&ms| ms > 0)
+        .unwrap_or(DEFAULT_GPU_TIMEOUT_MS)
+}
+
+#[cfg(test)]
+thread_local! {
+    /// Test hook: the result the next fence wait on this thread reports after the real wait
+    /// (device loss and timeouts cannot be provoked on a healthy device).
+    pub(crate) static INJECT_WAIT_RESULT: std::cell::Cell<Option<vk::Result>> =
+        const { std::cell::Cell::new(None) };
+}
+
+/// One command pool, one command buffer and one fence: records, submits and waits (with a
+/// timeout: [`gpu_timeout_ms`]).
 pub(crate) struct Submitter {
     pool: vk::CommandPool,
     cmd: vk::CommandBuffer,
     fence: vk::Fence,
+    /// A submission whose wait failed (timeout, device loss) may still be pending: the next
+    /// `run` (and drop) waits for it before touching the command buffer or the fence.
+    pending: bool,
     shared: Arc<DeviceShared>,
 }
 
@@ -131,6 +159,7 @@ impl Submitter {
             pool,
             cmd: vk::CommandBuffer::null(),
             fence: vk::Fence::null(),
+            pending: false,
             shared: shared.clone(),
         };
         let alloc_info = vk::CommandBufferAllocateInfo::default()
@@ -146,11 +175,52 @@ impl Submitter {
         Ok(submitter)
     }
 
-    /// Records commands with `record`, submits them and waits for completion.
+    /// Waits for the fence with the timeout; `Ok` once the submission completed. A timeout is
+    /// [`Error::GpuTimeout`], device loss [`Error::DeviceLost`].
+    fn wait(&self) -> Result<()> {
+        let timeout_ms = gpu_timeout_ms();
+        // SAFETY: the fence belongs to this device and was submitted (or is signalled).
+        let waited = unsafe {
+            self.shared.device.wait_for_fences(
+                &[self.fence],
+                true,
+                timeout_ms.saturating_mul(1_000_000),
+            )
+        };
+        #[cfg(test)]
+        let waited = match INJECT_WAIT_RESULT.with(|c| c.take()) {
+            Some(injected) => waited.and(Err(injected)),
+            None => waited,
+        };
+        match waited {
+            Ok(()) => Ok(()),
+            Err(vk::Result::TIMEOUT) => Err(Error::GpuTimeout {
+                call: "vkWaitForFences",
+                timeout_ms,
+            }),
+            Err(result) => Err(vk_error("vkWaitForFences", result)),
+        }
+    }
+
+    /// Waits for a submission left pending by a failed wait, then resets the fence.
+    fn settle(&mut self) -> Result<()> {
+        if self.pending {
+            self.wait()?;
+            // SAFETY: the fence's submission completed: it may be reset.
+            unsafe { self.shared.device.reset_fences(&[self.fence]) }.vk("vkResetFences")?;
+            self.pending = false;
+        }
+        Ok(())
+    }
+
+    /// Records commands with `record`, submits them and waits for completion (at most
+    /// [`gpu_timeout_ms`]; a timeout or device loss is a typed error, and the submission is
+    /// waited for again before the next one).
     pub(crate) fn run(
         &mut self,
         record: impl FnOnce(&ash::Device, vk::CommandBuffer) -> Result<()>,
     ) -> Result<()> {
+        self.settle()?;
         let device = &self.shared.device;
         let begin = vk::CommandBufferBeginInfo::default()
             .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
@@ -182,19 +252,27 @@ impl Submitter {
             device
                 .queue_submit2(self.shared.queue, &submits, self.fence)
                 .vk("vkQueueSubmit2")?;
-            let waited = device
-                .wait_for_fences(&[self.fence], true, u64::MAX)
-                .vk("vkWaitForFences");
-            device.reset_fences(&[self.fence]).vk("vkResetFences")?;
-            waited
         }
+        drop(_queue);
+        if let Err(e) = self.wait() {
+            self.pending = true;
+            return Err(e);
+        }
+        // SAFETY: the submission completed: the fence may be reset.
+        unsafe { device.reset_fences(&[self.fence]) }.vk("vkResetFences")
     }
 }
 
 impl Drop for Submitter {
     fn drop(&mut self) {
-        // SAFETY: `run` always waits for its submission, so nothing is pending; destroying the
-        // pool frees its command buffer. Null handles (half-built) are ignored by Vulkan.
+        if self.pending {
+            if let Err(e) = self.wait() {
+                log::error!("dropping a submitter whose work did not finish: {e}");
+            }
+        }
+        // SAFETY: `run` waits for its submission, and a submission left pending by a failed
+        // wait was waited for above (after device loss, waits return and nothing executes);
+        // destroying the pool frees its command buffer. Null handles (half-built) are ignored.
         unsafe {
             self.shared.device.destroy_fence(self.fence, None);
             self.shared.device.destroy_command_pool(self.pool, None);

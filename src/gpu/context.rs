@@ -46,6 +46,84 @@ pub struct DeviceInfo {
     /// Whether R8/R16 storage images are supported (and enabled): the fixup pass needs them for
     /// u8/u16 brick caches.
     pub storage_image_extended_formats: bool,
+    /// The memory limits requests are checked against before allocating.
+    pub memory: MemoryLimits,
+}
+
+/// The device's memory limits, queried once at start: every buffer and image request is checked
+/// against them before it is allocated ([`super::memory::check_request`]).
+#[derive(Clone, Debug, Default)]
+pub struct MemoryLimits {
+    /// `VkPhysicalDeviceMaintenance3Properties::maxMemoryAllocationSize`: the largest single
+    /// allocation the driver promises.
+    pub max_allocation_bytes: u64,
+    /// Each memory heap's size in bytes and whether it is device-local.
+    pub heaps: Vec<(u64, bool)>,
+    /// Each memory type's property flags and heap index.
+    pub types: Vec<(vk::MemoryPropertyFlags, u32)>,
+    /// Whether `VK_EXT_memory_budget` is enabled: then the heaps' current budgets are queried
+    /// before each allocation too.
+    pub budget_extension: bool,
+}
+
+/// Queries `pd`'s memory limits (`budget_extension`: whether VK_EXT_memory_budget is enabled).
+fn memory_limits(
+    instance: &ash::Instance,
+    pd: vk::PhysicalDevice,
+    budget_extension: bool,
+) -> MemoryLimits {
+    let mut maintenance3 = vk::PhysicalDeviceMaintenance3Properties::default();
+    let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut maintenance3);
+    // SAFETY: `pd` belongs to `instance` (a 1.3 instance: properties2 is core); the chain is
+    // well formed and outlives the call.
+    unsafe { instance.get_physical_device_properties2(pd, &mut props2) };
+    // SAFETY: as above.
+    let mem = unsafe { instance.get_physical_device_memory_properties(pd) };
+    let heaps = mem.memory_heaps[..mem.memory_heap_count as usize]
+        .iter()
+        .map(|h| (h.size, h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL)))
+        .collect();
+    let types = mem.memory_types[..mem.memory_type_count as usize]
+        .iter()
+        .map(|t| (t.property_flags, t.heap_index))
+        .collect();
+    MemoryLimits {
+        max_allocation_bytes: maintenance3.max_memory_allocation_size,
+        heaps,
+        types,
+        budget_extension,
+    }
+}
+
+/// Whether `pd` offers the device extension `name`.
+fn has_device_extension(instance: &ash::Instance, pd: vk::PhysicalDevice, name: &CStr) -> bool {
+    // SAFETY: plain query on a physical device of `instance`.
+    unsafe { instance.enumerate_device_extension_properties(pd) }
+        .map(|exts| exts.iter().any(|e| e.extension_name_as_c_str() == Ok(name)))
+        .unwrap_or(false)
+}
+
+impl DeviceShared {
+    /// The bytes still available under VK_EXT_memory_budget in each heap (budget minus usage),
+    /// or `None` without the extension.
+    pub(crate) fn heap_budgets(&self) -> Option<Vec<u64>> {
+        if !self.info.memory.budget_extension {
+            return None;
+        }
+        let mut budget = vk::PhysicalDeviceMemoryBudgetPropertiesEXT::default();
+        let mut props = vk::PhysicalDeviceMemoryProperties2::default().push_next(&mut budget);
+        // SAFETY: the extension is enabled on this device; the chain outlives the call.
+        unsafe {
+            self.instance
+                .get_physical_device_memory_properties2(self.physical_device, &mut props)
+        };
+        let count = props.memory_properties.memory_heap_count as usize;
+        Some(
+            (0..count)
+                .map(|h| budget.heap_budget[h].saturating_sub(budget.heap_usage[h]))
+                .collect(),
+        )
+    }
 }
 
 /// State shared by every object of the backend. Dropped last: waits idle, drops the allocator
@@ -166,7 +244,9 @@ impl Drop for DeviceShared {
         // alive now; waiting idle makes sure the GPU no longer uses freed memory. Destruction
         // runs in reverse creation order: allocator, device, messenger, instance.
         unsafe {
-            let _ = self.device.device_wait_idle();
+            if let Err(e) = self.device.device_wait_idle() {
+                log::error!("vkDeviceWaitIdle at shutdown: {e}");
+            }
             let report = allocator
                 .lock()
                 .unwrap_or_else(|e| e.into_inner())
@@ -401,8 +481,16 @@ impl GpuContext {
         let queue_infos = [vk::DeviceQueueCreateInfo::default()
             .queue_family_index(queue_family)
             .queue_priorities(&priorities)];
+        let budget_extension =
+            has_device_extension(&instance, physical_device, ash::ext::memory_budget::NAME);
+        let device_extensions: Vec<*const std::ffi::c_char> = if budget_extension {
+            vec![ash::ext::memory_budget::NAME.as_ptr()]
+        } else {
+            Vec::new()
+        };
         let device_info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queue_infos)
+            .enabled_extension_names(&device_extensions)
             .enabled_features(&features10)
             .push_next(&mut features13);
         // SAFETY: required features were checked in pick_device; pointers outlive the call.
@@ -459,6 +547,7 @@ impl GpuContext {
             synchronization_validation: desc.validation && sync_validation,
             storage_image_extended_formats: features10.shader_storage_image_extended_formats
                 == vk::TRUE,
+            memory: memory_limits(&instance, physical_device, budget_extension),
         };
         log::info!(
             "device: {} ({:?}), validation {}, sync validation {}",
@@ -500,6 +589,7 @@ impl GpuContext {
             unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
         let mut candidates = Vec::new();
         let mut rejected = Vec::new();
+        let mut present = Vec::new();
         for pd in devices {
             // SAFETY: `pd` was enumerated from `instance`.
             let props = unsafe { instance.get_physical_device_properties(pd) };
@@ -507,6 +597,7 @@ impl GpuContext {
                 .device_name_as_c_str()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default();
+            present.push(name.clone());
             if let Some(w) = &wanted {
                 if !name.to_lowercase().contains(w) {
                     continue;
@@ -548,12 +639,26 @@ impl GpuContext {
         }
         candidates.sort_by_key(|c| c.0);
         candidates.first().map(|c| (c.1, c.2)).ok_or_else(|| {
+            let found = if present.is_empty() {
+                "the Vulkan loader reports no devices (is a driver installed?)".to_string()
+            } else {
+                format!("devices present: {}", present.join(", "))
+            };
+            let why = if rejected.is_empty() {
+                String::new()
+            } else {
+                format!("; rejected: {}", rejected.join("; "))
+            };
+            let hint = if wanted.is_some() && candidates.is_empty() && rejected.is_empty() {
+                " (matched case-insensitively as a substring of the device name)"
+            } else {
+                ""
+            };
             Error::Unsupported(format!(
-                "no usable Vulkan device{}; rejected: [{}]",
+                "no usable Vulkan device{}{hint}; {found}{why}",
                 wanted
                     .map(|w| format!(" matching '{w}'"))
                     .unwrap_or_default(),
-                rejected.join("; ")
             ))
         })
     }
@@ -637,6 +742,8 @@ impl GpuContext {
             synchronization_validation: false,
             storage_image_extended_formats: features.shader_storage_image_extended_formats
                 == vk::TRUE,
+            // The host's device: whether it enabled VK_EXT_memory_budget is not known here.
+            memory: memory_limits(&host.instance, host.physical_device, false),
         };
         let shared = DeviceShared {
             allocator,

@@ -1,12 +1,94 @@
 //! Owning wrappers for buffers and images whose memory comes from gpu-allocator. Each frees its
 //! allocation and destroys its handle in Drop; each holds the device alive through an Arc.
 
-use super::context::DeviceShared;
+use super::context::{DeviceShared, MemoryLimits};
 use crate::error::{Error, Result, VkResultExt};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
 use gpu_allocator::MemoryLocation;
 use std::sync::Arc;
+
+/// Checks a request of `bytes` named `name` (memory types allowed: `type_bits`; `device_local`:
+/// it wants device-local memory) against the device's `limits` and, where given, the bytes still
+/// available in each heap under VK_EXT_memory_budget (`budgets`). Errors are
+/// [`Error::GpuMemoryLimit`] naming the request and the limit. Pure: nothing is queried.
+pub(crate) fn check_request(
+    name: &str,
+    bytes: u64,
+    type_bits: u32,
+    device_local: bool,
+    limits: &MemoryLimits,
+    budgets: Option<&[u64]>,
+) -> Result<()> {
+    let refuse = |limit_name, limit| {
+        Err(Error::GpuMemoryLimit {
+            name: name.to_string(),
+            bytes,
+            limit_name,
+            limit,
+        })
+    };
+    if limits.max_allocation_bytes > 0 && bytes > limits.max_allocation_bytes {
+        return refuse("maxMemoryAllocationSize", limits.max_allocation_bytes);
+    }
+    let allowed = |want_local: bool| {
+        limits
+            .types
+            .iter()
+            .enumerate()
+            .filter(move |(i, (flags, _))| {
+                *i < 32
+                    && type_bits & (1 << i) != 0
+                    && (!want_local || flags.contains(vk::MemoryPropertyFlags::DEVICE_LOCAL))
+            })
+            .map(|(_, (_, heap))| *heap as usize)
+            .filter(|&h| h < limits.heaps.len())
+            .collect::<Vec<usize>>()
+    };
+    let mut heaps = allowed(device_local);
+    if heaps.is_empty() {
+        heaps = allowed(false);
+    }
+    if heaps.is_empty() {
+        return Ok(()); // Nothing known: leave it to the allocator.
+    }
+    let largest = heaps.iter().map(|&h| limits.heaps[h].0).max().unwrap_or(0);
+    if bytes > largest {
+        return refuse("the largest memory heap it may use", largest);
+    }
+    if let Some(budgets) = budgets {
+        let available = heaps
+            .iter()
+            .filter_map(|&h| budgets.get(h).copied())
+            .max()
+            .unwrap_or(u64::MAX);
+        if bytes > available {
+            return refuse(
+                "the memory still available in the heap's budget (VK_EXT_memory_budget)",
+                available,
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Checks `requirements` of the request `name` against the device behind `shared`.
+fn check_requirements(
+    shared: &DeviceShared,
+    name: &str,
+    requirements: &vk::MemoryRequirements,
+    location: MemoryLocation,
+) -> Result<()> {
+    let budgets = shared.heap_budgets();
+    check_request(
+        name,
+        requirements.size,
+        requirements.memory_type_bits,
+        location == MemoryLocation::GpuOnly,
+        &shared.info.memory,
+        budgets.as_deref(),
+    )
+}
 
 /// A buffer with its memory.
 pub(crate) struct Buffer {
@@ -37,6 +119,11 @@ impl Buffer {
         let raw = unsafe { device.create_buffer(&info, None) }.vk("vkCreateBuffer")?;
         // SAFETY: `raw` was just created from this device.
         let requirements = unsafe { device.get_buffer_memory_requirements(raw) };
+        if let Err(e) = check_requirements(shared, name, &requirements, location) {
+            // SAFETY: the buffer is unused and unbound.
+            unsafe { device.destroy_buffer(raw, None) };
+            return Err(e);
+        }
         let allocation = shared.allocator().allocate(&AllocationCreateDesc {
             name,
             requirements,
@@ -229,6 +316,11 @@ impl Image {
         let raw = unsafe { device.create_image(&info, None) }.vk("vkCreateImage")?;
         // SAFETY: `raw` was just created from this device.
         let requirements = unsafe { device.get_image_memory_requirements(raw) };
+        if let Err(e) = check_requirements(shared, name, &requirements, MemoryLocation::GpuOnly) {
+            // SAFETY: the image is unused and unbound.
+            unsafe { device.destroy_image(raw, None) };
+            return Err(e);
+        }
         let allocation = shared.allocator().allocate(&AllocationCreateDesc {
             name,
             requirements,
@@ -289,5 +381,128 @@ impl Drop for Image {
             .fetch_sub(1, std::sync::atomic::Ordering::SeqCst);
         // SAFETY: as above; the view on it is already gone.
         unsafe { self.shared.device.destroy_image(self.raw, None) };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::{ContextDesc, GpuContext};
+
+    /// One device-local heap of 4 GiB (type 0) and one host heap of 8 GiB (type 1), at most
+    /// 1 GiB per allocation.
+    fn fake() -> MemoryLimits {
+        MemoryLimits {
+            max_allocation_bytes: 1 << 30,
+            heaps: vec![(4 << 30, true), (8 << 30, false)],
+            types: vec![
+                (vk::MemoryPropertyFlags::DEVICE_LOCAL, 0),
+                (vk::MemoryPropertyFlags::HOST_VISIBLE, 1),
+            ],
+            budget_extension: true,
+        }
+    }
+
+    fn limit_of(r: Result<()>) -> Option<(&'static str, u64)> {
+        match r {
+            Ok(()) => None,
+            Err(Error::GpuMemoryLimit {
+                limit_name, limit, ..
+            }) => Some((limit_name, limit)),
+            Err(e) => panic!("unexpected error {e}"),
+        }
+    }
+
+    #[test]
+    fn requests_are_checked_against_the_allocation_size_heaps_and_budget() {
+        let l = fake();
+        // Within every limit.
+        assert_eq!(
+            limit_of(check_request("a", 1 << 20, 0b11, true, &l, None)),
+            None
+        );
+        // Over maxMemoryAllocationSize: refused whatever the heaps say.
+        assert_eq!(
+            limit_of(check_request("a", (1 << 30) + 1, 0b11, true, &l, None)),
+            Some(("maxMemoryAllocationSize", 1 << 30))
+        );
+        // Over the only heap it may use (with no per-allocation limit).
+        let mut l2 = fake();
+        l2.max_allocation_bytes = 0;
+        assert_eq!(
+            limit_of(check_request("a", 5 << 30, 0b01, true, &l2, None)),
+            Some(("the largest memory heap it may use", 4 << 30))
+        );
+        // A host-visible request may use the 8 GiB heap.
+        assert_eq!(
+            limit_of(check_request("a", 5 << 30, 0b10, false, &l2, None)),
+            None
+        );
+        // Over what the budget leaves in the heap.
+        assert_eq!(
+            limit_of(check_request(
+                "a",
+                600 << 20,
+                0b01,
+                true,
+                &l,
+                Some(&[512 << 20, 0])
+            )),
+            Some((
+                "the memory still available in the heap's budget (VK_EXT_memory_budget)",
+                512 << 20
+            ))
+        );
+        // The message names the request, the size and the limit.
+        let e = check_request("volume", 3 << 30, 0b01, true, &l, None).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.contains("'volume'")
+                && text.contains(&(3u64 << 30).to_string())
+                && text.contains("maxMemoryAllocationSize")
+                && text.contains(&(1u64 << 30).to_string()),
+            "{text}"
+        );
+    }
+
+    /// A real image over the device's maxMemoryAllocationSize (created, never allocated) is
+    /// refused with the typed error; nothing leaks and validation stays silent.
+    #[test]
+    fn an_image_over_the_allocation_limit_is_refused_before_allocating() {
+        let ctx = GpuContext::new(&ContextDesc {
+            validation: true,
+            device_name: None,
+        })
+        .unwrap();
+        let log = ctx.message_log();
+        let max = ctx.shared.info.memory.max_allocation_bytes;
+        let max_dim = ctx.shared.info.limits.max_image_dimension3_d;
+        assert!(max > 0, "maxMemoryAllocationSize not queried");
+        // The smallest R32 cube over the limit, if the device allows one that large.
+        let edge = ((max / 4) as f64).cbrt().ceil() as u32 + 1;
+        assert!(edge <= max_dim, "no 3D image can exceed {max} bytes here");
+        let desc = ImageDesc::new_3d(
+            vk::Format::R32_SFLOAT,
+            [edge, edge, edge],
+            vk::ImageUsageFlags::SAMPLED | vk::ImageUsageFlags::TRANSFER_DST,
+        );
+        match Image::new(&ctx.shared, "huge volume", desc) {
+            Err(Error::GpuMemoryLimit {
+                name,
+                bytes,
+                limit_name,
+                limit,
+            }) => {
+                assert_eq!(name, "huge volume");
+                assert!(bytes > max, "{bytes} <= {max}");
+                assert_eq!((limit_name, limit), ("maxMemoryAllocationSize", max));
+            }
+            Err(e) => panic!("expected GpuMemoryLimit, got {e}"),
+            Ok(_) => panic!("an image of {edge}^3 R32 texels was allocated"),
+        }
+        assert_eq!(ctx.live_allocation_count(), 0);
+        drop(ctx);
+        let problems = log.warnings_and_errors();
+        assert!(problems.is_empty(), "{problems:?}");
     }
 }

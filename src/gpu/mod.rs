@@ -19,11 +19,14 @@ pub mod shared_defs;
 mod upload;
 mod validation;
 
-pub use context::{ContextDesc, DeviceInfo, GpuContext, HostDevice};
+pub use context::{ContextDesc, DeviceInfo, GpuContext, HostDevice, MemoryLimits};
 pub use shaders::ShaderStage;
 pub use validation::{DebugMessage, MessageLog, Severity};
 
 pub(crate) use brick_cache::{CacheRegion, CacheTables, FieldProbe, GpuBrickCache};
+pub use commands::GPU_TIMEOUT_ENV;
+#[cfg(test)]
+pub(crate) use commands::INJECT_WAIT_RESULT;
 pub(crate) use commands::{image_barrier, Access, Submitter, TimestampPool};
 pub(crate) use memory::{Buffer, Image, ImageDesc};
 pub(crate) use pipeline_cache::PipelineCache;

@@ -45,6 +45,14 @@ impl BrickStore {
                 source,
             }
         };
+        // The file type is checked before opening: opening a FIFO would block.
+        let kind = std::fs::metadata(&path).map_err(io("open"))?;
+        if !kind.is_file() {
+            return Err(io("open")(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "not a regular file (a folder, FIFO or device); a brick store is a regular file",
+            )));
+        }
         let file = File::open(&path).map_err(io("open"))?;
         let len = file.metadata().map_err(io("stat"))?.len();
         let mut header_bytes = [0u8; HEADER_SIZE];

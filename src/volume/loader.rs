@@ -2,7 +2,6 @@
 //! (little-endian, no header).
 use super::{checked_voxel_count, ScalarType, Volume, VolumeError, VoxelData};
 use glam::{UVec3, Vec3};
-use std::fs::File;
 use std::io::{self, ErrorKind, Read, Seek, SeekFrom};
 use std::path::Path;
 
@@ -34,36 +33,45 @@ pub fn load_raw(path: &Path, desc: &RawDescriptor) -> Result<Volume, VolumeError
     let overflow = || VolumeError::SizeOverflow {
         dims: desc.dims.to_array(),
     };
-    let expected = u64::try_from(count)
+    let data_bytes = u64::try_from(count)
         .ok()
         .and_then(|n| n.checked_mul(desc.scalar.size_bytes() as u64))
-        .and_then(|n| n.checked_add(desc.header_bytes))
         .ok_or_else(overflow)?;
+    let expected =
+        data_bytes
+            .checked_add(desc.header_bytes)
+            .ok_or_else(|| VolumeError::HeaderTooLarge {
+                path: path.to_path_buf(),
+                header: desc.header_bytes,
+                data: data_bytes,
+            })?;
 
     let io_err = |source: io::Error| VolumeError::Io {
         path: path.to_path_buf(),
         source,
     };
-    let mut file = File::open(path).map_err(io_err)?;
-    let meta = file.metadata().map_err(io_err)?;
-    if !meta.is_file() {
-        let kind = if meta.is_dir() {
-            ErrorKind::IsADirectory
-        } else {
-            ErrorKind::InvalidInput
-        };
-        return Err(io_err(io::Error::new(kind, "not a regular file")));
-    }
-    if meta.len() != expected {
+    let (mut file, len) = super::open_regular_file(path)?;
+    if len != expected {
         return Err(VolumeError::FileSizeMismatch {
             path: path.to_path_buf(),
             dims: desc.dims.to_array(),
             scalar: desc.scalar,
             header: desc.header_bytes,
             expected,
-            actual: meta.len(),
+            actual: len,
         });
     }
+    super::memory::check_host_bytes(
+        &format!(
+            "{} ({}x{}x{} {:?})",
+            path.display(),
+            desc.dims.x,
+            desc.dims.y,
+            desc.dims.z,
+            desc.scalar
+        ),
+        data_bytes,
+    )?;
     file.seek(SeekFrom::Start(desc.header_bytes))
         .map_err(io_err)?;
 
@@ -89,7 +97,7 @@ pub fn load_raw(path: &Path, desc: &RawDescriptor) -> Result<Volume, VolumeError
             VoxelData::F32(v.into_iter().map(|x| f32::from_bits(convert(x))).collect())
         }
     };
-    Volume::new(desc.dims, desc.spacing, data)
+    Volume::new(desc.dims, desc.spacing, data).map_err(|e| e.in_file(path))
 }
 
 /// Reads exactly `count` values of `T` in native byte order. The buffer is reserved fallibly, so
@@ -325,14 +333,19 @@ mod tests {
             load_raw(&missing.0, &desc(huge, ScalarType::U16)),
             Err(VolumeError::SizeOverflow { dims }) if dims == huge
         ));
-        // Voxel bytes fit, but adding the header overflows u64.
+        // Voxel bytes fit, but adding the header overflows u64: the header size is blamed, not
+        // the dims (issue 16 item 9).
         let d = RawDescriptor {
             header_bytes: u64::MAX,
             ..desc([16, 16, 16], ScalarType::F32)
         };
         assert!(matches!(
             load_raw(&missing.0, &d),
-            Err(VolumeError::SizeOverflow { .. })
+            Err(VolumeError::HeaderTooLarge {
+                header: u64::MAX,
+                data: 16384,
+                ..
+            })
         ));
     }
 
@@ -346,12 +359,14 @@ mod tests {
         let f = TempFile::with_bytes("nan", &bytes);
         match load_raw(&f.0, &desc([3, 4, 2], ScalarType::F32)) {
             Err(VolumeError::NonFinite {
+                file,
                 index,
                 x,
                 y,
                 z,
                 value,
             }) => {
+                assert_eq!(file.as_deref(), Some(f.0.as_path()));
                 assert_eq!((index, x, y, z), (19, 1, 2, 1));
                 assert!(value.is_nan());
             }
@@ -364,7 +379,7 @@ mod tests {
         let f = TempFile::with_bytes("inf", &bytes);
         assert!(matches!(
             load_raw(&f.0, &desc([2, 1, 1], ScalarType::F32)),
-            Err(VolumeError::NonFinite { index: 1, x: 1, y: 0, z: 0, value })
+            Err(VolumeError::NonFinite { index: 1, x: 1, y: 0, z: 0, value, .. })
                 if value == f32::NEG_INFINITY
         ));
     }

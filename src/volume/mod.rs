@@ -149,8 +149,13 @@ pub enum VolumeError {
         spacing: [f32; 3],
     },
     /// A float voxel is NaN or infinite (policy: rejected at load, never rendered as black).
-    #[error("voxel {index} (x={x}, y={y}, z={z}) is {value}; volumes must hold finite values")]
+    #[error(
+        "{}voxel {index} (x={x}, y={y}, z={z}) is {value}; volumes must hold finite values",
+        .file.as_ref().map(|p| format!("{}: ", p.display())).unwrap_or_default()
+    )]
     NonFinite {
+        /// The file the voxel was read from, when it came from one.
+        file: Option<PathBuf>,
         /// Linear index of the first offending voxel.
         index: usize,
         /// Its x coordinate.
@@ -179,6 +184,19 @@ pub enum VolumeError {
         /// What the OS said.
         #[source]
         source: std::io::Error,
+    },
+    /// The header bytes to skip plus the voxel bytes overflow any file size.
+    #[error(
+        "{path}: {header} header bytes to skip plus {data} voxel bytes overflow any file size; \
+         the header size is wrong"
+    )]
+    HeaderTooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Header bytes to skip.
+        header: u64,
+        /// Bytes of the voxels described.
+        data: u64,
     },
     /// The file size does not match the described dimensions and type.
     #[error("{path}: file holds {actual} bytes but {dims:?} x {scalar:?} (+{header} header bytes) needs {expected}")]
@@ -237,6 +255,93 @@ pub enum VolumeError {
     },
 }
 
+impl VolumeError {
+    /// This error with `path` as the file a non-finite voxel was read from (other errors name
+    /// their file already and are returned unchanged).
+    pub(crate) fn in_file(self, path: &std::path::Path) -> Self {
+        match self {
+            VolumeError::NonFinite {
+                file: None,
+                index,
+                x,
+                y,
+                z,
+                value,
+            } => VolumeError::NonFinite {
+                file: Some(path.to_path_buf()),
+                index,
+                x,
+                y,
+                z,
+                value,
+            },
+            other => other,
+        }
+    }
+}
+
+/// What a path that is not a regular file is, for error messages.
+fn non_file_kind(meta: &std::fs::Metadata) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        let t = meta.file_type();
+        if t.is_fifo() {
+            return "a FIFO (named pipe)";
+        }
+        if t.is_socket() {
+            return "a socket";
+        }
+        if t.is_block_device() || t.is_char_device() {
+            return "a device";
+        }
+    }
+    if meta.is_dir() {
+        "a folder"
+    } else {
+        "not a regular file"
+    }
+}
+
+/// Opens the regular file `path` for reading and returns it with its length. The file type is
+/// checked with [`std::fs::metadata`] (which does not open the path) before opening, so a FIFO
+/// or a device is refused at once instead of blocking in `open`; folders and other non-files are
+/// [`VolumeError::Io`] errors that say what the path is.
+pub(crate) fn open_regular_file(
+    path: &std::path::Path,
+) -> Result<(std::fs::File, u64), VolumeError> {
+    use std::io::{Error, ErrorKind};
+    let err = |source: Error| VolumeError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let refuse = |meta: &std::fs::Metadata| {
+        let kind = if meta.is_dir() {
+            ErrorKind::IsADirectory
+        } else {
+            ErrorKind::InvalidInput
+        };
+        let what = non_file_kind(meta);
+        let message = if what == "not a regular file" {
+            what.to_string()
+        } else {
+            format!("{what}, not a regular file; volumes are read from regular files")
+        };
+        err(Error::new(kind, message))
+    };
+    let meta = std::fs::metadata(path).map_err(err)?;
+    if !meta.is_file() {
+        return Err(refuse(&meta));
+    }
+    let file = std::fs::File::open(path).map_err(err)?;
+    // The path may have been replaced between the two calls: check what was opened.
+    let meta = file.metadata().map_err(err)?;
+    if !meta.is_file() {
+        return Err(refuse(&meta));
+    }
+    Ok((file, meta.len()))
+}
+
 /// A scalar volume: dimensions, voxel spacing and voxel values.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Volume {
@@ -286,6 +391,7 @@ impl Volume {
                 let y = ((index / dims.x as usize) % dims.y as usize) as u32;
                 let z = (index / (dims.x as usize * dims.y as usize)) as u32;
                 return Err(VolumeError::NonFinite {
+                    file: None,
                     index,
                     x,
                     y,

@@ -47,6 +47,7 @@ impl RgbaVolume {
                 .find(|c| !(c.is_finite() && (0.0..=1.0).contains(c)))
                 .unwrap_or(f32::NAN);
             return Err(VolumeError::NonFinite {
+                file: None,
                 index,
                 x,
                 y,

@@ -177,6 +177,7 @@ pub(crate) fn check_finite(values: &[f32], first: usize, dims: UVec3) -> Result<
         let y = ((index / dims.x as usize) % dims.y as usize) as u32;
         let z = (index / (dims.x as usize * dims.y as usize)) as u32;
         return Err(VolumeError::NonFinite {
+            file: None,
             index,
             x,
             y,

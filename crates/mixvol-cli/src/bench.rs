@@ -53,10 +53,13 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
         return Err(Error::InvalidInput("--churn needs --levels".into()));
     }
     let volume = Arc::new(load_volume(r)?);
+    // Declared before the context: printed on failure too; `finish` reads the message log.
+    let mut summary = crate::logging::ValidationSummary::default();
     let ctx = GpuContext::new(&ContextDesc {
         validation: r.validation,
         device_name: r.device.clone(),
     })?;
+    summary.watch(&ctx);
     let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     renderer.set_transfer_function(&TransferFunction::preset(r.tf))?;
     let mut patterns = Vec::new();
@@ -150,5 +153,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
         };
         crate::files::write_json(path, &json)?;
     }
-    Ok(())
+    drop(renderer);
+    drop(ctx);
+    summary.finish()
 }

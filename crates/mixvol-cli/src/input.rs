@@ -5,7 +5,7 @@ use crate::args::RenderArgs;
 use crate::parse::parse_floats;
 use mixvol::store::{BrickStore, MAGIC};
 use mixvol::volume::formats::{load_zarr_level, FileFormat};
-use mixvol::volume::{load_raw, RawDescriptor, SyntheticField, Volume};
+use mixvol::volume::{load_raw, RawDescriptor, SyntheticField, Volume, VolumeError};
 use mixvol::{Error, Result};
 use std::path::Path;
 use std::sync::Arc;
@@ -29,7 +29,14 @@ pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
     if format.is_some() {
         return Ok(mixvol::volume::load_volume(path)?);
     }
-    Ok(load_raw(
+    if path.is_dir() {
+        return Err(Error::InvalidInput(format!(
+            "'{}' is a folder without Zarr metadata (zarr.json, .zattrs or .zarray): give an \
+             OME-Zarr image or Zarr array folder, a volume file or a brick store",
+            args.volume
+        )));
+    }
+    load_raw(
         path,
         &RawDescriptor {
             dims: args.dims,
@@ -38,8 +45,28 @@ pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
             header_bytes: args.header_bytes,
             big_endian: args.big_endian,
         },
-    )?)
+    )
+    .map_err(|e| match e {
+        // Say why the file was read as raw data: its name matched no format.
+        e @ VolumeError::FileSizeMismatch { .. } => Error::InvalidInput(format!(
+            "{e}. '{}' matches no known format ({}), so it was read as headerless raw data \
+             described by --dims {},{},{} --scalar {:?} --header-bytes {}: give the right \
+             flags or a file with a header",
+            args.volume,
+            KNOWN_FORMATS,
+            args.dims.x,
+            args.dims.y,
+            args.dims.z,
+            args.scalar,
+            args.header_bytes
+        )),
+        e => e.into(),
+    })
 }
+
+/// The file names `FileFormat::detect` recognises, for messages.
+const KNOWN_FORMATS: &str =
+    ".nii, .nii.gz, .nrrd, .nhdr, .den, .json sidecar or .raw beside one, .zarr folder";
 
 /// What `--volume` names: a volume loaded into RAM, or a brick store streamed from disk.
 pub enum Input {

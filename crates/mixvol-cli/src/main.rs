@@ -12,6 +12,7 @@ mod frame_log;
 mod input;
 mod junction;
 mod levels;
+mod logging;
 mod parse;
 mod path_bench;
 mod render;
@@ -26,6 +27,9 @@ use std::process::ExitCode;
 #[derive(Parser, Debug)]
 #[command(version, about)]
 struct Cli {
+    /// Log the library's progress (info level) to stderr; RUST_LOG sets other levels.
+    #[arg(long, global = true)]
+    verbose: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -55,6 +59,7 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    logging::install(cli.verbose);
     let result = match &cli.command {
         Command::Render(args) => render::render(args),
         Command::Junction(args) => junction::junction(args),

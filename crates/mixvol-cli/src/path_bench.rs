@@ -88,10 +88,13 @@ pub fn bench_path(args: &BenchArgs) -> Result<()> {
     }
     let cameras = views(r)?;
     let input = open_input(r)?;
+    // Declared before the context: printed on failure too; `finish` reads the message log.
+    let mut validation = crate::logging::ValidationSummary::default();
     let ctx = GpuContext::new(&ContextDesc {
         validation: r.validation,
         device_name: r.device.clone(),
     })?;
+    validation.watch(&ctx);
     let settings = r.optics.apply(RenderSettings {
         samples_per_voxel: r.samples_per_voxel,
         early_termination: r.early_termination,
@@ -231,5 +234,6 @@ pub fn bench_path(args: &BenchArgs) -> Result<()> {
         crate::files::write_json(path, &json)?;
     }
     drop(runs);
-    Ok(())
+    drop(ctx);
+    validation.finish()
 }

@@ -265,10 +265,13 @@ pub fn render(args: &RenderArgs) -> Result<()> {
                 .into(),
         ));
     }
+    // Declared before the context: a failing render still prints the validation summary.
+    let mut summary = crate::logging::ValidationSummary::default();
     let ctx = GpuContext::new(&ContextDesc {
         validation: args.validation,
         device_name: args.device.clone(),
     })?;
+    summary.watch(&ctx);
     let info = ctx.info();
     println!(
         "device: {} ({:?}){}",
@@ -341,12 +344,8 @@ pub fn render(args: &RenderArgs) -> Result<()> {
     }
     drop(renderer);
     drop(scene);
-    let log = ctx.message_log();
     drop(ctx);
-    if args.validation {
-        check_validation(&log, true)?;
-    }
-    Ok(())
+    summary.finish()
 }
 
 /// Renders frames of one view until camera-driven residency has converged (nothing to upload,

@@ -34,20 +34,10 @@ pub(super) fn io_err(path: &Path) -> impl Fn(io::Error) -> VolumeError + '_ {
 }
 
 /// Opens a regular file and returns it with its length; directories and other non-files are
-/// [`VolumeError::Io`] errors.
+/// [`VolumeError::Io`] errors (see [`crate::volume::open_regular_file`]: a FIFO is refused
+/// before it is opened, so it cannot block).
 pub(super) fn open_regular(path: &Path) -> Result<(File, u64), VolumeError> {
-    let err = io_err(path);
-    let file = File::open(path).map_err(&err)?;
-    let meta = file.metadata().map_err(&err)?;
-    if !meta.is_file() {
-        let kind = if meta.is_dir() {
-            ErrorKind::IsADirectory
-        } else {
-            ErrorKind::InvalidInput
-        };
-        return Err(err(io::Error::new(kind, "not a regular file")));
-    }
-    Ok((file, meta.len()))
+    crate::volume::open_regular_file(path)
 }
 
 /// Reads at most `max` bytes from the start of `path` (a header, a sidecar).
@@ -135,6 +125,24 @@ pub(super) fn layout(
         bytes: count as u64 * stored.size_bytes() as u64,
         stored,
     })
+}
+
+/// Checks the in-memory size of a volume of `layout` (read from `path`) against the host-memory
+/// limit ([`crate::volume::memory`]) before its voxel buffer is allocated.
+pub(super) fn check_layout_memory(path: &Path, layout: &Layout) -> Result<(), VolumeError> {
+    let bytes =
+        (layout.count as u64).saturating_mul(layout.stored.volume_scalar().size_bytes() as u64);
+    crate::volume::memory::check_host_bytes(
+        &format!(
+            "{} ({}x{}x{} {})",
+            path.display(),
+            layout.dims.x,
+            layout.dims.y,
+            layout.dims.z,
+            layout.stored.name()
+        ),
+        bytes,
+    )
 }
 
 /// Why reading voxel values failed.
@@ -295,15 +303,21 @@ pub(super) struct Described {
 impl Described {
     /// Reads every voxel into a volume.
     pub fn load(self) -> Result<LoadedVolume, VolumeError> {
+        check_layout_memory(&self.payload.header_path, &self.layout)?;
         let data = read_payload(&self.payload, &self.layout)?;
         Ok(LoadedVolume {
-            volume: Volume::new(self.layout.dims, self.spacing, data)?,
+            volume: Volume::new(self.layout.dims, self.spacing, data)
+                .map_err(|e| e.in_file(&self.payload.data_path))?,
             meta: self.meta,
         })
     }
 }
 
 /// A gzip stream positioned at the first voxel byte, limited to one byte past the voxels.
+/// How far past the described size a gzip stream is decoded to tell a longer stream from a
+/// corrupt one (bounded: a gzip bomb must not run on).
+const EXTRA_GZIP_PROBE_BYTES: u64 = 64 << 20;
+
 pub(super) type GzStream = io::Take<MultiGzDecoder<BufReader<File>>>;
 
 impl Payload {
@@ -446,11 +460,25 @@ impl Payload {
             }
         };
         if n != 0 {
+            // Decode on (bounded) to tell a longer stream from a corrupt one: a damaged deflate
+            // stream often decodes to garbage past the described size before its CRC or its
+            // structure fails, and then the data, not the header's size, is wrong.
+            let mut rest = stream.get_mut().take(EXTRA_GZIP_PROBE_BYTES);
+            let extra = match io::copy(&mut rest, &mut io::sink()) {
+                Ok(extra) => extra,
+                Err(e) => return Err(self.gzip_err(e)),
+            };
+            let holds = if extra < EXTRA_GZIP_PROBE_BYTES {
+                format!("{} bytes", layout.bytes + 1 + extra)
+            } else {
+                format!("more than {} bytes", layout.bytes + 1 + extra)
+            };
             return Err(format_err(
                 &self.header_path,
                 self.size_field,
                 format!(
-                    "gzip data in {} holds more than the {} bytes described; {}",
+                    "gzip data in {} decodes intact to {holds}, more than the {} bytes \
+                     described; {}",
                     self.data_path.display(),
                     layout.bytes,
                     self.describe(layout)

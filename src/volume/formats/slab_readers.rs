@@ -311,7 +311,8 @@ impl SlabReader for PayloadSlabs {
                 done,
             );
             if let SlabMut::F32(values) = &out {
-                check_finite(&values[done..done + n], first + done, self.layout.dims)?;
+                check_finite(&values[done..done + n], first + done, self.layout.dims)
+                    .map_err(|e| e.in_file(&self.payload.data_path))?;
             }
             done += n;
         }

@@ -80,6 +80,7 @@ pub fn load_zarr(root: &Path) -> Result<LoadedVolume, VolumeError> {
 /// error on the field `datasets`.
 pub fn load_zarr_level(root: &Path, level: usize) -> Result<LoadedVolume, VolumeError> {
     let level = open_level(root, level)?;
+    super::read::check_layout_memory(root, &level.layout)?;
     let z = 0..level.dims[2];
     let data = match level.stored {
         StoredType::U8 => VoxelData::U8(level.read_all::<u8, u8>(z, |v| v)?),
@@ -92,7 +93,7 @@ pub fn load_zarr_level(root: &Path, level: usize) -> Result<LoadedVolume, Volume
         StoredType::F64 => VoxelData::F32(level.read_all::<f64, f32>(z, |v| v as f32)?),
     };
     Ok(LoadedVolume {
-        volume: Volume::new(level.layout.dims, level.spacing, data)?,
+        volume: Volume::new(level.layout.dims, level.spacing, data).map_err(|e| e.in_file(root))?,
         meta: level.meta,
     })
 }

@@ -75,10 +75,12 @@ impl SlabReader for ZarrSlabs {
             (StoredType::F32, SlabMut::F32(o)) => {
                 level.read_planes::<f32, f32>(z, o, |v| v)?;
                 check_finite(o, first, self.level.layout.dims)
+                    .map_err(|e| e.in_file(&self.level.root))
             }
             (StoredType::F64, SlabMut::F32(o)) => {
                 level.read_planes::<f64, f32>(z, o, |v| v as f32)?;
                 check_finite(o, first, self.level.layout.dims)
+                    .map_err(|e| e.in_file(&self.level.root))
             }
             // `check_request` matched the slab's type to the stored type's.
             _ => Ok(()),

@@ -1,0 +1,227 @@
+//! Bad and awkward inputs through the binary, as one table (issue 16, "What must exist" item 8):
+//! each row is the command line, the environment, the exit code and the fragments the message
+//! must hold. A new case is one line in [`CASES`].
+//!
+//! Every run has a deadline, so an input that blocks (a FIFO opened before its type is checked)
+//! fails the test instead of hanging it. `MIXVOL_BIN` points the table at another build of the
+//! binary (how the cases were checked against the code before the fixes).
+
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// One bad input: `args` with `{d}` standing for the fixture folder.
+struct Case {
+    /// What the row checks.
+    name: &'static str,
+    args: &'static [&'static str],
+    env: &'static [(&'static str, &'static str)],
+    /// The expected exit code (1: a refused command, 2: a usage error).
+    code: i32,
+    /// Fragments the output (stdout, then stderr) must contain (case-sensitive).
+    fragments: &'static [&'static str],
+    /// Fragments the output must not contain (the misleading old message).
+    absent: &'static [&'static str],
+}
+
+const NO_ENV: &[(&str, &str)] = &[];
+/// A 1 MiB host-memory limit: every 4 MiB fixture volume is over it.
+const SMALL_RAM: &[(&str, &str)] = &[("MIXVOL_HOST_MEMORY_MB", "1")];
+
+#[rustfmt::skip]
+const CASES: &[Case] = &[
+    // Item 2: FIFOs are refused without being opened (opening one blocks until a writer comes).
+    Case { name: "fifo as the volume", args: &["render", "--volume", "{d}/vol.fifo", "--dims", "4,4,4"], env: NO_ENV, code: 1, fragments: &["vol.fifo", "FIFO"], absent: &[] },
+    Case { name: "fifo as an NRRD's data file", args: &["render", "--volume", "{d}/fifo_data.nhdr"], env: NO_ENV, code: 1, fragments: &["data.fifo", "FIFO"], absent: &[] },
+    Case { name: "fifo with a volume extension", args: &["render", "--volume", "{d}/pipe.nrrd"], env: NO_ENV, code: 1, fragments: &["pipe.nrrd", "FIFO"], absent: &[] },
+    // Item 7 / item 3: the host-memory limit is checked where the header gives the size.
+    Case { name: "raw over the host-memory limit", args: &["render", "--volume", "{d}/big.raw", "--dims", "128,128,256"], env: SMALL_RAM, code: 1, fragments: &["big.raw", "host-memory limit", "4194304"], absent: &[] },
+    Case { name: "NRRD over the host-memory limit", args: &["render", "--volume", "{d}/big.nhdr"], env: SMALL_RAM, code: 1, fragments: &["big.nhdr", "host-memory limit"], absent: &[] },
+    Case { name: "Zarr array over the host-memory limit", args: &["render", "--volume", "{d}/big.zarr"], env: SMALL_RAM, code: 1, fragments: &["big.zarr", "host-memory limit"], absent: &[] },
+    Case { name: "a brick size no cache can hold", args: &["render", "--volume", "ml", "--dims", "32,32,32", "--levels", "checker", "--brick-size", "1024"], env: NO_ENV, code: 1, fragments: &["cache budget", "one slot"], absent: &[] },
+    // Item 9: messages that named the wrong cause.
+    Case { name: "huge --header-bytes", args: &["render", "--volume", "{d}/small.raw", "--dims", "4,4,4", "--header-bytes", "18446744073709551615"], env: NO_ENV, code: 1, fragments: &["small.raw", "18446744073709551615 header bytes"], absent: &["dimensions"] },
+    Case { name: "--cache-mb past u64 bytes", args: &["render", "--volume", "ml", "--dims", "16,16,16", "--levels", "checker", "--cache-mb", "17592186044416"], env: NO_ENV, code: 1, fragments: &["--cache-mb 17592186044416 is too large"], absent: &[] },
+    Case { name: "corrupt gzip NRRD", args: &["render", "--volume", "{d}/corrupt_gzip.nrrd"], env: NO_ENV, code: 1, fragments: &["corrupt_gzip.nrrd", "corrupt gzip data"], absent: &["holds more than"] },
+    Case { name: "longer gzip NRRD", args: &["render", "--volume", "{d}/long_gzip.nrrd"], env: NO_ENV, code: 1, fragments: &["long_gzip.nrrd", "decodes intact to 65 bytes", "64 bytes described"], absent: &[] },
+    Case { name: "NaN in a raw file", args: &["render", "--volume", "{d}/nan.raw", "--dims", "2,2,2", "--scalar", "f32"], env: NO_ENV, code: 1, fragments: &["nan.raw: voxel 2", "NaN"], absent: &[] },
+    Case { name: "NaN in an NRRD", args: &["render", "--volume", "{d}/nan.nrrd"], env: NO_ENV, code: 1, fragments: &["nan.nrrd: voxel 2", "NaN"], absent: &[] },
+    Case { name: "folder without Zarr metadata", args: &["render", "--volume", "{d}/plain_folder"], env: NO_ENV, code: 1, fragments: &["plain_folder", "folder without Zarr metadata"], absent: &["not a regular file"] },
+    Case { name: "unknown extension read as raw", args: &["render", "--volume", "{d}/v.xyz"], env: NO_ENV, code: 1, fragments: &["v.xyz", "matches no known format", "headerless raw", "--dims 128,128,128"], absent: &[] },
+    // Item 8: validation summaries on success and failure, and a logger.
+    Case { name: "bench --validation prints the summary", args: &["bench", "--volume", "ml", "--dims", "16,16,16", "--frames", "2", "--validation"], env: NO_ENV, code: 0, fragments: &["validation: 0 warnings/errors"], absent: &[] },
+    Case { name: "a failing render prints the summary", args: &["render", "--volume", "ml", "--dims", "16,16,16", "--validation", "-o", "/dev/full"], env: NO_ENV, code: 1, fragments: &["validation (the command failed): 0 warnings/errors", "/dev/full"], absent: &[] },
+    Case { name: "RUST_LOG reaches the library's log", args: &["render", "--volume", "ml", "--dims", "8,8,8"], env: &[("RUST_LOG", "info")], code: 0, fragments: &["[INFO mixvol::gpu::context] device: "], absent: &[] },
+    Case { name: "--verbose logs at info", args: &["render", "--verbose", "--volume", "ml", "--dims", "8,8,8"], env: NO_ENV, code: 0, fragments: &["[INFO mixvol::gpu::context] device: "], absent: &[] },
+    Case { name: "--device matching nothing", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--device", "no-such-gpu-x"], env: NO_ENV, code: 1, fragments: &["matching 'no-such-gpu-x'", "devices present: "], absent: &["rejected: []"] },
+];
+
+/// The binary under test: `MIXVOL_BIN` when set, else this build's.
+fn binary() -> PathBuf {
+    std::env::var_os("MIXVOL_BIN")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_mixvol")))
+}
+
+/// Makes a FIFO at `path` (through `mkfifo`, as a user would).
+fn mkfifo(path: &Path) {
+    let status = Command::new("mkfifo").arg(path).status().unwrap();
+    assert!(status.success(), "mkfifo {}", path.display());
+}
+
+fn gzip(bytes: &[u8]) -> Vec<u8> {
+    let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+    enc.write_all(bytes).unwrap();
+    enc.finish().unwrap()
+}
+
+/// An attached NRRD header of a 4x4x4 (or `sizes`) volume of `ty` in `encoding`.
+fn nrrd_header(ty: &str, sizes: &str, encoding: &str, data_file: Option<&str>) -> Vec<u8> {
+    let mut h =
+        format!("NRRD0004\ntype: {ty}\ndimension: 3\nsizes: {sizes}\nencoding: {encoding}\n");
+    if let Some(f) = data_file {
+        h.push_str(&format!("data file: {f}\n"));
+    } else {
+        h.push('\n');
+    }
+    h.into_bytes()
+}
+
+/// Writes every fixture the table names into `d`.
+fn fixtures(d: &Path) {
+    mkfifo(&d.join("vol.fifo"));
+    mkfifo(&d.join("data.fifo"));
+    mkfifo(&d.join("pipe.nrrd"));
+    std::fs::write(
+        d.join("fifo_data.nhdr"),
+        nrrd_header("uint8", "4 4 4", "raw", Some("data.fifo")),
+    )
+    .unwrap();
+    // 4 MiB of zeros, sparse.
+    let big = std::fs::File::create(d.join("big.raw")).unwrap();
+    big.set_len(128 * 128 * 256).unwrap();
+    std::fs::write(
+        d.join("big.nhdr"),
+        nrrd_header("uint8", "128 128 256", "raw", Some("big.raw")),
+    )
+    .unwrap();
+    // A Zarr v2 array of 4 MiB with no chunk written (all fill value).
+    let zarr = d.join("big.zarr");
+    std::fs::create_dir(&zarr).unwrap();
+    std::fs::write(
+        zarr.join(".zarray"),
+        r#"{"zarr_format":2,"shape":[256,128,128],"chunks":[64,128,128],"dtype":"|u1","compressor":null,"fill_value":0,"order":"C","filters":null}"#,
+    )
+    .unwrap();
+    std::fs::write(d.join("small.raw"), [0u8; 64]).unwrap();
+    // A gzip stream of 65 bytes whose CRC is wrong: it decodes past the 64 bytes described
+    // and then fails its checksum (the data is corrupt, not longer).
+    let mut corrupt = gzip(&[7u8; 65]);
+    let crc_at = corrupt.len() - 8;
+    corrupt[crc_at] ^= 0xff;
+    let mut file = nrrd_header("uint8", "4 4 4", "gzip", None);
+    file.extend_from_slice(&corrupt);
+    std::fs::write(d.join("corrupt_gzip.nrrd"), file).unwrap();
+    let mut file = nrrd_header("uint8", "4 4 4", "gzip", None);
+    file.extend_from_slice(&gzip(&[7u8; 65]));
+    std::fs::write(d.join("long_gzip.nrrd"), file).unwrap();
+    let floats: Vec<u8> = [0.0f32, 1.0, f32::NAN, 0.0, 0.0, 0.0, 0.0, 0.0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    std::fs::write(d.join("nan.raw"), &floats).unwrap();
+    let mut file = nrrd_header("float", "2 2 2", "raw", None);
+    file.splice(
+        b"NRRD0004\n".len()..b"NRRD0004\n".len(),
+        b"endian: little\n".iter().copied(),
+    );
+    file.extend_from_slice(&floats);
+    std::fs::write(d.join("nan.nrrd"), file).unwrap();
+    std::fs::create_dir(d.join("plain_folder")).unwrap();
+    std::fs::write(d.join("v.xyz"), [0u8; 64]).unwrap();
+}
+
+/// Runs `args` with `env` and a deadline; returns the exit code and the output (stdout, then
+/// stderr), or `None` when the run did not end in time (it is killed).
+fn run(args: &[String], env: &[(&str, &str)], deadline: Duration) -> Option<(i32, String)> {
+    let mut cmd = Command::new(binary());
+    cmd.args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .env_remove("MIXVOL_HOST_MEMORY_MB")
+        .env_remove("RUST_LOG");
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let mut child = cmd.spawn().unwrap();
+    // Read both pipes on threads, so a chatty child never blocks on a full pipe.
+    let drain = |mut pipe: Box<dyn std::io::Read + Send>| {
+        std::thread::spawn(move || {
+            let mut s = String::new();
+            pipe.read_to_string(&mut s).ok();
+            s
+        })
+    };
+    let out = drain(Box::new(child.stdout.take().unwrap()));
+    let err = drain(Box::new(child.stderr.take().unwrap()));
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            let text = out.join().unwrap() + &err.join().unwrap();
+            return Some((status.code().unwrap_or(-1), text));
+        }
+        if start.elapsed() > deadline {
+            child.kill().ok();
+            child.wait().ok();
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn every_bad_input_is_refused_with_its_reason() {
+    let dir = std::env::temp_dir().join(format!("mixvol-bad-inputs-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    fixtures(&dir);
+    let d = dir.to_str().unwrap();
+    let mut failures = Vec::new();
+    for case in CASES {
+        let mut args: Vec<String> = case.args.iter().map(|a| a.replace("{d}", d)).collect();
+        if args[0] == "render" && !args.iter().any(|a| a == "-o") {
+            args.extend(["-o".to_string(), format!("{d}/out.png")]);
+        }
+        match run(&args, case.env, Duration::from_secs(60)) {
+            None => failures.push(format!(
+                "{}: still running after 60 s (it hangs)",
+                case.name
+            )),
+            Some((code, err)) => {
+                let missing: Vec<_> = case
+                    .fragments
+                    .iter()
+                    .filter(|f| !err.contains(*f))
+                    .collect();
+                let present: Vec<_> = case.absent.iter().filter(|f| err.contains(*f)).collect();
+                if code != case.code || !missing.is_empty() || !present.is_empty() {
+                    failures.push(format!(
+                        "{}: exit {code} (want {}), missing {missing:?}, misleading {present:?}; \
+                         output:\n{err}",
+                        case.name, case.code
+                    ));
+                }
+            }
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(
+        failures.is_empty(),
+        "{} of {} cases failed:\n{}",
+        failures.len(),
+        CASES.len(),
+        failures.join("\n\n")
+    );
+}

@@ -109,9 +109,12 @@ impl VolumePass {
         }
     }
 
-    /// Plans residency for a frame of `camera` at `width` x `height` pixels with `settings`
-    /// (see the [module docs](self)): stages the uploads the next [`VolumePass::record`]
-    /// records and asks the source for what comes next. Call it once per frame before
+    /// Plans residency for a frame of `camera` at `width` x `height` pixels with `settings`:
+    /// culling criteria from the settings and the pass's transfer function, the plan
+    /// ([`crate::plan::ResidencyPlanner`]) under the cache's slots and the budgets of
+    /// [`ResidencyConfig`], the drawn levels fetched and staged for the next
+    /// [`VolumePass::record`] (a level the source dropped meanwhile falls back), and the
+    /// planner's requests given to the source ([`crate::bricks::BrickSource::request_levels`]). Call it once per frame before
     /// `record`, with the same camera, size and settings. Needs a brick-cache source. Records
     /// nothing and needs no wait (the staged bytes go to the frame slot `record` is given).
     pub fn update(

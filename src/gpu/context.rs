@@ -51,7 +51,7 @@ pub struct DeviceInfo {
 }
 
 /// The device's memory limits, queried once at start: every buffer and image request is checked
-/// against them before it is allocated ([`super::memory::check_request`]).
+/// against them before it is allocated (`gpu::memory::check_request`).
 #[derive(Clone, Debug, Default)]
 pub struct MemoryLimits {
     /// `VkPhysicalDeviceMaintenance3Properties::maxMemoryAllocationSize`: the largest single

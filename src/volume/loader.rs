@@ -29,23 +29,7 @@ pub struct RawDescriptor {
 /// [`VolumeError::FileSizeMismatch`]. IO failures, including a missing path or a directory, give
 /// [`VolumeError::Io`]; non-finite f32 voxels give [`VolumeError::NonFinite`].
 pub fn load_raw(path: &Path, desc: &RawDescriptor) -> Result<Volume, VolumeError> {
-    let count = checked_voxel_count(desc.dims)?;
-    let overflow = || VolumeError::SizeOverflow {
-        dims: desc.dims.to_array(),
-    };
-    let data_bytes = u64::try_from(count)
-        .ok()
-        .and_then(|n| n.checked_mul(desc.scalar.size_bytes() as u64))
-        .ok_or_else(overflow)?;
-    let expected =
-        data_bytes
-            .checked_add(desc.header_bytes)
-            .ok_or_else(|| VolumeError::HeaderTooLarge {
-                path: path.to_path_buf(),
-                header: desc.header_bytes,
-                data: data_bytes,
-            })?;
-
+    let (count, data_bytes, expected) = raw_sizes(path, desc)?;
     let io_err = |source: io::Error| VolumeError::Io {
         path: path.to_path_buf(),
         source,
@@ -110,6 +94,34 @@ fn read_values<T: bytemuck::Pod>(reader: &mut impl Read, count: usize) -> io::Re
     values.resize(count, T::zeroed());
     reader.read_exact(bytemuck::cast_slice_mut(&mut values))?;
     Ok(values)
+}
+
+/// `(voxels, data bytes, expected file length)` of headerless raw data described by `desc`: a
+/// zero axis, an overflowing size ([`VolumeError::SizeOverflow`]) or a header that overflows
+/// the length ([`VolumeError::HeaderTooLarge`]) are errors. Shared by [`load_raw`] and the raw
+/// slab reader, so both refuse the same inputs with the same words.
+pub(crate) fn raw_sizes(
+    path: &Path,
+    desc: &RawDescriptor,
+) -> Result<(usize, u64, u64), VolumeError> {
+    let count = checked_voxel_count(desc.dims)?;
+    let overflow = || VolumeError::SizeOverflow {
+        dims: desc.dims.to_array(),
+    };
+    let data_bytes = u64::try_from(count)
+        .ok()
+        .and_then(|n| n.checked_mul(desc.scalar.size_bytes() as u64))
+        .ok_or_else(overflow)?;
+    let expected =
+        data_bytes
+            .checked_add(desc.header_bytes)
+            .ok_or_else(|| VolumeError::HeaderTooLarge {
+                path: path.to_path_buf(),
+                header: desc.header_bytes,
+                data: data_bytes,
+            })?;
+
+    Ok((count, data_bytes, expected))
 }
 
 /// Writes `volume`'s voxels as a headerless little-endian raw file (storage order, x fastest)

@@ -8,7 +8,7 @@ use super::{
     den, nii, nrrd, raw_sidecar_candidates, same_file, sidecar, FileFormat, StoredType, VolumeMeta,
 };
 use crate::volume::slabs::{check_finite, check_request, SlabMut, SlabReader};
-use crate::volume::{checked_voxel_count, RawDescriptor, ScalarType, VolumeError};
+use crate::volume::{RawDescriptor, ScalarType, VolumeError};
 use glam::{UVec3, Vec3};
 use std::fs::File;
 use std::io::{self, ErrorKind, Read};
@@ -79,15 +79,7 @@ pub(crate) fn open_raw(
     path: &Path,
     desc: &RawDescriptor,
 ) -> Result<Box<dyn SlabReader + Send>, VolumeError> {
-    let count = checked_voxel_count(desc.dims)?;
-    let overflow = || VolumeError::SizeOverflow {
-        dims: desc.dims.to_array(),
-    };
-    let bytes = u64::try_from(count)
-        .ok()
-        .and_then(|n| n.checked_mul(desc.scalar.size_bytes() as u64))
-        .ok_or_else(overflow)?;
-    let expected = bytes.checked_add(desc.header_bytes).ok_or_else(overflow)?;
+    let (count, bytes, expected) = crate::volume::loader::raw_sizes(path, desc)?;
     let (_, len) = open_regular(path)?;
     if len != expected {
         return Err(VolumeError::FileSizeMismatch {

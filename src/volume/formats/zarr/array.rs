@@ -3,6 +3,7 @@
 
 use super::*;
 use std::ops::Range;
+use zarrs::array::{ArrayBytes, FromArrayBytes};
 
 /// Reads a metadata document of at most [`MAX_HEADER_BYTES`].
 pub(super) fn read_metadata(path: &Path) -> Result<Vec<u8>, VolumeError> {
@@ -191,7 +192,8 @@ impl ZarrLevel {
     /// fastest), each stored value mapped by `map`: every chunk whose z range meets `z` is
     /// decoded whole (so a chunk that does not hold its full shape is an error even where the
     /// array ends inside it) and its part inside the array and `z` is copied. Missing chunks
-    /// read as the fill value.
+    /// read as the fill value, written only where they meet the array (a missing chunk far
+    /// larger than the array costs no memory).
     pub(super) fn read_planes<T: ElementOwned + Copy, U: Copy>(
         &self,
         z: Range<usize>,
@@ -259,7 +261,8 @@ impl ZarrLevel {
         Ok(())
     }
 
-    /// Decodes the chunk at `indices` and copies its part inside the array and the planes `z`.
+    /// Decodes the chunk at `indices` and copies its part inside the array and the planes `z`; a
+    /// missing chunk writes the fill value into that part only.
     fn copy_chunk<T: ElementOwned + Copy, U: Copy>(
         &self,
         indices: &[u64],
@@ -282,16 +285,30 @@ impl ZarrLevel {
         if !bounded.shape().iter().all(|&s| s > 0) {
             return Ok(());
         }
-        let values: Vec<T> = self
-            .array
-            .retrieve_chunk::<Vec<T>>(indices)
-            .map_err(|e| self.chunk_err(indices, e))?;
-        let full: Vec<usize> = chunk_shape.iter().map(|d| d.get() as usize).collect();
-        let (fy, fx) = (full[ndim - 2], full[ndim - 1]);
         let start = bounded.start();
         let extent = bounded.shape();
         let at = |a: usize| (start[a] as usize, extent[a] as usize);
         let ((z0, cz), (y0, cy), (x0, cx)) = (at(ndim - 3), at(ndim - 2), at(ndim - 1));
+        // Leading axes have size 1: their index is 0.
+        let (lo, hi) = (z0.max(z.start), (z0 + cz).min(z.end));
+        let Some(values) = self
+            .array
+            .retrieve_chunk_if_exists::<Vec<T>>(indices)
+            .map_err(|e| self.chunk_err(indices, e))?
+        else {
+            // A missing chunk: its part inside the array is the fill value, written straight
+            // into `out` (never a chunk-sized buffer of it).
+            let fill = map(self.fill_value::<T>()?);
+            for vz in lo..hi {
+                for y in 0..cy {
+                    let dst = x0 + nx * (y0 + y + ny * (vz - z.start));
+                    out[dst..dst + cx].fill(fill);
+                }
+            }
+            return Ok(());
+        };
+        let full: Vec<usize> = chunk_shape.iter().map(|d| d.get() as usize).collect();
+        let (fy, fx) = (full[ndim - 2], full[ndim - 1]);
         if values.len() != full.iter().product::<usize>() {
             return Err(format_err(
                 &self.chunk_path(indices),
@@ -303,8 +320,6 @@ impl ZarrLevel {
                 ),
             ));
         }
-        // Leading axes have size 1: their index is 0.
-        let (lo, hi) = (z0.max(z.start), (z0 + cz).min(z.end));
         for vz in lo..hi {
             let cz = vz - z0;
             for y in 0..cy {
@@ -316,6 +331,22 @@ impl ZarrLevel {
             }
         }
         Ok(())
+    }
+
+    /// The array's fill value as one stored value.
+    fn fill_value<T: ElementOwned + Copy>(&self) -> Result<T, VolumeError> {
+        let dt = self.array.data_type();
+        ArrayBytes::new_fill_value(dt, 1, self.array.fill_value())
+            .map_err(|e| e.to_string())
+            .and_then(|b| Vec::<T>::from_array_bytes(b, &[1], dt).map_err(|e| e.to_string()))
+            .and_then(|v| v.first().copied().ok_or_else(|| "no value".to_string()))
+            .map_err(|m| {
+                format_err(
+                    &self.array_doc,
+                    "fill_value",
+                    format!("the fill value does not decode as one {dt} value: {m}"),
+                )
+            })
     }
 
     /// A chunk that could not be read or decoded.

@@ -48,10 +48,17 @@ fn fixtures() -> &'static Path {
             .arg(&script)
             .arg(&dir)
             .output()
-            .unwrap_or_else(|e| panic!("cannot run {} ({PYTHON_ENV}): {e}", python.display()));
+            .unwrap_or_else(|e| {
+                panic!(
+                    "cannot run {} ({PYTHON_ENV}): {e}; scripts/python-env.sh makes the venv \
+                     and prints its python",
+                    python.display()
+                )
+            });
         assert!(
             out.status.success(),
-            "{} {} failed ({}):\n{}\n{}",
+            "{} {} failed ({}; is it the venv of scripts/python-env.sh, with \
+             scripts/requirements-zarr.txt?):\n{}\n{}",
             python.display(),
             script.display(),
             out.status,
@@ -356,6 +363,7 @@ fn expect_corrupt_chunk(name: &str, chunk: &str, tag: &str, corrupt: impl Fn(&[u
                 message.contains("does not decode"),
                 "{name} {tag}: {message}"
             );
+            eprintln!("{name} {tag}: {message}");
         }
         other => panic!("{name} {tag}: expected a Format error naming {file:?}, got {other:?}"),
     }

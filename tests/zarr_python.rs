@@ -394,3 +394,66 @@ fn corrupt_zstd_chunk_is_a_format_error_naming_it() {
         b
     });
 }
+
+/// Replaces `chunk` of a copy of fixture `name` by `corrupt(bytes)` and loads `level`; expects a
+/// Format error naming the chunk file on `field`; returns the message.
+fn corrupt_and_load(
+    name: &str,
+    level: usize,
+    chunk: &str,
+    tag: &str,
+    corrupt: impl Fn(&[u8]) -> Vec<u8>,
+) -> (String, String) {
+    let root = copy_fixture(name, tag);
+    let file = chunk.split('/').fold(root.clone(), |p, s| p.join(s));
+    let bytes = std::fs::read(&file).unwrap();
+    std::fs::write(&file, corrupt(&bytes)).unwrap();
+    let r = load_zarr_level(&root, level);
+    let _ = std::fs::remove_dir_all(root.parent().unwrap());
+    match r {
+        Err(VolumeError::Format {
+            path,
+            field,
+            message,
+        }) => {
+            assert_eq!(path, file, "{name} {tag}: wrong file: {message}");
+            (field, message)
+        }
+        other => panic!("{name} {tag}: expected a Format error naming {file:?}, got {other:?}"),
+    }
+}
+
+/// A zstd frame of no data that declares `size` content bytes (single segment, 8-byte size
+/// field, one empty last raw block).
+fn zstd_frame_declaring(size: u64) -> Vec<u8> {
+    let mut b = vec![0x28, 0xb5, 0x2f, 0xfd, 0xe0];
+    b.extend_from_slice(&size.to_le_bytes());
+    b.extend_from_slice(&[1, 0, 0]);
+    b
+}
+
+#[test]
+fn chunks_declaring_huge_decoded_sizes_are_refused_before_allocating() {
+    // 17 bytes declaring 1 TiB: zarrs reserves the declared size before decompressing (the
+    // process aborted on allocation failure before the check).
+    for (name, chunk, field) in [
+        ("v3_zstd.zarr", "c/0/0/0", "codecs"),
+        ("ome04.zarr", "s0/0/0/0", "compressor"),
+    ] {
+        let (f, message) = corrupt_and_load(name, 0, chunk, "zstd-declared", |_| {
+            zstd_frame_declaring(1 << 40)
+        });
+        assert_eq!(f, field, "{message}");
+        assert!(message.contains("declares 1099511627776"), "{message}");
+        eprintln!("{name}: {message}");
+    }
+    // A Blosc header whose nbytes is 2 GiB - 1.
+    let (f, message) = corrupt_and_load("v2_blosc_lz4.zarr", 0, "0.0.1", "blosc-declared", |b| {
+        let mut b = b.to_vec();
+        b[4..8].copy_from_slice(&0x7fff_ffffu32.to_le_bytes());
+        b
+    });
+    assert_eq!(f, "compressor", "{message}");
+    assert!(message.contains("declares 2147483647"), "{message}");
+    eprintln!("v2_blosc_lz4.zarr: {message}");
+}

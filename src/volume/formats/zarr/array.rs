@@ -1,9 +1,11 @@
 //! One Zarr array through zarrs: its metadata, stored type and byte order, and the chunk reader
 //! that assembles the voxels under the size limits.
 
+use super::declared::OuterCodec;
 use super::*;
+use std::borrow::Cow;
 use std::ops::Range;
-use zarrs::array::{ArrayBytes, FromArrayBytes};
+use zarrs::array::{ArrayBytes, ArrayToBytesCodecTraits, CodecOptions, FromArrayBytes};
 
 /// Reads a metadata document of at most [`MAX_HEADER_BYTES`].
 pub(super) fn read_metadata(path: &Path) -> Result<Vec<u8>, VolumeError> {
@@ -218,6 +220,7 @@ impl ZarrLevel {
             return Ok(());
         }
         let za = ndim - 3;
+        let outer = self.outer_codec();
         let mut indices = vec![0u64; ndim];
         // The chunk rows along the array's z axis that meet `z`.
         let mut rows = Vec::new();
@@ -236,7 +239,7 @@ impl ZarrLevel {
             indices.iter_mut().for_each(|i| *i = 0);
             indices[za] = row;
             loop {
-                self.copy_chunk(&indices, &z, out, &map, chunks_field)?;
+                self.copy_chunk(&indices, &z, out, &map, chunks_field, outer)?;
                 // Next chunk in this row, last axis fastest (the z axis stays at `row`).
                 let mut axis = ndim;
                 let done = loop {
@@ -270,10 +273,11 @@ impl ZarrLevel {
         out: &mut [U],
         map: &impl Fn(T) -> U,
         chunks_field: &str,
+        outer: OuterCodec,
     ) -> Result<(), VolumeError> {
         let ndim = indices.len();
         let [nx, ny, _] = self.dims;
-        self.chunk_bytes(indices, chunks_field)?;
+        let decoded_bytes = self.chunk_bytes(indices, chunks_field)?;
         let chunk_shape = self
             .array
             .chunk_shape(indices)
@@ -291,10 +295,10 @@ impl ZarrLevel {
         let ((z0, cz), (y0, cy), (x0, cx)) = (at(ndim - 3), at(ndim - 2), at(ndim - 1));
         // Leading axes have size 1: their index is 0.
         let (lo, hi) = (z0.max(z.start), (z0 + cz).min(z.end));
-        let Some(values) = self
+        let Some(encoded) = self
             .array
-            .retrieve_chunk_if_exists::<Vec<T>>(indices)
-            .map_err(|e| self.chunk_err(indices, e))?
+            .retrieve_encoded_chunk(indices)
+            .map_err(|e| self.chunk_err(indices, ArrayError::StorageError(e)))?
         else {
             // A missing chunk: its part inside the array is the fill value, written straight
             // into `out` (never a chunk-sized buffer of it).
@@ -307,6 +311,7 @@ impl ZarrLevel {
             }
             return Ok(());
         };
+        let values = self.decode_chunk::<T>(indices, encoded, decoded_bytes, outer)?;
         let full: Vec<usize> = chunk_shape.iter().map(|d| d.get() as usize).collect();
         let (fy, fx) = (full[ndim - 2], full[ndim - 1]);
         if values.len() != full.iter().product::<usize>() {
@@ -331,6 +336,49 @@ impl ZarrLevel {
             }
         }
         Ok(())
+    }
+
+    /// The codec whose output the stored chunks are (see [`OuterCodec`]).
+    fn outer_codec(&self) -> OuterCodec {
+        serde_json::to_value(self.array.metadata())
+            .map_or(OuterCodec::Other, |doc| OuterCodec::of(&doc))
+    }
+
+    /// Decodes the stored chunk `encoded` at `indices` (of `decoded_bytes` bytes decoded) after
+    /// checking the size it declares, as `zarrs`' `retrieve_chunk` does.
+    fn decode_chunk<T: ElementOwned>(
+        &self,
+        indices: &[u64],
+        encoded: Vec<u8>,
+        decoded_bytes: u64,
+        outer: OuterCodec,
+    ) -> Result<Vec<T>, VolumeError> {
+        outer.check(&encoded, decoded_bytes).map_err(|m| {
+            format_err(
+                &self.chunk_path(indices),
+                self.version.codecs_field(),
+                format!("chunk {indices:?} does not decode: {m}"),
+            )
+        })?;
+        let dt = self.array.data_type();
+        let shape = self
+            .array
+            .chunk_shape(indices)
+            .map_err(|e| self.chunk_err(indices, e))?;
+        let bytes = self
+            .array
+            .codecs()
+            .decode(
+                Cow::Owned(encoded),
+                &shape,
+                dt,
+                self.array.fill_value(),
+                &CodecOptions::default(),
+            )
+            .map_err(|e| self.chunk_err(indices, ArrayError::CodecError(e)))?;
+        let shape: Vec<u64> = shape.iter().map(|d| d.get()).collect();
+        Vec::<T>::from_array_bytes(bytes.into_owned(), &shape, dt)
+            .map_err(|e| self.chunk_err(indices, e))
     }
 
     /// The array's fill value as one stored value.

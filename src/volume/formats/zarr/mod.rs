@@ -34,17 +34,23 @@
 //! buffer is reserved fallibly. Chunks are decoded one at a time (`zarrs`), each bounded to the
 //! array, and copied into the volume. A chunk that does not decode to its shape (a truncated raw
 //! chunk, corrupt gzip / Blosc / Zstd) is a [`VolumeError::Format`] naming the chunk file.
-//! Limitation: `zarrs` decodes gzip chunks without an output limit before checking their size,
-//! so a gzip bomb in a chunk file can allocate up to about 1000 times the file's size.
+//! The decoded size a zstd frame or a Blosc header declares is checked against the chunk's
+//! before `zarrs` reserves it (`declared.rs`; a 17-byte zstd chunk declaring 1 TiB aborted the
+//! process). Limitations: `zarrs` decodes gzip chunks, and zstd frames that declare no size,
+//! without an output limit before checking their size, so a compression bomb in a chunk file
+//! can allocate up to about 1000 times the file's size (gzip; more for zstd); the chunks inside
+//! a shard are not checked for their declared size.
 //!
 //! [`parse_zarr_root`] parses a root metadata document from bytes (the fuzz target's entry
 //! point); [`load_zarr`] / [`load_zarr_level`] load.
 //!
 //! Files: this one loads (`load_zarr`, `load_zarr_level`); `ome.rs` parses the root metadata
 //! (Zarr version, OME-Zarr multiscales, axes and coordinate transformations); `array.rs` opens
-//! an array through zarrs and reads its chunks under the limits above.
+//! an array through zarrs and reads its chunks under the limits above; `declared.rs` checks the
+//! decoded size a compressed chunk declares.
 
 mod array;
+mod declared;
 mod ome;
 mod slabs;
 

@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
 # Installs what building and running mixvol needs on Debian bookworm, idempotently: the Vulkan
-# loader and headers, Mesa's lavapipe (a CPU Vulkan device), the Khronos validation layers, and
-# cmake + ninja + python3 for building shaderc/glslang from source. Packages already present are
-# not touched; apt-get update runs only when something is missing. Arguments name extra Debian
-# packages to install the same way (scripts/peer-bench.sh passes the EGL ones VTK needs).
+# loader and headers, Mesa's lavapipe (a CPU Vulkan device), the Khronos validation layers,
+# cmake + ninja + python3 + g++ for building shaderc/glslang from source (the C / C++ compilers
+# also build c-blosc, zstd, lz4 and snappy for zarrs), and python3-venv for the tests' Python venv
+# (scripts/python-env.sh). Packages already present are not touched; apt-get update runs only when
+# something is missing. Arguments name extra Debian packages to install the same way
+# (scripts/peer-bench.sh passes the EGL ones VTK needs).
 set -euo pipefail
 
-packages=(libvulkan1 libvulkan-dev mesa-vulkan-drivers vulkan-validationlayers cmake ninja-build python3 g++ pkg-config "$@")
+packages=(libvulkan1 libvulkan-dev mesa-vulkan-drivers vulkan-validationlayers cmake ninja-build python3 python3-venv g++ pkg-config "$@")
 missing=()
 for p in "${packages[@]}"; do
   if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then

@@ -1,8 +1,11 @@
 //! One Zarr array through zarrs: its metadata, stored type and byte order, and the chunk reader
 //! that assembles the voxels under the size limits.
 
+use super::declared::OuterCodec;
 use super::*;
+use std::borrow::Cow;
 use std::ops::Range;
+use zarrs::array::{ArrayBytes, ArrayToBytesCodecTraits, CodecOptions, FromArrayBytes};
 
 /// Reads a metadata document of at most [`MAX_HEADER_BYTES`].
 pub(super) fn read_metadata(path: &Path) -> Result<Vec<u8>, VolumeError> {
@@ -191,7 +194,8 @@ impl ZarrLevel {
     /// fastest), each stored value mapped by `map`: every chunk whose z range meets `z` is
     /// decoded whole (so a chunk that does not hold its full shape is an error even where the
     /// array ends inside it) and its part inside the array and `z` is copied. Missing chunks
-    /// read as the fill value.
+    /// read as the fill value, written only where they meet the array (a missing chunk far
+    /// larger than the array costs no memory).
     pub(super) fn read_planes<T: ElementOwned + Copy, U: Copy>(
         &self,
         z: Range<usize>,
@@ -216,6 +220,7 @@ impl ZarrLevel {
             return Ok(());
         }
         let za = ndim - 3;
+        let outer = self.outer_codec();
         let mut indices = vec![0u64; ndim];
         // The chunk rows along the array's z axis that meet `z`.
         let mut rows = Vec::new();
@@ -234,7 +239,7 @@ impl ZarrLevel {
             indices.iter_mut().for_each(|i| *i = 0);
             indices[za] = row;
             loop {
-                self.copy_chunk(&indices, &z, out, &map, chunks_field)?;
+                self.copy_chunk(&indices, &z, out, &map, chunks_field, outer)?;
                 // Next chunk in this row, last axis fastest (the z axis stays at `row`).
                 let mut axis = ndim;
                 let done = loop {
@@ -259,7 +264,8 @@ impl ZarrLevel {
         Ok(())
     }
 
-    /// Decodes the chunk at `indices` and copies its part inside the array and the planes `z`.
+    /// Decodes the chunk at `indices` and copies its part inside the array and the planes `z`; a
+    /// missing chunk writes the fill value into that part only.
     fn copy_chunk<T: ElementOwned + Copy, U: Copy>(
         &self,
         indices: &[u64],
@@ -267,10 +273,11 @@ impl ZarrLevel {
         out: &mut [U],
         map: &impl Fn(T) -> U,
         chunks_field: &str,
+        outer: OuterCodec,
     ) -> Result<(), VolumeError> {
         let ndim = indices.len();
         let [nx, ny, _] = self.dims;
-        self.chunk_bytes(indices, chunks_field)?;
+        let decoded_bytes = self.chunk_bytes(indices, chunks_field)?;
         let chunk_shape = self
             .array
             .chunk_shape(indices)
@@ -282,16 +289,31 @@ impl ZarrLevel {
         if !bounded.shape().iter().all(|&s| s > 0) {
             return Ok(());
         }
-        let values: Vec<T> = self
-            .array
-            .retrieve_chunk::<Vec<T>>(indices)
-            .map_err(|e| self.chunk_err(indices, e))?;
-        let full: Vec<usize> = chunk_shape.iter().map(|d| d.get() as usize).collect();
-        let (fy, fx) = (full[ndim - 2], full[ndim - 1]);
         let start = bounded.start();
         let extent = bounded.shape();
         let at = |a: usize| (start[a] as usize, extent[a] as usize);
         let ((z0, cz), (y0, cy), (x0, cx)) = (at(ndim - 3), at(ndim - 2), at(ndim - 1));
+        // Leading axes have size 1: their index is 0.
+        let (lo, hi) = (z0.max(z.start), (z0 + cz).min(z.end));
+        let Some(encoded) = self
+            .array
+            .retrieve_encoded_chunk(indices)
+            .map_err(|e| self.chunk_err(indices, ArrayError::StorageError(e)))?
+        else {
+            // A missing chunk: its part inside the array is the fill value, written straight
+            // into `out` (never a chunk-sized buffer of it).
+            let fill = map(self.fill_value::<T>()?);
+            for vz in lo..hi {
+                for y in 0..cy {
+                    let dst = x0 + nx * (y0 + y + ny * (vz - z.start));
+                    out[dst..dst + cx].fill(fill);
+                }
+            }
+            return Ok(());
+        };
+        let values = self.decode_chunk::<T>(indices, encoded, decoded_bytes, outer)?;
+        let full: Vec<usize> = chunk_shape.iter().map(|d| d.get() as usize).collect();
+        let (fy, fx) = (full[ndim - 2], full[ndim - 1]);
         if values.len() != full.iter().product::<usize>() {
             return Err(format_err(
                 &self.chunk_path(indices),
@@ -303,8 +325,6 @@ impl ZarrLevel {
                 ),
             ));
         }
-        // Leading axes have size 1: their index is 0.
-        let (lo, hi) = (z0.max(z.start), (z0 + cz).min(z.end));
         for vz in lo..hi {
             let cz = vz - z0;
             for y in 0..cy {
@@ -316,6 +336,65 @@ impl ZarrLevel {
             }
         }
         Ok(())
+    }
+
+    /// The codec whose output the stored chunks are (see [`OuterCodec`]).
+    fn outer_codec(&self) -> OuterCodec {
+        serde_json::to_value(self.array.metadata())
+            .map_or(OuterCodec::Other, |doc| OuterCodec::of(&doc))
+    }
+
+    /// Decodes the stored chunk `encoded` at `indices` (of `decoded_bytes` bytes decoded) after
+    /// checking the size it declares, as `zarrs`' `retrieve_chunk` does.
+    fn decode_chunk<T: ElementOwned>(
+        &self,
+        indices: &[u64],
+        encoded: Vec<u8>,
+        decoded_bytes: u64,
+        outer: OuterCodec,
+    ) -> Result<Vec<T>, VolumeError> {
+        outer.check(&encoded, decoded_bytes).map_err(|m| {
+            format_err(
+                &self.chunk_path(indices),
+                self.version.codecs_field(),
+                format!("chunk {indices:?} does not decode: {m}"),
+            )
+        })?;
+        let dt = self.array.data_type();
+        let shape = self
+            .array
+            .chunk_shape(indices)
+            .map_err(|e| self.chunk_err(indices, e))?;
+        let bytes = self
+            .array
+            .codecs()
+            .decode(
+                Cow::Owned(encoded),
+                &shape,
+                dt,
+                self.array.fill_value(),
+                &CodecOptions::default(),
+            )
+            .map_err(|e| self.chunk_err(indices, ArrayError::CodecError(e)))?;
+        let shape: Vec<u64> = shape.iter().map(|d| d.get()).collect();
+        Vec::<T>::from_array_bytes(bytes.into_owned(), &shape, dt)
+            .map_err(|e| self.chunk_err(indices, e))
+    }
+
+    /// The array's fill value as one stored value.
+    fn fill_value<T: ElementOwned + Copy>(&self) -> Result<T, VolumeError> {
+        let dt = self.array.data_type();
+        ArrayBytes::new_fill_value(dt, 1, self.array.fill_value())
+            .map_err(|e| e.to_string())
+            .and_then(|b| Vec::<T>::from_array_bytes(b, &[1], dt).map_err(|e| e.to_string()))
+            .and_then(|v| v.first().copied().ok_or_else(|| "no value".to_string()))
+            .map_err(|m| {
+                format_err(
+                    &self.array_doc,
+                    "fill_value",
+                    format!("the fill value does not decode as one {dt} value: {m}"),
+                )
+            })
     }
 
     /// A chunk that could not be read or decoded.

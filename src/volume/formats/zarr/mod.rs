@@ -22,8 +22,9 @@
 //! Data types: `uint8`, `int8`, `uint16`, `int16`, `uint32`, `int32`, `float32`, `float64` (v2:
 //! `|u1`, `<i2`, `>f4`, ...), in either byte order, mapped to the volume's scalar types like every
 //! other format (see [`super`]: i16 is stored as u16 + [`I16_OFFSET`](super::I16_OFFSET), ...).
-//! Codecs built in: raw, gzip and sharding (with crc32c index checksums). Blosc and zstd need C
-//! libraries and are not built (an array using them fails on the field `compressor` / `codecs`).
+//! Codecs built in: raw, gzip, zlib, zstd, Blosc (lz4, lz4hc, zstd, zlib, snappy, blosclz; any
+//! shuffle) and sharding (with crc32c index checksums). Missing chunks read as the fill value,
+//! written only where they meet the array.
 //!
 //! # Safety against hostile stores
 //!
@@ -32,18 +33,24 @@
 //! decoded size against [`MAX_CHUNK_BYTES`], before anything is allocated or decoded; the volume
 //! buffer is reserved fallibly. Chunks are decoded one at a time (`zarrs`), each bounded to the
 //! array, and copied into the volume. A chunk that does not decode to its shape (a truncated raw
-//! chunk, corrupt gzip) is a [`VolumeError::Format`] naming the chunk file. Limitation: `zarrs`
-//! decodes gzip chunks without an output limit before checking their size, so a gzip bomb in a
-//! chunk file can allocate up to about 1000 times the file's size.
+//! chunk, corrupt gzip / Blosc / Zstd) is a [`VolumeError::Format`] naming the chunk file.
+//! The decoded size a zstd frame or a Blosc header declares is checked against the chunk's
+//! before `zarrs` reserves it (`declared.rs`; a 17-byte zstd chunk declaring 1 TiB aborted the
+//! process). Limitations: `zarrs` decodes gzip chunks, and zstd frames that declare no size,
+//! without an output limit before checking their size, so a compression bomb in a chunk file
+//! can allocate up to about 1000 times the file's size (gzip; more for zstd); the chunks inside
+//! a shard are not checked for their declared size.
 //!
 //! [`parse_zarr_root`] parses a root metadata document from bytes (the fuzz target's entry
 //! point); [`load_zarr`] / [`load_zarr_level`] load.
 //!
 //! Files: this one loads (`load_zarr`, `load_zarr_level`); `ome.rs` parses the root metadata
 //! (Zarr version, OME-Zarr multiscales, axes and coordinate transformations); `array.rs` opens
-//! an array through zarrs and reads its chunks under the limits above.
+//! an array through zarrs and reads its chunks under the limits above; `declared.rs` checks the
+//! decoded size a compressed chunk declares.
 
 mod array;
+mod declared;
 mod ome;
 mod slabs;
 

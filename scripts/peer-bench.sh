@@ -12,7 +12,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-scripts/setup.sh libegl1 libegl-mesa0 libgl1-mesa-dri python3-venv
+scripts/setup.sh libegl1 libegl-mesa0 libgl1-mesa-dri
 scripts/fetch-datasets.sh
 
 venv=target/peer-venv

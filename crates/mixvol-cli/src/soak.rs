@@ -270,7 +270,7 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
     }
     let rss_bound = {
         let v = args.soak_rss_growth_mb;
-        if !(v.is_finite() && v >= 0.0 && v <= 1.0e6) {
+        if !(0.0..=1.0e6).contains(&v) {
             return Err(Error::InvalidInput(format!(
                 "--soak-rss-growth-mb {v}: expected a number of MiB from 0 to 1e6"
             )));

@@ -56,7 +56,6 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
     if args.churn && r.mixed.levels.is_none() {
         return Err(Error::InvalidInput("--churn needs --levels".into()));
     }
-    let volume = Arc::new(load_volume(r)?);
     // Declared before the context: printed on failure too; `finish` reads the message log.
     let mut summary = crate::logging::ValidationSummary::default();
     let ctx = GpuContext::new(&ContextDesc {
@@ -64,6 +63,9 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
         device_name: r.device.clone(),
     })?;
     summary.watch(&ctx);
+    // A synthetic field is checked against the device's limits before it is generated.
+    crate::input::check_plain_synthetic(r, &ctx)?;
+    let volume = Arc::new(load_volume(r)?);
     let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     renderer.set_transfer_function(&TransferFunction::preset(r.tf))?;
     let mut patterns = Vec::new();

@@ -2,7 +2,10 @@
 //! queue, and the gpu-allocator allocator. Everything the backend creates holds an
 //! `Arc<DeviceShared>`, so the device outlives every object made from it.
 
-use super::validation::{record_debug_message, DebugMessage, MessageLog, Severity};
+use super::validation::{
+    make_deliberately_invalid_call, record_debug_message, DebugMessage, MessageLog, Severity,
+    INVALID_CALL_ENV,
+};
 use crate::error::{Error, Result, VkResultExt};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
@@ -18,7 +21,9 @@ const VALIDATION_FEATURES_EXT: &CStr = c"VK_EXT_validation_features";
 #[derive(Clone, Debug, Default)]
 pub struct ContextDesc {
     /// Enable `VK_LAYER_KHRONOS_validation` (with synchronization validation where the layer
-    /// offers `VK_EXT_validation_features`). Missing layer with this set is an error.
+    /// offers `VK_EXT_validation_features`). Missing layer with this set is an error. (With
+    /// validation on, the test hook [`crate::gpu::INVALID_CALL_ENV`] makes one deliberately
+    /// invalid call for the layer to report.)
     pub validation: bool,
     /// Pick the first physical device whose name contains this (case-insensitive); `None` prefers
     /// discrete, then integrated, then virtual, then CPU devices. The `MIXVOL_DEVICE` environment
@@ -512,6 +517,9 @@ impl GpuContext {
         };
         // SAFETY: queue 0 of the family we created.
         let queue = unsafe { device.get_device_queue(queue_family, 0) };
+        if desc.validation && std::env::var_os(INVALID_CALL_ENV).is_some() {
+            make_deliberately_invalid_call(&device);
+        }
         let allocator = Allocator::new(&AllocatorCreateDesc {
             instance: instance.clone(),
             device: device.clone(),

@@ -90,6 +90,46 @@ fn check_requirements(
     )
 }
 
+impl super::GpuContext {
+    /// Checks, before any voxel exists, that a single-texture volume of `dims` voxels of
+    /// `bytes_per_voxel` bytes can be created on this device: each side against
+    /// `maxImageDimension3D`, and its bytes (texels x bytes per voxel; the driver's exact
+    /// requirement, larger where it pads, is checked again when the image is created) against
+    /// `maxMemoryAllocationSize`, the largest device-local heap and the heap budget. A host
+    /// calls it before generating or reading a volume it will draw as one texture, so a volume
+    /// the device cannot hold is refused at once rather than after minutes of work. Errors name
+    /// the request (`name`) and the limit: [`Error::GpuMemoryLimit`], or
+    /// [`Error::Unsupported`] for a side over the dimension limit.
+    pub fn check_volume_texture(
+        &self,
+        name: &str,
+        dims: glam::UVec3,
+        bytes_per_voxel: u64,
+    ) -> Result<()> {
+        let max = self.shared.info.limits.max_image_dimension3_d;
+        if dims.max_element() > max {
+            return Err(Error::Unsupported(format!(
+                "image '{name}' extent {:?} exceeds the device's maxImageDimension3D {max}: use \
+                 smaller dims, or draw the volume through the brick cache",
+                dims.to_array()
+            )));
+        }
+        let bytes = u64::from(dims.x)
+            .saturating_mul(u64::from(dims.y))
+            .saturating_mul(u64::from(dims.z))
+            .saturating_mul(bytes_per_voxel);
+        let budgets = self.shared.heap_budgets();
+        check_request(
+            name,
+            bytes,
+            u32::MAX,
+            true,
+            &self.shared.info.memory,
+            budgets.as_deref(),
+        )
+    }
+}
+
 /// A buffer with its memory.
 pub(crate) struct Buffer {
     pub(crate) raw: vk::Buffer,
@@ -463,6 +503,37 @@ mod tests {
                 && text.contains(&(1u64 << 30).to_string()),
             "{text}"
         );
+    }
+
+    /// The pre-check of a volume texture refuses what the device cannot hold, naming the
+    /// limit, before any voxel exists; what fits passes.
+    #[test]
+    fn a_volume_texture_is_checked_before_it_exists() {
+        let ctx = GpuContext::new(&ContextDesc::default()).unwrap();
+        let max = ctx.shared.info.memory.max_allocation_bytes;
+        let max_dim = ctx.shared.info.limits.max_image_dimension3_d;
+        ctx.check_volume_texture("volume", glam::UVec3::splat(64), 4)
+            .unwrap();
+        // The smallest u8 cube over maxMemoryAllocationSize.
+        let edge = (max as f64).cbrt().ceil() as u32 + 1;
+        assert!(edge <= max_dim);
+        match ctx.check_volume_texture("volume", glam::UVec3::splat(edge), 1) {
+            Err(Error::GpuMemoryLimit {
+                name,
+                bytes,
+                limit_name,
+                limit,
+            }) => {
+                assert_eq!(name, "volume");
+                assert_eq!(bytes, u64::from(edge).pow(3));
+                assert_eq!((limit_name, limit), ("maxMemoryAllocationSize", max));
+            }
+            other => panic!("expected GpuMemoryLimit, got {other:?}"),
+        }
+        let long = glam::UVec3::new(max_dim + 1, 1, 1);
+        let e = ctx.check_volume_texture("volume", long, 1).unwrap_err();
+        assert!(e.to_string().contains("maxImageDimension3D"), "{e}");
+        assert_eq!(ctx.live_allocation_count(), 0);
     }
 
     /// A real image over the device's maxMemoryAllocationSize (created, never allocated) is

@@ -21,7 +21,7 @@ mod validation;
 
 pub use context::{ContextDesc, DeviceInfo, GpuContext, HostDevice, MemoryLimits};
 pub use shaders::ShaderStage;
-pub use validation::{DebugMessage, MessageLog, Severity};
+pub use validation::{DebugMessage, MessageLog, Severity, INVALID_CALL_ENV};
 
 pub(crate) use brick_cache::{CacheRegion, CacheTables, FieldProbe, GpuBrickCache};
 pub use commands::GPU_TIMEOUT_ENV;

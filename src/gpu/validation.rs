@@ -1,5 +1,7 @@
 //! What the validation layers say: the debug-utils messenger callback and the log it records
-//! into, which tests and tools read to fail on any warning or error.
+//! into, which tests and tools read to fail on any warning or error; and the test hook
+//! [`INVALID_CALL_ENV`], which makes one deliberately invalid Vulkan call so that a test can see
+//! a real validation message travel to the tool's output.
 
 use ash::vk;
 use std::ffi::c_void;
@@ -49,6 +51,24 @@ impl MessageLog {
     /// All messages so far.
     pub fn all(&self) -> Vec<DebugMessage> {
         self.lock().clone()
+    }
+
+    /// Number of messages so far, of any severity.
+    pub fn len(&self) -> usize {
+        self.lock().len()
+    }
+
+    /// Whether no message arrived yet.
+    pub fn is_empty(&self) -> bool {
+        self.lock().is_empty()
+    }
+
+    /// Number of warnings and errors so far (without copying them).
+    pub fn problem_count(&self) -> usize {
+        self.lock()
+            .iter()
+            .filter(|m| m.severity >= Severity::Warning)
+            .count()
     }
 
     /// Warnings and errors so far: a validated test expects none.
@@ -110,4 +130,34 @@ pub(super) unsafe extern "system" fn record_debug_message(
         text,
     });
     vk::FALSE
+}
+
+/// Test hook: when this environment variable is set (to anything) and validation is on,
+/// [`crate::gpu::GpuContext::new`] makes one deliberately invalid Vulkan call right after
+/// creating the device: `vkCreateBuffer` with a `usage` of 0, which
+/// `VUID-VkBufferCreateInfo-usage-requiredbitmask` forbids. The validation layer reports it
+/// (and does not pass the call on to the driver), so a test can check that a real layer message
+/// reaches the tool's stderr and its validation summary. Without validation the variable is
+/// ignored (an invalid call nobody checks is undefined behaviour). Never set it otherwise.
+pub const INVALID_CALL_ENV: &str = "MIXVOL_TEST_INVALID_VULKAN_CALL";
+
+/// Makes the deliberately invalid call of [`INVALID_CALL_ENV`] on `device` (created with the
+/// validation layer on); a buffer the call nevertheless created is destroyed at once.
+pub(super) fn make_deliberately_invalid_call(device: &ash::Device) {
+    log::warn!(
+        "{INVALID_CALL_ENV} is set: making one deliberately invalid Vulkan call for the \
+         validation layer to report"
+    );
+    let info = vk::BufferCreateInfo::default()
+        .size(16)
+        .usage(vk::BufferUsageFlags::empty())
+        .sharing_mode(vk::SharingMode::EXCLUSIVE);
+    // SAFETY: only made with the validation layer active, which reports the zero usage and
+    // skips the call (returning an error); a buffer created anyway is destroyed right away and
+    // never used.
+    unsafe {
+        if let Ok(buffer) = device.create_buffer(&info, None) {
+            device.destroy_buffer(buffer, None);
+        }
+    }
 }

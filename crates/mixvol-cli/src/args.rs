@@ -56,6 +56,19 @@ pub struct BenchArgs {
     /// Also write the results as JSON to this path ('-' for standard output).
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Soak: render N frames along a moving camera (orbit, dolly, elevation bob) with
+    /// camera-driven residency and the validation layers on; report validation messages, live
+    /// GPU allocations at shutdown, RSS and GPU bytes over time and the residency changes, and
+    /// fail on any message, leak or growth past the bounds (needs --gpu-budget-mb or a brick
+    /// store; use a small image, e.g. --width 32 --height 32).
+    #[arg(long, value_name = "N")]
+    pub soak: Option<u32>,
+    /// The soak's curve as CSV (the summary and the samples as JSON beside it, .json).
+    #[arg(long, default_value = "out/soak.csv", requires = "soak")]
+    pub soak_log: PathBuf,
+    /// Most RSS growth after the soak's warm-up, in MiB, before the soak fails.
+    #[arg(long, default_value_t = 4.0, requires = "soak")]
+    pub soak_rss_growth_mb: f64,
 }
 
 #[derive(ValueEnum, Copy, Clone, Debug, PartialEq)]

@@ -1,6 +1,7 @@
 //! `mixvol bench`: N frames of one scene, min / median / max of every GPU pass (upload, fixup,
 //! ray-cast) and of the CPU frame time, as a table and as JSON. With a camera path, a GPU
-//! budget or a brick store it benchmarks camera-driven residency instead (`path_bench`).
+//! budget or a brick store it benchmarks camera-driven residency instead (`path_bench`); with
+//! `--soak N` it soaks the renderer for N frames instead (`soak`).
 
 use crate::args::BenchArgs;
 use crate::input::{is_brick_store, load_volume};
@@ -40,6 +41,9 @@ struct BenchJson<'a> {
 /// Runs `mixvol bench`.
 pub fn bench(args: &BenchArgs) -> Result<()> {
     let r = &args.render;
+    if let Some(frames) = args.soak {
+        return crate::soak::soak(args, frames);
+    }
     if r.camera_path.is_path()
         || r.residency.gpu_budget_mb.is_some()
         || is_brick_store(std::path::Path::new(&r.volume))
@@ -52,7 +56,6 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
     if args.churn && r.mixed.levels.is_none() {
         return Err(Error::InvalidInput("--churn needs --levels".into()));
     }
-    let volume = Arc::new(load_volume(r)?);
     // Declared before the context: printed on failure too; `finish` reads the message log.
     let mut summary = crate::logging::ValidationSummary::default();
     let ctx = GpuContext::new(&ContextDesc {
@@ -60,6 +63,9 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
         device_name: r.device.clone(),
     })?;
     summary.watch(&ctx);
+    // A synthetic field is checked against the device's limits before it is generated.
+    crate::input::check_plain_synthetic(r, &ctx)?;
+    let volume = Arc::new(load_volume(r)?);
     let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     renderer.set_transfer_function(&TransferFunction::preset(r.tf))?;
     let mut patterns = Vec::new();

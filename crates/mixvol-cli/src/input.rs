@@ -3,8 +3,10 @@
 
 use crate::args::RenderArgs;
 use crate::parse::parse_floats;
+use mixvol::gpu::GpuContext;
 use mixvol::store::{BrickStore, MAGIC};
 use mixvol::volume::formats::{load_zarr_level, FileFormat};
+use mixvol::volume::memory::check_host_bytes;
 use mixvol::volume::{load_raw, RawDescriptor, SyntheticField, Volume, VolumeError};
 use mixvol::{Error, Result};
 use std::path::Path;
@@ -62,6 +64,33 @@ pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
         )),
         e => e.into(),
     })
+}
+
+/// Checks a synthetic field the scene will draw as one plain texture (no `--levels`, no
+/// `--gpu-budget-mb`) against the host-memory limit and `ctx`'s device limits before a voxel is
+/// computed: generating a field the device then refused used to take minutes (a 1400^3 field
+/// for lavapipe's 2 GiB `maxMemoryAllocationSize`). Other inputs are checked where their size
+/// is known (the loaders, the brick cache).
+pub fn check_plain_synthetic(args: &RenderArgs, ctx: &GpuContext) -> Result<()> {
+    let plain = args.mixed.levels.is_none() && args.residency.gpu_budget_mb.is_none();
+    if !plain || args.zarr_level.is_some() || SyntheticField::parse(&args.volume).is_none() {
+        return Ok(());
+    }
+    let d = args.dims;
+    let bytes_per_voxel = args.scalar.size_bytes() as u64;
+    let bytes = u64::from(d.x)
+        .saturating_mul(u64::from(d.y))
+        .saturating_mul(u64::from(d.z))
+        .saturating_mul(bytes_per_voxel);
+    // The host-memory refusal first, worded as the generator's own.
+    check_host_bytes(
+        &format!(
+            "a {}x{}x{} {:?} synthetic volume",
+            d.x, d.y, d.z, args.scalar
+        ),
+        bytes,
+    )?;
+    ctx.check_volume_texture("volume", d, bytes_per_voxel)
 }
 
 /// The file names `FileFormat::detect` recognises, for messages.

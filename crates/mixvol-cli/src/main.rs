@@ -17,6 +17,7 @@ mod parse;
 mod path_bench;
 mod render;
 mod reports;
+mod soak;
 mod stats;
 
 use args::{BenchArgs, ConvertArgs, JunctionArgs, KrausArgs, RenderArgs, ReportArgs};
@@ -45,7 +46,8 @@ enum Command {
     /// fixup, ray-cast) and CPU frame time, as a table and as JSON; with --orbit / --dolly /
     /// --path, --gpu-budget-mb or a brick store: camera-driven residency along the path, smooth
     /// and discontinuous side by side (frame times, upload+fixup, planner time, frames to
-    /// converge).
+    /// converge); with --soak N: N frames of camera motion under validation, watching for
+    /// validation messages, leaks and memory growth.
     Bench(BenchArgs),
     /// The accuracy-versus-time report of the default scene (Markdown, CSV and a PNG chart).
     Report(ReportArgs),

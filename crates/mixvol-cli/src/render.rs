@@ -257,14 +257,6 @@ pub fn render(args: &RenderArgs) -> Result<()> {
             "--compare renders one view; drop --orbit / --dolly / --path".into(),
         ));
     }
-    let input = open_input(args)?;
-    if args.compare && matches!(input, Input::Store(_)) {
-        return Err(Error::InvalidInput(
-            "--compare needs the volume in memory for the CPU reference; render the source file \
-             (with --gpu-budget-mb) instead of its brick store"
-                .into(),
-        ));
-    }
     // Declared before the context: a failing render still prints the validation summary.
     let mut summary = crate::logging::ValidationSummary::default();
     let ctx = GpuContext::new(&ContextDesc {
@@ -283,6 +275,17 @@ pub fn render(args: &RenderArgs) -> Result<()> {
             ""
         }
     );
+    // The context comes first so that a synthetic field is checked against the device's
+    // limits before it is generated.
+    crate::input::check_plain_synthetic(args, &ctx)?;
+    let input = open_input(args)?;
+    if args.compare && matches!(input, Input::Store(_)) {
+        return Err(Error::InvalidInput(
+            "--compare needs the volume in memory for the CPU reference; render the source file \
+             (with --gpu-budget-mb) instead of its brick store"
+                .into(),
+        ));
+    }
     let (dims, scalar, volume_for_window) = match &input {
         Input::Volume(v) => (v.dims(), v.scalar_type(), Some(&**v)),
         Input::Store(s) => (s.grid().dims(), s.scalar(), None),

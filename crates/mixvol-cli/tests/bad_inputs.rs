@@ -28,6 +28,8 @@ struct Case {
 const NO_ENV: &[(&str, &str)] = &[];
 /// A 1 MiB host-memory limit: every 4 MiB fixture volume is over it.
 const SMALL_RAM: &[(&str, &str)] = &[("MIXVOL_HOST_MEMORY_MB", "1")];
+/// The test hook that makes one deliberately invalid Vulkan call when validation is on.
+const INVALID_CALL: &[(&str, &str)] = &[("MIXVOL_TEST_INVALID_VULKAN_CALL", "1")];
 
 #[rustfmt::skip]
 const CASES: &[Case] = &[
@@ -39,7 +41,18 @@ const CASES: &[Case] = &[
     Case { name: "raw over the host-memory limit", args: &["render", "--volume", "{d}/big.raw", "--dims", "128,128,256"], env: SMALL_RAM, code: 1, fragments: &["big.raw", "host-memory limit", "4194304"], absent: &[] },
     Case { name: "NRRD over the host-memory limit", args: &["render", "--volume", "{d}/big.nhdr"], env: SMALL_RAM, code: 1, fragments: &["big.nhdr", "host-memory limit"], absent: &[] },
     Case { name: "Zarr array over the host-memory limit", args: &["render", "--volume", "{d}/big.zarr"], env: SMALL_RAM, code: 1, fragments: &["big.zarr", "host-memory limit"], absent: &[] },
+    // Item 4 / item 3: a synthetic field over the device's maxMemoryAllocationSize (lavapipe:
+    // 2 GiB) is refused before it is generated (it used to be generated for minutes first);
+    // the host-memory limit is set so that only the GPU limit can refuse it.
+    Case { name: "a synthetic field over maxMemoryAllocationSize", args: &["render", "--volume", "ml", "--dims", "1400,1400,1400"], env: &[("MIXVOL_HOST_MEMORY_MB", "4096")], code: 1, fragments: &["'volume' needs 2744000000 bytes", "maxMemoryAllocationSize"], absent: &[] },
+    Case { name: "a bench field over maxMemoryAllocationSize", args: &["bench", "--volume", "ml", "--dims", "1400,1400,1400", "--frames", "1"], env: &[("MIXVOL_HOST_MEMORY_MB", "4096")], code: 1, fragments: &["'volume' needs 2744000000 bytes", "maxMemoryAllocationSize"], absent: &[] },
     Case { name: "a brick size no cache can hold", args: &["render", "--volume", "ml", "--dims", "32,32,32", "--levels", "checker", "--brick-size", "1024"], env: NO_ENV, code: 1, fragments: &["cache budget", "one slot"], absent: &[] },
+    // Item 5: parameters that gave a wrong image with exit 0 are refused, naming what to change.
+    Case { name: "--early-termination 0", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--early-termination", "0"], env: NO_ENV, code: 1, fragments: &["early termination"], absent: &[] },
+    Case { name: "negative --early-termination", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--early-termination=-1"], env: NO_ENV, code: 1, fragments: &["early termination"], absent: &[] },
+    Case { name: "a voxel side 1e-30 of the others", args: &["render", "--volume", "{d}/small.raw", "--dims", "4,4,4", "--spacing", "1e-30,1,1"], env: NO_ENV, code: 1, fragments: &["voxel spacing"], absent: &[] },
+    Case { name: "--clip with a zero normal", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--clip", "0,0,0,0"], env: NO_ENV, code: 1, fragments: &["--clip", "zero normal"], absent: &[] },
+    Case { name: "more samples per ray than supported", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--samples-per-voxel", "1e9"], env: NO_ENV, code: 1, fragments: &["samples per voxel", "at most 16777216"], absent: &[] },
     // Item 9: messages that named the wrong cause.
     Case { name: "huge --header-bytes", args: &["render", "--volume", "{d}/small.raw", "--dims", "4,4,4", "--header-bytes", "18446744073709551615"], env: NO_ENV, code: 1, fragments: &["small.raw", "18446744073709551615 header bytes"], absent: &["dimensions"] },
     Case { name: "--cache-mb past u64 bytes", args: &["render", "--volume", "ml", "--dims", "16,16,16", "--levels", "checker", "--cache-mb", "17592186044416"], env: NO_ENV, code: 1, fragments: &["--cache-mb 17592186044416 is too large"], absent: &[] },
@@ -52,6 +65,14 @@ const CASES: &[Case] = &[
     // Item 8: validation summaries on success and failure, and a logger.
     Case { name: "bench --validation prints the summary", args: &["bench", "--volume", "ml", "--dims", "16,16,16", "--frames", "2", "--validation"], env: NO_ENV, code: 0, fragments: &["validation: 0 warnings/errors"], absent: &[] },
     Case { name: "a failing render prints the summary", args: &["render", "--volume", "ml", "--dims", "16,16,16", "--validation", "-o", "/dev/full"], env: NO_ENV, code: 1, fragments: &["validation (the command failed): 0 warnings/errors", "/dev/full"], absent: &[] },
+    // Items 6 / 8: a real validation-layer message (one deliberately invalid vkCreateBuffer,
+    // the MIXVOL_TEST_INVALID_VULKAN_CALL hook) reaches stderr as it arrives (through the
+    // logger) and in the summary, which counts it and fails the command. The VUID and "The
+    // Vulkan spec states" are the layer's words, not mixvol's.
+    Case { name: "a validation message reaches stderr and the summary", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--frames", "1", "--validation"], env: INVALID_CALL, code: 1, fragments: &["[ERROR mixvol::gpu::validation] [vulkan] VUID-VkBufferCreateInfo-", "The Vulkan spec states", "validation: 1 warnings/errors", "  Error VUID-VkBufferCreateInfo-", "validation reported 1 problem(s)"], absent: &[] },
+    Case { name: "a failing render lists the layer's message", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--frames", "1", "--validation", "-o", "/dev/full"], env: INVALID_CALL, code: 1, fragments: &["validation (the command failed): 1 warnings/errors", "  Error VUID-VkBufferCreateInfo-", "The Vulkan spec states", "/dev/full"], absent: &[] },
+    Case { name: "bench --validation reads the message log", args: &["bench", "--volume", "ml", "--dims", "8,8,8", "--frames", "1", "--width", "32", "--height", "32", "--validation"], env: INVALID_CALL, code: 1, fragments: &["validation: 1 warnings/errors", "  Error VUID-VkBufferCreateInfo-", "The Vulkan spec states"], absent: &[] },
+    Case { name: "the invalid-call hook needs validation", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--frames", "1"], env: INVALID_CALL, code: 0, fragments: &["wrote "], absent: &["VUID", "validation:"] },
     Case { name: "RUST_LOG reaches the library's log", args: &["render", "--volume", "ml", "--dims", "8,8,8"], env: &[("RUST_LOG", "info")], code: 0, fragments: &["[INFO mixvol::gpu::context] device: "], absent: &[] },
     Case { name: "--verbose logs at info", args: &["render", "--verbose", "--volume", "ml", "--dims", "8,8,8"], env: NO_ENV, code: 0, fragments: &["[INFO mixvol::gpu::context] device: "], absent: &[] },
     Case { name: "--device matching nothing", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--device", "no-such-gpu-x"], env: NO_ENV, code: 1, fragments: &["matching 'no-such-gpu-x'", "devices present: "], absent: &["rejected: []"] },
@@ -151,6 +172,7 @@ fn run(args: &[String], env: &[(&str, &str)], deadline: Duration) -> Option<(i32
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .env_remove("MIXVOL_HOST_MEMORY_MB")
+        .env_remove("MIXVOL_TEST_INVALID_VULKAN_CALL")
         .env_remove("RUST_LOG");
     for (k, v) in env {
         cmd.env(k, v);

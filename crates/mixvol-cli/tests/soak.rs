@@ -1,0 +1,214 @@
+//! `mixvol bench --soak N` through the binary (issue 16, "What must exist" item 7; the
+//! 10,000-frame run is in docs/performance.md):
+//!
+//! - `a_short_soak_is_clean_flat_and_changes_residency`: 400 frames of camera motion under
+//!   validation: 0 validation messages, 0 live allocations at shutdown, RSS and GPU bytes flat
+//!   after the warm-up (bounded growth, checked here from the written curve, not only from the
+//!   binary's verdict), and bricks changing level all along (not a still scene).
+//! - `a_soak_fails_on_a_still_scene_and_on_a_validation_message`: the exit code is not
+//!   always 0: a budget that holds every brick (nothing changes after the warm-up) and a real
+//!   validation-layer error (the `MIXVOL_TEST_INVALID_VULKAN_CALL` hook) each fail the soak.
+
+use serde_json::Value;
+use std::path::PathBuf;
+use std::process::Command;
+
+/// The scene of every soak here: a 64^3 u16 Marschner-Lobb volume in bricks of 8 (512 bricks)
+/// through a cache of 108 slots (21 % of the bricks hi-res), 8 kB of level changes per frame,
+/// at 32x32 pixels.
+const SCENE: &[&str] = &[
+    "bench",
+    "--volume",
+    "ml",
+    "--dims",
+    "64,64,64",
+    "--scalar",
+    "u16",
+    "--brick-size",
+    "8",
+    "--upload-mb",
+    "0.008",
+    "--width",
+    "32",
+    "--height",
+    "32",
+];
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("mixvol-soak-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Runs a soak of `frames` frames under a GPU budget of `gpu_mb` MiB with `extra` flags and
+/// `env`; returns the exit code and stdout + stderr.
+fn soak(frames: u32, gpu_mb: &str, extra: &[&str], env: &[(&str, &str)]) -> (i32, String) {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_mixvol"));
+    cmd.args(SCENE)
+        .args(["--soak", &frames.to_string(), "--gpu-budget-mb", gpu_mb])
+        .args(extra)
+        .env_remove("MIXVOL_TEST_INVALID_VULKAN_CALL")
+        .env_remove("MIXVOL_HOST_MEMORY_MB");
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let out = cmd.output().unwrap();
+    let text = format!(
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.code().unwrap_or(-1), text)
+}
+
+fn u64_at(v: &Value, pointer: &str) -> u64 {
+    v.pointer(pointer)
+        .and_then(Value::as_u64)
+        .unwrap_or_else(|| panic!("no {pointer} in {v}"))
+}
+
+#[test]
+fn a_short_soak_is_clean_flat_and_changes_residency() {
+    const FRAMES: u32 = 400;
+    /// RSS may move this much after the warm-up (the allocator's free lists and the validation
+    /// layer's bookkeeping move by a few hundred KiB; a leak of 8 KiB per frame would add
+    /// 2.3 MiB over the 300 frames after the warm-up).
+    const RSS_SLACK: u64 = 2 << 20;
+    let dir = temp_dir("clean");
+    let csv = dir.join("soak.csv");
+    let (code, text) = soak(
+        FRAMES,
+        "0.26",
+        &[
+            "--soak-log",
+            csv.to_str().unwrap(),
+            "--soak-rss-growth-mb",
+            "2",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("validation: 0 warnings/errors"), "{text}");
+    assert!(
+        text.contains("live GPU allocations at shutdown: 0"),
+        "{text}"
+    );
+    assert!(text.contains("soak: passed"), "{text}");
+    for key in ["RSS: first", "GPU allocated: first", "slope"] {
+        assert!(text.contains(key), "no '{key}' in:\n{text}");
+    }
+
+    let json: Value =
+        serde_json::from_str(&std::fs::read_to_string(csv.with_extension("json")).unwrap())
+            .unwrap();
+    let s = &json["summary"];
+    assert_eq!(u64_at(s, "/frames"), u64::from(FRAMES));
+    assert_eq!(u64_at(s, "/validation_problems"), 0, "{s}");
+    assert_eq!(u64_at(s, "/live_allocations_at_shutdown"), 0, "{s}");
+    let warm = u64_at(s, "/warm_up_frames");
+    assert_eq!(warm, 100);
+    // Residency changed all along: bricks change level every few frames after the warm-up.
+    let changes_after = u64_at(s, "/level_changes_after_warm_up");
+    assert!(changes_after >= 100, "{changes_after} level changes: {s}");
+    assert!(u64_at(s, "/frames_uploading") >= 100, "{s}");
+    let gpu_bound = u64_at(s, "/gpu_growth_bound");
+    // The cache image of 108 u16 slots of 8^3 (plus its apron) is under 300 kB.
+    assert!(gpu_bound > 0 && gpu_bound <= 512 << 10, "{s}");
+
+    // The curve, from the CSV: one sample per frame (400 frames: sample every frame), every
+    // one clean, and flat after the warm-up.
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let rows: Vec<Vec<u64>> = lines
+        .map(|l| {
+            l.split(',')
+                .enumerate()
+                .map(|(i, c)| {
+                    if i == column("seconds") {
+                        0
+                    } else {
+                        c.parse().unwrap()
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    assert_eq!(rows.len(), FRAMES as usize, "{text}");
+    let (frame, rss, gpu, live, problems, changes) = (
+        column("frame"),
+        column("rss_bytes"),
+        column("gpu_allocated_bytes"),
+        column("live_allocations"),
+        column("validation_problems"),
+        column("level_changes"),
+    );
+    assert!(rows.iter().all(|r| r[problems] == 0));
+    let after: Vec<&Vec<u64>> = rows.iter().filter(|r| r[frame] >= warm).collect();
+    let at_warm = after[0];
+    for r in &after {
+        assert!(
+            r[rss] <= at_warm[rss] + RSS_SLACK,
+            "frame {}: RSS {} B > {} B at the end of the warm-up + {RSS_SLACK}",
+            r[frame],
+            r[rss],
+            at_warm[rss]
+        );
+        // Only the cache's staging buffer may still grow (to the next power of two of the
+        // largest update, at most the cache image); the number of allocations stays.
+        assert!(
+            r[gpu] <= at_warm[gpu] + gpu_bound,
+            "frame {}: GPU bytes {} > {} + {gpu_bound}",
+            r[frame],
+            r[gpu],
+            at_warm[gpu]
+        );
+        assert_eq!(r[live], at_warm[live], "frame {}: allocations", r[frame]);
+    }
+    // Changes are spread over the run, not bunched at its start: every 100 frames after the
+    // warm-up changes some bricks' levels.
+    let at = |f: u64| *after.iter().find(|r| r[frame] == f).unwrap();
+    for start in (warm..u64::from(FRAMES)).step_by(100) {
+        let (a, b) = (at(start), at(start + 100));
+        assert!(
+            b[changes] > a[changes],
+            "no level change between frames {} and {}",
+            a[frame],
+            b[frame]
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_soak_fails_on_a_still_scene_and_on_a_validation_message() {
+    let dir = temp_dir("fails");
+    let csv = dir.join("soak.csv");
+    let log = ["--soak-log", csv.to_str().unwrap()];
+    // A budget that holds every brick hi-res: after the first frames nothing changes.
+    let (code, text) = soak(150, "64", &log, &[]);
+    assert_eq!(code, 1, "{text}");
+    assert!(
+        text.contains("soak failed: no brick changed level after the warm-up"),
+        "{text}"
+    );
+    // One deliberately invalid Vulkan call: the layer's own message, and the soak fails.
+    let (code, text) = soak(
+        20,
+        "0.26",
+        &log,
+        &[("MIXVOL_TEST_INVALID_VULKAN_CALL", "1")],
+    );
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("VUID-VkBufferCreateInfo-"), "{text}");
+    assert!(text.contains("The Vulkan spec states"), "{text}");
+    assert!(text.contains("validation: 1 warnings/errors"), "{text}");
+    let json: Value =
+        serde_json::from_str(&std::fs::read_to_string(csv.with_extension("json")).unwrap())
+            .unwrap();
+    assert_eq!(u64_at(&json, "/summary/validation_problems"), 1, "{json}");
+    assert_eq!(json["summary"]["passed"], Value::Bool(false), "{json}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -60,8 +60,10 @@ pub struct DeviceInfo {
 #[derive(Clone, Debug, Default)]
 pub struct MemoryLimits {
     /// `VkPhysicalDeviceMaintenance3Properties::maxMemoryAllocationSize`: the largest single
-    /// allocation the driver promises.
+    /// allocation the driver promises; lower when [`ALLOCATION_CAP_ENV`] caps it.
     pub max_allocation_bytes: u64,
+    /// Whether [`ALLOCATION_CAP_ENV`] lowered `max_allocation_bytes` below the driver's limit.
+    pub allocation_capped: bool,
     /// Each memory heap's size in bytes and whether it is device-local.
     pub heaps: Vec<(u64, bool)>,
     /// Each memory type's property flags and heap index.
@@ -71,12 +73,37 @@ pub struct MemoryLimits {
     pub budget_extension: bool,
 }
 
-/// Queries `pd`'s memory limits (`budget_extension`: whether VK_EXT_memory_budget is enabled).
+/// Environment variable that caps the largest single GPU allocation mixvol makes, in MiB: it can
+/// only lower the device's `maxMemoryAllocationSize`, never raise it (for sharing a GPU with a
+/// host engine, and for tests that must refuse the same request on every device).
+pub const ALLOCATION_CAP_ENV: &str = "MIXVOL_GPU_MAX_ALLOCATION_MB";
+
+/// The allocation limit under the cap `env` (the value of [`ALLOCATION_CAP_ENV`], MiB) given the
+/// driver's `device_limit`: the limit and whether the cap lowered it.
+fn capped_allocation_limit(device_limit: u64, env: Option<&str>) -> Result<(u64, bool)> {
+    let Some(text) = env else {
+        return Ok((device_limit, false));
+    };
+    let mib: u64 = text.trim().parse().ok().filter(|&m| m > 0).ok_or_else(|| {
+        Error::InvalidInput(format!(
+            "{ALLOCATION_CAP_ENV}={text:?}: expected a whole number of MiB above 0"
+        ))
+    })?;
+    let cap = mib.saturating_mul(1 << 20);
+    if device_limit == 0 || cap < device_limit {
+        Ok((cap, true))
+    } else {
+        Ok((device_limit, false))
+    }
+}
+
+/// Queries `pd`'s memory limits (`budget_extension`: whether VK_EXT_memory_budget is enabled),
+/// under [`ALLOCATION_CAP_ENV`].
 fn memory_limits(
     instance: &ash::Instance,
     pd: vk::PhysicalDevice,
     budget_extension: bool,
-) -> MemoryLimits {
+) -> Result<MemoryLimits> {
     let mut maintenance3 = vk::PhysicalDeviceMaintenance3Properties::default();
     let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut maintenance3);
     // SAFETY: `pd` belongs to `instance` (a 1.3 instance: properties2 is core); the chain is
@@ -92,12 +119,17 @@ fn memory_limits(
         .iter()
         .map(|t| (t.property_flags, t.heap_index))
         .collect();
-    MemoryLimits {
-        max_allocation_bytes: maintenance3.max_memory_allocation_size,
+    let (max_allocation_bytes, allocation_capped) = capped_allocation_limit(
+        maintenance3.max_memory_allocation_size,
+        std::env::var(ALLOCATION_CAP_ENV).ok().as_deref(),
+    )?;
+    Ok(MemoryLimits {
+        max_allocation_bytes,
+        allocation_capped,
         heaps,
         types,
         budget_extension,
-    }
+    })
 }
 
 /// Whether `pd` offers the device extension `name`.
@@ -555,7 +587,7 @@ impl GpuContext {
             synchronization_validation: desc.validation && sync_validation,
             storage_image_extended_formats: features10.shader_storage_image_extended_formats
                 == vk::TRUE,
-            memory: memory_limits(&instance, physical_device, budget_extension),
+            memory: memory_limits(&instance, physical_device, budget_extension)?,
         };
         log::info!(
             "device: {} ({:?}), validation {}, sync validation {}",
@@ -751,7 +783,7 @@ impl GpuContext {
             storage_image_extended_formats: features.shader_storage_image_extended_formats
                 == vk::TRUE,
             // The host's device: whether it enabled VK_EXT_memory_budget is not known here.
-            memory: memory_limits(&host.instance, host.physical_device, false),
+            memory: memory_limits(&host.instance, host.physical_device, false)?,
         };
         let shared = DeviceShared {
             allocator,
@@ -830,6 +862,37 @@ impl GpuContext {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The cap only lowers the driver's limit, and a bad value is an error naming the variable.
+    #[test]
+    fn the_allocation_cap_only_lowers_the_limit() {
+        let gib = 1u64 << 30;
+        assert_eq!(
+            capped_allocation_limit(2 * gib, None).unwrap(),
+            (2 * gib, false)
+        );
+        assert_eq!(
+            capped_allocation_limit(2 * gib, Some("64")).unwrap(),
+            (64 << 20, true)
+        );
+        assert_eq!(
+            capped_allocation_limit(2 * gib, Some("4096")).unwrap(),
+            (2 * gib, false)
+        );
+        assert_eq!(
+            capped_allocation_limit(0, Some(" 8 ")).unwrap(),
+            (8 << 20, true)
+        );
+        for bad in ["0", "-1", "1.5", "lots", ""] {
+            let e = capped_allocation_limit(gib, Some(bad))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains(ALLOCATION_CAP_ENV) && e.contains("MiB"),
+                "{bad}: {e}"
+            );
+        }
+    }
     use gpu_allocator::MemoryLocation;
 
     #[test]

@@ -29,7 +29,12 @@ pub(crate) fn check_request(
         })
     };
     if limits.max_allocation_bytes > 0 && bytes > limits.max_allocation_bytes {
-        return refuse("maxMemoryAllocationSize", limits.max_allocation_bytes);
+        let limit_name = if limits.allocation_capped {
+            "maxMemoryAllocationSize as capped by MIXVOL_GPU_MAX_ALLOCATION_MB"
+        } else {
+            "maxMemoryAllocationSize"
+        };
+        return refuse(limit_name, limits.max_allocation_bytes);
     }
     let allowed = |want_local: bool| {
         limits
@@ -434,6 +439,7 @@ mod tests {
     fn fake() -> MemoryLimits {
         MemoryLimits {
             max_allocation_bytes: 1 << 30,
+            allocation_capped: false,
             heaps: vec![(4 << 30, true), (8 << 30, false)],
             types: vec![
                 (vk::MemoryPropertyFlags::DEVICE_LOCAL, 0),

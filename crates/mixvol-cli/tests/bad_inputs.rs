@@ -41,11 +41,13 @@ const CASES: &[Case] = &[
     Case { name: "raw over the host-memory limit", args: &["render", "--volume", "{d}/big.raw", "--dims", "128,128,256"], env: SMALL_RAM, code: 1, fragments: &["big.raw", "host-memory limit", "4194304"], absent: &[] },
     Case { name: "NRRD over the host-memory limit", args: &["render", "--volume", "{d}/big.nhdr"], env: SMALL_RAM, code: 1, fragments: &["big.nhdr", "host-memory limit"], absent: &[] },
     Case { name: "Zarr array over the host-memory limit", args: &["render", "--volume", "{d}/big.zarr"], env: SMALL_RAM, code: 1, fragments: &["big.zarr", "host-memory limit"], absent: &[] },
-    // Item 4 / item 3: a synthetic field over the device's maxMemoryAllocationSize (lavapipe:
-    // 2 GiB) is refused before it is generated (it used to be generated for minutes first);
-    // the host-memory limit is set so that only the GPU limit can refuse it.
-    Case { name: "a synthetic field over maxMemoryAllocationSize", args: &["render", "--volume", "ml", "--dims", "1400,1400,1400"], env: &[("MIXVOL_HOST_MEMORY_MB", "4096")], code: 1, fragments: &["'volume' needs 2744000000 bytes", "maxMemoryAllocationSize"], absent: &[] },
-    Case { name: "a bench field over maxMemoryAllocationSize", args: &["bench", "--volume", "ml", "--dims", "1400,1400,1400", "--frames", "1"], env: &[("MIXVOL_HOST_MEMORY_MB", "4096")], code: 1, fragments: &["'volume' needs 2744000000 bytes", "maxMemoryAllocationSize"], absent: &[] },
+    // Item 4 / item 3: a synthetic field over the device's maxMemoryAllocationSize is refused
+    // before it is generated (it used to be generated for minutes first). The limit is capped
+    // at 128 MiB (MIXVOL_GPU_MAX_ALLOCATION_MB) so the same request is refused on every device,
+    // and the host-memory limit is set so that only the GPU limit can refuse it.
+    Case { name: "a synthetic field over maxMemoryAllocationSize", args: &["render", "--volume", "ml", "--dims", "520,520,520"], env: &[("MIXVOL_HOST_MEMORY_MB", "4096"), ("MIXVOL_GPU_MAX_ALLOCATION_MB", "128")], code: 1, fragments: &["'volume' needs 140608000 bytes", "maxMemoryAllocationSize as capped by MIXVOL_GPU_MAX_ALLOCATION_MB"], absent: &[] },
+    Case { name: "a bench field over maxMemoryAllocationSize", args: &["bench", "--volume", "ml", "--dims", "520,520,520", "--frames", "1"], env: &[("MIXVOL_HOST_MEMORY_MB", "4096"), ("MIXVOL_GPU_MAX_ALLOCATION_MB", "128")], code: 1, fragments: &["'volume' needs 140608000 bytes", "maxMemoryAllocationSize as capped by MIXVOL_GPU_MAX_ALLOCATION_MB"], absent: &[] },
+    Case { name: "a bad allocation cap", args: &["render", "--volume", "ml", "--dims", "8,8,8"], env: &[("MIXVOL_GPU_MAX_ALLOCATION_MB", "lots")], code: 1, fragments: &["MIXVOL_GPU_MAX_ALLOCATION_MB=\"lots\"", "whole number of MiB"], absent: &[] },
     Case { name: "a brick size no cache can hold", args: &["render", "--volume", "ml", "--dims", "32,32,32", "--levels", "checker", "--brick-size", "1024"], env: NO_ENV, code: 1, fragments: &["cache budget", "one slot"], absent: &[] },
     // Item 5: parameters that gave a wrong image with exit 0 are refused, naming what to change.
     Case { name: "--early-termination 0", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--early-termination", "0"], env: NO_ENV, code: 1, fragments: &["early termination"], absent: &[] },

@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # Installs what building and running mixvol needs on Debian bookworm, idempotently: the Vulkan
 # loader and headers, Mesa's lavapipe (a CPU Vulkan device), the Khronos validation layers, and
-# cmake + ninja + python3 for building shaderc/glslang from source. Packages already present are
+# cmake + ninja + python3 for building shaderc/glslang from source, python3-venv for the test
+# servers' environment (scripts/python-env.sh). Packages already present are
 # not touched; apt-get update runs only when something is missing.
 set -euo pipefail
 
-packages=(libvulkan1 libvulkan-dev mesa-vulkan-drivers vulkan-validationlayers cmake ninja-build python3 g++ pkg-config)
+packages=(libvulkan1 libvulkan-dev mesa-vulkan-drivers vulkan-validationlayers cmake ninja-build python3 python3-venv g++ pkg-config)
 missing=()
 for p in "${packages[@]}"; do
   if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then

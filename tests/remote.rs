@@ -188,19 +188,7 @@ fn s3_moto_v2_gzip_and_v3_raw_every_voxel() {
     let moto = moto_server();
     s3_upload(&moto, &dir.0.join("v2.zarr"), "images", "lab/v2.zarr");
     s3_upload(&moto, &dir.0.join("v3.zarr"), "images", "lab/v3.zarr");
-    // The endpoint and credentials as the AWS variables would give them (set here through the
-    // options, which override the environment, so that parallel tests do not share settings).
-    let mut options = RemoteOptions::default();
-    options.s3_config = [
-        ("aws_endpoint_url", moto.base()),
-        ("aws_allow_http", "true".to_string()),
-        ("aws_access_key_id", S3_ENV[0].1.to_string()),
-        ("aws_secret_access_key", S3_ENV[1].1.to_string()),
-        ("aws_region", "us-east-1".to_string()),
-    ]
-    .into_iter()
-    .map(|(k, v)| (k.to_string(), v))
-    .collect();
+    let options = moto_options(&moto);
     for (spec, name) in specs.iter().zip(["v2.zarr", "v3.zarr"]) {
         let loc = at(&format!("s3://images/lab/{name}"));
         let remote = load_zarr_at(&loc, 0, &options).unwrap();

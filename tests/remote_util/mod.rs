@@ -129,6 +129,22 @@ pub const S3_ENV: [(&str, &str); 3] = [
     ("AWS_DEFAULT_REGION", "us-east-1"),
 ];
 
+/// Remote options that reach `moto` with the test credentials: the endpoint and credentials as
+/// the AWS variables would give them, set through the options (which override the environment)
+/// so that parallel tests share no settings.
+pub fn moto_options(moto: &Server) -> mixvol::volume::formats::RemoteOptions {
+    mixvol::volume::formats::RemoteOptions {
+        s3_config: vec![
+            ("aws_endpoint_url".into(), moto.base()),
+            ("aws_allow_http".into(), "true".into()),
+            ("aws_access_key_id".into(), S3_ENV[0].1.into()),
+            ("aws_secret_access_key".into(), S3_ENV[1].1.into()),
+            ("aws_region".into(), "us-east-1".into()),
+        ],
+        ..Default::default()
+    }
+}
+
 /// Uploads `folder` to `s3://bucket/prefix` on the moto server with boto3
 /// (tests/servers/s3_upload.py).
 pub fn s3_upload(moto: &Server, folder: &Path, bucket: &str, prefix: &str) {

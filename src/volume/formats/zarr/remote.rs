@@ -22,8 +22,12 @@ use zarrs::storage::{
 };
 use zarrs_object_store::object_store::aws::{AmazonS3Builder, AmazonS3ConfigKey};
 use zarrs_object_store::object_store::http::HttpBuilder;
+use zarrs_object_store::object_store::path::Path as ObjectPath;
 use zarrs_object_store::object_store::prefix::PrefixStore;
-use zarrs_object_store::object_store::{BackoffConfig, ClientOptions, ObjectStore, RetryConfig};
+use zarrs_object_store::object_store::{
+    BackoffConfig, ClientOptions, Error as ObjectStoreError, ObjectStore, ObjectStoreExt,
+    RetryConfig,
+};
 use zarrs_object_store::AsyncObjectStore;
 
 /// The storage every location is read through.
@@ -133,15 +137,42 @@ impl RemoteOptions {
 /// A remote object store read synchronously: object_store's futures run to completion on one
 /// current-thread tokio runtime (timer and IO drivers on) owned by the store. Like zarrs_storage's
 /// `AsyncToSyncStorageAdapter`, but a whole-object `get` is one GET, where the adapter turns it
-/// into a HEAD (for the size) and a ranged GET: half the round trips per chunk.
+/// into a HEAD (for the size) and a ranged GET: half the round trips per chunk; and its errors
+/// keep their causes.
 struct RemoteStorage {
+    /// The client, for whole-object reads (with the full error chain in messages).
+    client: Arc<dyn ObjectStore>,
+    /// The same client through zarrs' adapter, for sizes and partial reads.
     store: AsyncObjectStore<Arc<dyn ObjectStore>>,
     runtime: tokio::runtime::Runtime,
 }
 
+/// An object_store error with its causes (`request or response body error: operation timed
+/// out`), where zarrs' adapter keeps only the first line.
+fn error_chain(e: &dyn std::error::Error) -> StorageError {
+    let mut text = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        let line = c.to_string();
+        if !text.contains(&line) {
+            text.push_str(": ");
+            text.push_str(&line);
+        }
+        cause = c.source();
+    }
+    StorageError::Other(text)
+}
+
 impl ReadableStorageTraits for RemoteStorage {
     fn get(&self, key: &StoreKey) -> Result<MaybeBytes, StorageError> {
-        self.runtime.block_on(self.store.get(key))
+        let path = ObjectPath::from(key.as_str());
+        self.runtime.block_on(async {
+            match self.client.get(&path).await {
+                Ok(found) => found.bytes().await.map(Some).map_err(|e| error_chain(&e)),
+                Err(ObjectStoreError::NotFound { .. }) => Ok(None),
+                Err(e) => Err(error_chain(&e)),
+            }
+        })
     }
 
     fn get_partial_many<'a>(
@@ -253,6 +284,7 @@ pub(super) fn open_storage(
         .build()
         .map_err(|e| remote_err(format!("cannot start the IO runtime: {e}")))?;
     Ok(Arc::new(RemoteStorage {
+        client: store.clone(),
         store: AsyncObjectStore::new(store),
         runtime,
     }))

@@ -6,7 +6,8 @@
 //! and every voxel loaded through `http://` and `s3://` is checked against the values written.
 //! Faults: HTTP 500 (retried, then a typed error naming the chunk), a 500 that a retry cures, a
 //! stalled response (times out, no hang), a truncated body, a Content-Length beyond the body, a
-//! missing chunk object (the fill value), missing or failing metadata (typed errors).
+//! missing chunk object (the fill value), missing or failing metadata (typed errors). The Range
+//! server's own Range / HEAD / 416 handling is checked too.
 
 mod remote_util;
 
@@ -214,4 +215,34 @@ fn s3_moto_v2_gzip_and_v3_raw_every_voxel() {
         load_zarr_at(&at("s3://images/lab/v3.zarr"), 0, &bad),
         Err(VolumeError::InvalidParameter(m)) if m.contains("aws_no_such_key")
     ));
+}
+
+#[test]
+fn the_range_server_honours_range_requests() {
+    let dir = TempDir::new("http-range");
+    let data: Vec<u8> = (0..100u8).collect();
+    std::fs::write(dir.0.join("blob"), &data).unwrap();
+    let server = range_server(&dir.0);
+    let get = |range: &str| http_request(server.port, "GET", "/ok/blob", range);
+    let (status, head, body) = get("");
+    assert_eq!((status, body.as_slice()), (200, &data[..]));
+    assert!(head.contains("Content-Length: 100"), "{head}");
+    let (status, head, body) = get("Range: bytes=10-19\r\n");
+    assert_eq!((status, body.as_slice()), (206, &data[10..20]));
+    assert!(head.contains("Content-Range: bytes 10-19/100"), "{head}");
+    assert_eq!(get("Range: bytes=95-\r\n").2, &data[95..]);
+    assert_eq!(get("Range: bytes=-3\r\n").2, &data[97..]);
+    assert_eq!(get("Range: bytes=90-200\r\n").2, &data[90..]);
+    assert_eq!(get("Range: bytes=100-\r\n").0, 416);
+    let (status, head, body) = http_request(server.port, "HEAD", "/ok/blob", "");
+    assert_eq!(status, 200);
+    assert!(
+        head.contains("Content-Length: 100") && body.is_empty(),
+        "{head}"
+    );
+    assert_eq!(get_missing(&server), 404);
+}
+
+fn get_missing(server: &Server) -> u16 {
+    http_request(server.port, "GET", "/ok/no-such-file", "").0
 }

@@ -175,6 +175,23 @@ pub fn http_get(port: u16, path: &str) -> Option<String> {
     head.starts_with("HTTP/1").then(|| body.to_string())
 }
 
+/// A raw HTTP/1.0 request on loopback with extra header lines: (status code, headers, body).
+pub fn http_request(port: u16, method: &str, path: &str, headers: &str) -> (u16, String, Vec<u8>) {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    write!(
+        s,
+        "{method} {path} HTTP/1.0\r\nHost: 127.0.0.1\r\n{headers}\r\n"
+    )
+    .unwrap();
+    let mut raw = Vec::new();
+    s.read_to_end(&mut raw).unwrap();
+    let split = raw.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
+    let head = String::from_utf8_lossy(&raw[..split]).into_owned();
+    let status = head.split_whitespace().nth(1).unwrap().parse().unwrap();
+    (status, head, raw[split + 4..].to_vec())
+}
+
 /// Requests range_server.py has seen for `path` (`/MODE/...`).
 pub fn request_count(server: &Server, path: &str) -> u64 {
     http_get(server.port, &format!("/_count{path}"))

@@ -241,6 +241,25 @@ pub enum VolumeError {
         /// What is wrong with the request.
         message: String,
     },
+    /// A remote object (an OME-Zarr metadata document or chunk over S3 or HTTP) could not be
+    /// fetched: the server failed (after the retries), stalled past the timeout, or sent a
+    /// truncated body; or the remote client could not be set up.
+    #[error("cannot fetch {url}: {message}")]
+    Remote {
+        /// The object's URL (or the store's, for a set-up failure).
+        url: String,
+        /// What failed.
+        message: String,
+    },
+    /// A volume location that does not parse: a URL with an unsupported scheme, no host or
+    /// bucket, a query, ...
+    #[error("invalid volume location `{location}`: {message}")]
+    InvalidLocation {
+        /// The location as given.
+        location: String,
+        /// What is wrong and what was expected.
+        message: String,
+    },
     /// A volume file's header (or the data it describes) is invalid or unsupported.
     #[error("{path}: field `{field}`: {message}")]
     Format {

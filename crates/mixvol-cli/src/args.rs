@@ -228,9 +228,11 @@ pub enum ProjectionArg {
 #[derive(Args, Debug)]
 pub struct RenderArgs {
     /// Volume to render: a synthetic field (`ml` = Marschner-Lobb, `sphere`, `wall`), a file with
-    /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), a brick
-    /// store (streamed from disk under --ram-budget-mb), or a headerless raw file (then --dims,
-    /// --scalar, --spacing describe it).
+    /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), an
+    /// OME-Zarr folder or remote image (s3://BUCKET/PATH.zarr with the AWS_* environment
+    /// variables, http(s)://HOST/PATH.zarr; MIXVOL_REMOTE_TIMEOUT_MS / _RETRIES bound each
+    /// fetch), a brick store (streamed from disk under --ram-budget-mb), or a headerless raw
+    /// file (then --dims, --scalar, --spacing describe it).
     #[arg(long, default_value = "ml")]
     pub volume: String,
     /// Dimensions x,y,z: of the synthetic field, or of the raw file.
@@ -455,7 +457,9 @@ impl MixedArgs {
 #[derive(Args, Debug)]
 pub struct ConvertArgs {
     /// The volume to convert: a file with a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON
-    /// sidecar or .raw with one), an OME-Zarr folder, a headerless raw file (described by
+    /// sidecar or .raw with one), an OME-Zarr folder or remote image (s3://BUCKET/PATH.zarr
+    /// with the AWS_* environment variables, http(s)://HOST/PATH.zarr; MIXVOL_REMOTE_TIMEOUT_MS
+    /// / _RETRIES bound each fetch), a headerless raw file (described by
     /// --dims, --scalar, --spacing, --header-bytes, --big-endian), or a synthetic field (ml,
     /// sphere, wall; generated whole at --dims, --scalar).
     pub input: String,

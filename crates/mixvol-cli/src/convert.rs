@@ -15,7 +15,8 @@ use mixvol::store::{
     plan_slab_write, slab_store_desc, write_store_from_slabs,
     write_store_from_volume_with_progress, SlabPlan, StoreDesc, WriteSummary,
 };
-use mixvol::volume::formats::FileFormat;
+use mixvol::volume::formats::zarr::ZarrSlabs;
+use mixvol::volume::formats::{FileFormat, RemoteOptions, ZarrLocation};
 use mixvol::volume::{open_raw_slabs, open_slabs, RawDescriptor, SlabReader, SyntheticField};
 use mixvol::{Error, Result};
 use serde_json::json;
@@ -113,7 +114,24 @@ fn check_destination(store: &Path, force: bool) -> Result<()> {
 /// Opens INPUT for slab reading: a file with a header or an OME-Zarr folder, else headerless raw
 /// data described by `--dims`, `--scalar`, `--spacing`, `--header-bytes`, `--big-endian`.
 fn open_input(args: &ConvertArgs) -> Result<Box<dyn SlabReader + Send>> {
-    let path = Path::new(&args.input);
+    // A URL first, never looked up as a local file: s3:// and http(s):// name remote OME-Zarr
+    // images (timeouts and retries from MIXVOL_REMOTE_*), file:// a local path.
+    let local;
+    let path = if ZarrLocation::is_url(&args.input) {
+        match ZarrLocation::parse(&args.input)? {
+            ZarrLocation::Local(p) => {
+                local = p;
+                local.as_path()
+            }
+            remote => {
+                let level = args.level.unwrap_or(0);
+                let options = RemoteOptions::from_env()?;
+                return Ok(Box::new(ZarrSlabs::open_at(&remote, level, &options)?));
+            }
+        }
+    } else {
+        Path::new(&args.input)
+    };
     let format = FileFormat::detect(path);
     if format.is_some() {
         if format != Some(FileFormat::Zarr) && args.level.is_some() {

@@ -5,7 +5,9 @@ use crate::args::RenderArgs;
 use crate::parse::parse_floats;
 use mixvol::gpu::GpuContext;
 use mixvol::store::{BrickStore, MAGIC};
-use mixvol::volume::formats::{load_zarr_level, FileFormat};
+use mixvol::volume::formats::{
+    load_zarr_at, load_zarr_level, FileFormat, RemoteOptions, ZarrLocation,
+};
 use mixvol::volume::memory::check_host_bytes;
 use mixvol::volume::{load_raw, RawDescriptor, SyntheticField, Volume, VolumeError};
 use mixvol::{Error, Result};
@@ -14,7 +16,23 @@ use std::sync::Arc;
 
 /// Loads or generates the volume `--volume` names (see `mixvol render --help`).
 pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
-    let path = Path::new(&args.volume);
+    // A URL is never looked up as a local file: s3:// and http(s):// name remote OME-Zarr
+    // images (timeouts and retries from MIXVOL_REMOTE_*), file:// a local path.
+    let local;
+    let path = if ZarrLocation::is_url(&args.volume) {
+        match ZarrLocation::parse(&args.volume)? {
+            ZarrLocation::Local(p) => {
+                local = p;
+                local.as_path()
+            }
+            remote => {
+                let level = args.zarr_level.unwrap_or(0);
+                return Ok(load_zarr_at(&remote, level, &RemoteOptions::from_env()?)?.volume);
+            }
+        }
+    } else {
+        Path::new(&args.volume)
+    };
     let format = FileFormat::detect(path);
     if let Some(level) = args.zarr_level {
         if format != Some(FileFormat::Zarr) {
@@ -122,7 +140,7 @@ pub fn is_brick_store(path: &Path) -> bool {
 /// Opens `--volume`: a brick store when the file is one, else [`load_volume`].
 pub fn open_input(args: &RenderArgs) -> Result<Input> {
     let path = Path::new(&args.volume);
-    if is_brick_store(path) {
+    if !ZarrLocation::is_url(&args.volume) && is_brick_store(path) {
         if args.zarr_level.is_some() {
             return Err(Error::InvalidInput(format!(
                 "--zarr-level applies to OME-Zarr images; '{}' is a brick store",

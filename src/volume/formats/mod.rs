@@ -63,7 +63,10 @@ pub use den::{load_den, parse_den_header, DenHeader, DEN_HEADER_BYTES};
 pub use nii::{load_nifti, parse_nifti_header, NiftiInfo, NIFTI1_HEADER_BYTES};
 pub use nrrd::{load_nrrd, parse_nrrd_header, NrrdHeader};
 pub use sidecar::{load_sidecar, parse_sidecar, Sidecar};
-pub use zarr::{load_zarr, load_zarr_level, parse_zarr_root, ZarrRoot, ZarrVersion};
+pub use zarr::{
+    load_zarr, load_zarr_at, load_zarr_level, parse_zarr_root, RemoteOptions, ZarrLocation,
+    ZarrRoot, ZarrVersion,
+};
 
 use super::{ScalarType, Volume, VolumeError};
 use read::format_err;

@@ -45,7 +45,7 @@ pub(super) fn declared_big_endian(text: &[u8], version: ZarrVersion) -> bool {
 
 /// The stored type of the array's data type.
 pub(super) fn stored_type(
-    array: &Array<FilesystemStore>,
+    array: &Array<dyn ReadableStorageTraits>,
     array_doc: &Path,
     version: ZarrVersion,
 ) -> Result<StoredType, VolumeError> {
@@ -119,6 +119,9 @@ pub(super) fn array_create_err(
             }
         }
         ArrayCreateError::StorageError(StorageError::InvalidMetadata(..)) => "json",
+        ArrayCreateError::StorageError(e) if !matches!(e, StorageError::IOError(_)) => {
+            return source::storage_err(array_doc, e)
+        }
         // Raised for the byte order of `dtype`, or for `order` / `filters` / `compressor` (the
         // codec chain; the message names the part).
         ArrayCreateError::UnsupportedZarrV2Array(m) if m.contains("endian") => "dtype",
@@ -129,12 +132,10 @@ pub(super) fn array_create_err(
 }
 
 impl ZarrLevel {
-    /// The file of the chunk at `indices`.
+    /// The file (or remote object) of the chunk at `indices`.
     fn chunk_path(&self, indices: &[u64]) -> PathBuf {
-        let key = self.array.chunk_key(indices);
-        key.as_str()
-            .split('/')
-            .fold(self.root.to_path_buf(), |p, s| p.join(s))
+        self.location
+            .object_name(self.array.chunk_key(indices).as_str())
     }
 
     /// Reads volume z planes `z` into a new buffer (reserved fallibly), x fastest, each stored
@@ -400,13 +401,15 @@ impl ZarrLevel {
     /// A chunk that could not be read or decoded.
     fn chunk_err(&self, indices: &[u64], e: ArrayError) -> VolumeError {
         let file = self.chunk_path(indices);
-        let field = match &e {
-            ArrayError::StorageError(StorageError::IOError(io)) => {
-                return VolumeError::Io {
-                    path: file,
-                    source: std::io::Error::new(io.kind(), io.to_string()),
-                }
+        // A failed read (a file, a fetch), not a decode: no field is at fault.
+        let e = match e {
+            ArrayError::StorageError(se)
+            | ArrayError::CodecError(zarrs::array::CodecError::StorageError(se)) => {
+                return source::storage_err(&file, &se)
             }
+            e => e,
+        };
+        let field = match &e {
             ArrayError::CodecError(
                 zarrs::array::CodecError::UnexpectedChunkDecodedSize(_)
                 | zarrs::array::CodecError::InvalidNumberOfElements(_)

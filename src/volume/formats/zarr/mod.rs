@@ -41,20 +41,41 @@
 //! can allocate up to about 1000 times the file's size (gzip; more for zstd); the chunks inside
 //! a shard are not checked for their declared size.
 //!
-//! [`parse_zarr_root`] parses a root metadata document from bytes (the fuzz target's entry
-//! point); [`load_zarr`] / [`load_zarr_level`] load.
+//! # Remote images
 //!
-//! Files: this one loads (`load_zarr`, `load_zarr_level`); `ome.rs` parses the root metadata
-//! (Zarr version, OME-Zarr multiscales, axes and coordinate transformations); `array.rs` opens
-//! an array through zarrs and reads its chunks under the limits above; `declared.rs` checks the
-//! decoded size a compressed chunk declares.
+//! A [`ZarrLocation`] is a local folder, `s3://BUCKET/PATH.zarr` on any S3-compatible object
+//! store (endpoint, region and credentials from the usual AWS environment variables:
+//! `AWS_ENDPOINT_URL`, `AWS_REGION`, `AWS_ACCESS_KEY_ID`, `AWS_SECRET_ACCESS_KEY`,
+//! `AWS_SESSION_TOKEN`, `AWS_ALLOW_HTTP` for a plain-HTTP endpoint, `AWS_SKIP_SIGNATURE=true`
+//! for a public bucket), or `http(s)://HOST/PATH.zarr` (GET, and Range requests for partial
+//! reads). Remote objects are fetched through `object_store` with the timeouts and bounded
+//! retries of [`RemoteOptions`]; every location is read by the same chunk and metadata code
+//! (zarrs over an `Arc<dyn ReadableStorageTraits>`). A missing chunk object (HTTP 404) is the
+//! fill value, as for a missing chunk file; a missing metadata document is a
+//! [`VolumeError::Io`] (not found) naming it; a failed fetch is a [`VolumeError::Remote`] naming
+//! the object's URL.
+//!
+//! [`parse_zarr_root`] parses a root metadata document from bytes (the fuzz target's entry
+//! point); [`load_zarr`] / [`load_zarr_level`] load a folder, [`load_zarr_at`] any location.
+//!
+//! Files: this one loads (`load_zarr`, `load_zarr_level`, `load_zarr_at`); `ome.rs` parses the
+//! root metadata (Zarr version, OME-Zarr multiscales, axes and coordinate transformations);
+//! `array.rs` opens an array through zarrs and reads its chunks under the limits above;
+//! `declared.rs` checks the decoded size a compressed chunk declares; `location.rs` parses
+//! locations; `remote.rs` opens their storage; `source.rs` probes and reads the metadata
+//! documents.
 
 mod array;
 mod declared;
+mod location;
 mod ome;
+mod remote;
 mod slabs;
+mod source;
 
+pub use location::ZarrLocation;
 pub use ome::{parse_zarr_root, OmeAxis, OmeDataset, OmeMultiscale, ZarrRoot, ZarrVersion};
+pub use remote::RemoteOptions;
 pub use slabs::ZarrSlabs;
 
 use super::read::{format_err, io_err, layout, read_prefix, Layout};
@@ -64,11 +85,10 @@ use array::*;
 use glam::Vec3;
 use ome::*;
 use serde_json::{Map, Value};
+use source::ZarrSource;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use zarrs::array::{Array, ArrayCreateError, ArrayError, ElementOwned};
-use zarrs::filesystem::FilesystemStore;
-use zarrs::storage::StorageError;
+use zarrs::storage::{ReadableStorageTraits, StorageError};
 
 /// The largest decoded chunk accepted, in bytes: 1 GiB.
 pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
@@ -86,7 +106,22 @@ pub fn load_zarr(root: &Path) -> Result<LoadedVolume, VolumeError> {
 /// image at `root`; a plain Zarr array has only level 0. A level that does not exist is an
 /// error on the field `datasets`.
 pub fn load_zarr_level(root: &Path, level: usize) -> Result<LoadedVolume, VolumeError> {
-    let level = open_level(root, level)?;
+    load_zarr_at(
+        &ZarrLocation::Local(root.to_path_buf()),
+        level,
+        &RemoteOptions::default(),
+    )
+}
+
+/// Loads level `level` of the OME-Zarr image at `location`, a local folder or a remote store
+/// (fetched as `options` says), as [`load_zarr_level`] does.
+pub fn load_zarr_at(
+    location: &ZarrLocation,
+    level: usize,
+    options: &RemoteOptions,
+) -> Result<LoadedVolume, VolumeError> {
+    let level = open_level(location, level, options)?;
+    let root = &level.root;
     super::read::check_layout_memory(root, &level.layout)?;
     let z = 0..level.dims[2];
     let data = match level.stored {
@@ -108,7 +143,10 @@ pub fn load_zarr_level(root: &Path, level: usize) -> Result<LoadedVolume, Volume
 /// One level of an OME-Zarr image, opened and checked (axes, shape, data type, spacing), before
 /// any chunk is read.
 pub(super) struct ZarrLevel {
-    pub(super) array: Array<FilesystemStore>,
+    pub(super) array: Array<dyn ReadableStorageTraits>,
+    /// Where the image is (chunk names in errors).
+    pub(super) location: ZarrLocation,
+    /// The image's root as errors name it (its folder or URL).
     pub(super) root: PathBuf,
     pub(super) array_doc: PathBuf,
     pub(super) version: ZarrVersion,
@@ -120,35 +158,30 @@ pub(super) struct ZarrLevel {
     pub(super) meta: VolumeMeta,
 }
 
-/// Opens level `level` of the image at `root` (see [`load_zarr_level`]) without reading a chunk.
-pub(super) fn open_level(root: &Path, level: usize) -> Result<ZarrLevel, VolumeError> {
-    let meta = std::fs::metadata(root).map_err(io_err(root))?;
-    if !meta.is_dir() {
-        return Err(format_err(
-            root,
-            "zarr_format",
-            "an OME-Zarr image is a folder (holding zarr.json or .zattrs)",
-        ));
-    }
-    let v3_doc = root.join("zarr.json");
-    let (version, root_desc) = if v3_doc.is_file() {
-        let bytes = read_metadata(&v3_doc)?;
+/// Opens level `level` of the image at `location` (see [`load_zarr_level`]) without reading a
+/// chunk.
+pub(super) fn open_level(
+    location: &ZarrLocation,
+    level: usize,
+    options: &RemoteOptions,
+) -> Result<ZarrLevel, VolumeError> {
+    let src = ZarrSource::open(location, options)?;
+    let root = &location.root_name();
+    let (version, root_desc) = if let Some(bytes) = src.find_doc("zarr.json")? {
         (
             ZarrVersion::V3,
-            parse_zarr_root(&v3_doc, &bytes, ZarrVersion::V3)?,
+            parse_zarr_root(&src.name("zarr.json"), &bytes, ZarrVersion::V3)?,
         )
-    } else if root.join(".zarray").is_file() {
+    } else if src.exists(".zarray")? {
         (ZarrVersion::V2, ZarrRoot::Array)
-    } else if root.join(".zattrs").is_file() {
-        let attrs = root.join(".zattrs");
-        let bytes = read_metadata(&attrs)?;
+    } else if let Some(bytes) = src.find_doc(".zattrs")? {
         (
             ZarrVersion::V2,
-            parse_zarr_root(&attrs, &bytes, ZarrVersion::V2)?,
+            parse_zarr_root(&src.name(".zattrs"), &bytes, ZarrVersion::V2)?,
         )
-    } else if root.join(".zgroup").is_file() {
+    } else if src.exists(".zgroup")? {
         return Err(format_err(
-            &root.join(".zattrs"),
+            &src.name(".zattrs"),
             "multiscales",
             "missing: the Zarr v2 group has no .zattrs, so no OME-Zarr multiscales",
         ));
@@ -159,7 +192,7 @@ pub(super) fn open_level(root: &Path, level: usize) -> Result<ZarrLevel, VolumeE
             "not a Zarr store: no zarr.json (v3) nor .zattrs / .zgroup / .zarray (v2)",
         ));
     };
-    let group_doc = root.join(version.attributes_file());
+    let group_doc = src.name(version.attributes_file());
     let (dataset, axes) = match root_desc {
         ZarrRoot::Array => {
             if level != 0 {
@@ -183,25 +216,19 @@ pub(super) fn open_level(root: &Path, level: usize) -> Result<ZarrLevel, VolumeE
             (Some(d), m.axes)
         }
     };
-    let array_dir = match &dataset {
-        Some(d) => d.path.split('/').fold(root.to_path_buf(), |p, s| p.join(s)),
-        None => root.to_path_buf(),
+    let array_key = match &dataset {
+        Some(d) => format!("{}/{}", d.path, version.array_file()),
+        None => version.array_file().to_string(),
     };
-    let array_doc = array_dir.join(version.array_file());
-    let array_text = read_metadata(&array_doc)?;
+    let array_doc = src.name(&array_key);
+    let array_text = src.read_doc(&array_key)?;
     let big_endian = declared_big_endian(&array_text, version);
 
-    let store = FilesystemStore::new(root).map_err(|e| {
-        io_err(root)(std::io::Error::new(
-            std::io::ErrorKind::InvalidInput,
-            e.to_string(),
-        ))
-    })?;
     let node = match &dataset {
         Some(d) => format!("/{}", d.path),
         None => "/".to_string(),
     };
-    let array = Array::open(Arc::new(store), &node)
+    let array = Array::open(src.storage.clone(), &node)
         .map_err(|e| array_create_err(&array_doc, version, e))?;
 
     // Axes and shape.
@@ -281,6 +308,7 @@ pub(super) fn open_level(root: &Path, level: usize) -> Result<ZarrLevel, VolumeE
     meta.origin = origin;
     Ok(ZarrLevel {
         array,
+        location: src.location,
         root: root.to_path_buf(),
         array_doc,
         version,

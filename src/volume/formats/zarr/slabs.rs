@@ -1,7 +1,7 @@
 //! [`ZarrSlabs`]: one level of an OME-Zarr image read slab by slab, decoding only the chunks that
 //! meet each slab (by the loader's own chunk reader, so the values are the loader's).
 
-use super::{open_level, ZarrLevel};
+use super::{open_level, RemoteOptions, ZarrLevel, ZarrLocation};
 use crate::volume::formats::{StoredType, VolumeMeta};
 use crate::volume::slabs::{check_finite, check_request, SlabMut, SlabReader};
 use crate::volume::{ScalarType, VolumeError};
@@ -20,7 +20,21 @@ impl ZarrSlabs {
     /// Opens level `level` of the image at `root` (the checks of
     /// [`load_zarr_level`](super::load_zarr_level)), reading no chunk.
     pub fn open(root: &Path, level: usize) -> Result<Self, VolumeError> {
-        let level = open_level(root, level)?;
+        Self::open_at(
+            &ZarrLocation::Local(root.to_path_buf()),
+            level,
+            &RemoteOptions::default(),
+        )
+    }
+
+    /// Opens level `level` of the image at `location`, a local folder or a remote store
+    /// (fetched as `options` says), reading its metadata but no chunk.
+    pub fn open_at(
+        location: &ZarrLocation,
+        level: usize,
+        options: &RemoteOptions,
+    ) -> Result<Self, VolumeError> {
+        let level = open_level(location, level, options)?;
         let chunk_bytes = level.max_chunk_bytes()?;
         Ok(Self { level, chunk_bytes })
     }

@@ -1,0 +1,163 @@
+//! `mixvol convert` and `mixvol render` on remote OME-Zarr images: `http://` from
+//! tests/servers/range_server.py and `s3://` from moto's server, both on loopback, started here
+//! (the library's tests/remote_util; the Python environment comes from scripts/test.sh). A
+//! remote convert writes the same brick store, byte for byte, as converting the folder; the
+//! S3 endpoint and credentials reach the binary through the usual AWS environment variables;
+//! MIXVOL_REMOTE_TIMEOUT_MS / MIXVOL_REMOTE_RETRIES bound a stalled server; a bad URL is refused
+//! by name.
+
+#[path = "../../../tests/remote_util/mod.rs"]
+mod remote_util;
+
+use remote_util::*;
+use std::path::Path;
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+fn spec() -> ImageSpec {
+    ImageSpec {
+        shape: [20, 18, 21],
+        chunks: [8, 8, 8],
+        v3: true,
+        missing: Some([1, 1, 1]),
+        fill: 3,
+    }
+}
+
+fn mixvol(args: &[&str], env: &[(&str, &str)]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_mixvol"))
+        .args(args)
+        .envs(env.iter().copied())
+        .output()
+        .unwrap()
+}
+
+fn convert(input: &str, store: &Path, env: &[(&str, &str)]) -> Output {
+    mixvol(
+        &[
+            "convert",
+            input,
+            store.to_str().unwrap(),
+            "--brick-size",
+            "8",
+        ],
+        env,
+    )
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "mixvol failed: {}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+#[test]
+fn convert_and_render_from_http_equal_the_local_folder() {
+    let dir = TempDir::new("cli-http");
+    let image = dir.0.join("img.zarr");
+    spec().write(&image);
+    let server = range_server(&dir.0);
+    let url = format!("{}/ok/img.zarr", server.base());
+
+    let local = dir.0.join("local.store");
+    ok(&convert(image.to_str().unwrap(), &local, &[]));
+    let remote = dir.0.join("remote.store");
+    let text = ok(&convert(&url, &remote, &[]));
+    assert!(text.contains(&url), "the summary names the URL: {text}");
+    assert_eq!(
+        std::fs::read(&remote).unwrap(),
+        std::fs::read(&local).unwrap(),
+        "the store converted over HTTP differs from the local one"
+    );
+
+    let png = dir.0.join("out.png");
+    let out = mixvol(
+        &[
+            "render",
+            "--volume",
+            &url,
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--frames",
+            "1",
+            "--output",
+            png.to_str().unwrap(),
+        ],
+        &[],
+    );
+    assert!(ok(&out).contains("21x18x20"));
+    assert!(png.is_file());
+}
+
+#[test]
+fn convert_from_s3_with_the_aws_environment_variables() {
+    let dir = TempDir::new("cli-s3");
+    let image = dir.0.join("img.zarr");
+    spec().write(&image);
+    let moto = moto_server();
+    s3_upload(&moto, &image, "bucket", "deep/path/img.zarr");
+    let endpoint = moto.base();
+    let mut env: Vec<(&str, &str)> = S3_ENV.to_vec();
+    env.extend([
+        ("AWS_ENDPOINT_URL", endpoint.as_str()),
+        ("AWS_ALLOW_HTTP", "true"),
+    ]);
+
+    let local = dir.0.join("local.store");
+    ok(&convert(image.to_str().unwrap(), &local, &[]));
+    let remote = dir.0.join("remote.store");
+    ok(&convert("s3://bucket/deep/path/img.zarr", &remote, &env));
+    assert_eq!(
+        std::fs::read(&remote).unwrap(),
+        std::fs::read(&local).unwrap()
+    );
+    // Without the endpoint's AWS_ALLOW_HTTP the plain-HTTP endpoint is refused, with a message.
+    let strict: Vec<(&str, &str)> = env[..4].to_vec();
+    let out = convert(
+        "s3://bucket/deep/path/img.zarr",
+        &dir.0.join("strict.store"),
+        &strict,
+    );
+    assert!(!out.status.success());
+    assert!(!dir.0.join("strict.store").exists());
+}
+
+#[test]
+fn a_stalled_server_times_out_and_a_bad_url_is_refused_by_name() {
+    let dir = TempDir::new("cli-stall");
+    spec().write(&dir.0.join("img.zarr"));
+    let server = range_server(&dir.0);
+    let url = format!("{}/stall/img.zarr", server.base());
+    let store = dir.0.join("x.store");
+    let start = Instant::now();
+    let out = convert(
+        &url,
+        &store,
+        &[
+            ("MIXVOL_REMOTE_TIMEOUT_MS", "300"),
+            ("MIXVOL_REMOTE_RETRIES", "1"),
+        ],
+    );
+    assert!(start.elapsed() < Duration::from_secs(20));
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(&format!("{url}/0/c/0/0/0")), "{err}");
+    assert!(!store.exists());
+
+    let out = convert("ftp://host/img.zarr", &store, &[]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("ftp://host/img.zarr") && err.contains("unsupported scheme"),
+        "{err}"
+    );
+    let out = convert(&url, &store, &[("MIXVOL_REMOTE_RETRIES", "many")]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("MIXVOL_REMOTE_RETRIES"));
+}

@@ -836,3 +836,4 @@ fn a_brick_source_drives_the_plan_like_fallback_levels() {
 }
 
 mod fallback;
+mod frozen;

@@ -90,7 +90,7 @@ use crate::bricks::{hi_res_brick_extent, low_res_brick_extent, BrickSource, Leve
 use crate::cache::{CacheError, CacheGeometry};
 use crate::lod::{
     cull_bricks_into, max_hi_bricks, slots_needed, BrickGeometry, CullParams, LodError, LodView,
-    TfCullTable, ValueCulling, ViewProjection,
+    TfCullTable, ValueCulling,
 };
 use crate::optics::TransferFunction;
 use crate::scene::{RenderMode, RenderSettings};
@@ -101,8 +101,14 @@ use crate::bricks::request_plan;
 use crate::lod::screen_space_error;
 #[cfg(test)]
 use glam::Vec3;
-use std::cmp::Ordering;
+use order::{
+    count_key, descending_key, more_important, radix_select, radix_sort_by_high_word, Distances,
+    Histograms, BUCKETS,
+};
+use screen_error::{compute_errors, same_bits, width_factor};
 
+mod order;
+mod screen_error;
 #[cfg(test)]
 mod tests;
 
@@ -338,10 +344,14 @@ struct Work {
     active: Vec<bool>,
     /// Per brick, what the error is the projected pixel size times ([`width_factor`]).
     width: Vec<f32>,
-    /// Squared per-axis components of the box distance from the eye, one per brick slab.
+    /// Squared per-axis components of the box distance from the eye, one per brick slab
+    /// (the distances are computed from them on demand, [`Distances`]).
     axis_sq: [Vec<f32>; 3],
     error: Vec<f32>,
-    distance: Vec<f32>,
+    /// The view and slot budget `error`, `active` (after dropping) and the sorted `by_error`
+    /// were computed for, with the count of dropped bricks: while they and the culling inputs
+    /// are unchanged (a still camera), those are reused as they are.
+    order_inputs: Option<(LodView, usize, usize)>,
     target: Vec<Level>,
     /// The buffer of the wanted levels before the previous frame's, reused for this frame's.
     spare_wanted: Vec<Level>,
@@ -354,7 +364,8 @@ struct Work {
     ties: Vec<u32>,
     /// Bricks drawn `Hi` but not wanted `Hi`.
     extra: Vec<u32>,
-    /// Bricks by descending error, then the kept ones: `key << 32 | brick`.
+    /// The kept bricks by descending error (NaN lowest), equal errors in brick order:
+    /// `key << 32 | brick`.
     by_error: Vec<u64>,
     sort_scratch: Vec<u64>,
     coarsen: Vec<u32>,
@@ -501,6 +512,7 @@ impl ResidencyPlanner {
             && same_bits(&work.cull_ranges, frame.ranges);
         if !cull_unchanged {
             work.cull_inputs = None;
+            work.order_inputs = None;
             cull_bricks_into(geometry, frame.ranges, frame.cull, &mut work.culled)?;
             work.cull_inputs = Some((*geometry, frame.cull.clone()));
             work.culled_count = work.culled.iter().filter(|&&a| a).count();
@@ -515,7 +527,10 @@ impl ResidencyPlanner {
                     .map(|(&r, &a)| width_factor(r, a)),
             );
         }
-        work.active.clone_from(&work.culled);
+        // A still camera: the errors, dropping and request order of the last frame hold.
+        let reuse_order = work
+            .order_inputs
+            .is_some_and(|(v, s, _)| v == *frame.view && s == budget.slots);
         if plan.draw.len() != count || plan.wanted.len() != count {
             plan.draw = vec![Level::Absent; count];
             plan.wanted = vec![Level::Absent; count];
@@ -527,10 +542,22 @@ impl ResidencyPlanner {
             ..PlanReport::default()
         };
 
-        // Errors and distances (of every brick; only the active ones are read).
-        compute_errors(geometry, frame.view, work);
         let active_count = work.culled_count;
         report.culled = count - active_count;
+        if let (true, Some((_, _, dropped))) = (reuse_order, work.order_inputs) {
+            report.dropped = dropped;
+        } else {
+            work.order_inputs = None;
+            work.active.clone_from(&work.culled);
+            // Errors (of every brick; only the active ones are read).
+            compute_errors(
+                geometry,
+                frame.view,
+                &work.width,
+                &mut work.axis_sq,
+                &mut work.error,
+            );
+        }
 
         // Dropping: keep the 8 x slots most important active bricks.
         let capacity = budget
@@ -539,7 +566,8 @@ impl ResidencyPlanner {
         let Work {
             active,
             error,
-            distance,
+            axis_sq,
+            order_inputs,
             target,
             spare_wanted,
             order,
@@ -555,9 +583,10 @@ impl ResidencyPlanner {
             keep_hi,
             ..
         } = work;
-        let (error, distance) = (&*error, &*distance);
+        let error = &*error;
+        let distance = Distances::new(axis_sq);
         let importance = |a: &u32, b: &u32| more_important(error, distance, *a, *b);
-        if active_count > capacity {
+        if !reuse_order && active_count > capacity {
             order.clear();
             order.extend((0..count as u32).filter(|&i| active[i as usize]));
             if capacity > 0 {
@@ -584,30 +613,38 @@ impl ResidencyPlanner {
         // equal ranks are ordered by `rank_order` below.
         let mut candidate_count = 0usize;
         rank.resize(count, 0);
-        // And, for the requests, every brick keyed by descending error (NaN lowest), inactive
-        // ones last: `key << 32 | brick`.
-        by_error.resize(count, 0);
-        for (((r, &a), &e), &p) in rank
-            .iter_mut()
-            .zip(active.iter())
-            .zip(error)
-            .zip(prev_wanted)
-        {
+        // Counts of the ranks' upper 11 bits, for the selection.
+        let mut top = [0u32; BUCKETS];
+        // And, unless reused, the kept bricks keyed by descending error (NaN lowest) for the
+        // requests (`key << 32 | brick`), with the counts of the keys' radix digits.
+        let mut hist: Histograms = [[0; BUCKETS]; 3];
+        let mut keys = 0usize;
+        if !reuse_order {
+            by_error.clear();
+            by_error.resize(count, 0);
+        }
+        let bricks = rank.iter_mut().zip(active.iter()).zip(error).zip(prev_wanted);
+        for (i, (((r, &a), &e), &p)) in bricks.enumerate() {
             let was_hi = p == Level::Hi;
             let candidate = a & is_candidate(e, was_hi);
             let key = descending_key(rank_key(e, was_hi)).min(u32::MAX - 1);
-            *r = if candidate { key } else { u32::MAX };
+            let key = if candidate { key } else { u32::MAX };
+            *r = key;
+            top[(key >> 21) as usize] += 1;
             candidate_count += usize::from(candidate);
+            if !reuse_order {
+                // Written at the next free place, which only an active brick takes.
+                let e = if e.is_nan() { f32::NEG_INFINITY } else { e };
+                let k = descending_key(e);
+                count_key(&mut hist, k, u32::from(a));
+                by_error[keys] = (u64::from(k) << 32) | i as u64;
+                keys += usize::from(a);
+            }
         }
-        for (i, ((k, &a), &e)) in by_error
-            .iter_mut()
-            .zip(active.iter())
-            .zip(error)
-            .enumerate()
-        {
-            let e = if e.is_nan() { f32::NEG_INFINITY } else { e };
-            let request_key = if a { descending_key(e) } else { u32::MAX };
-            *k = (u64::from(request_key) << 32) | i as u64;
+        if !reuse_order {
+            by_error.truncate(keys);
+            radix_sort_by_high_word(by_error, sort_scratch, &mut hist);
+            *order_inputs = Some((*frame.view, budget.slots, report.dropped));
         }
         let hi = max_hi_bricks(kept, candidate_count, budget.slots).unwrap_or(0);
         // The `hi` best candidates are those with a rank below `boundary` and `take` of those
@@ -618,7 +655,7 @@ impl ResidencyPlanner {
         } else if hi >= candidate_count {
             (u32::MAX, 0)
         } else {
-            radix_select(rank, hi, rank_scratch, ties)
+            radix_select(rank, hi, &top, rank_scratch, ties)
         };
         // A kept brick is wanted `Hi` when its rank is below `hi_below`: the ties not taken are
         // moved above it.
@@ -872,8 +909,7 @@ impl ResidencyPlanner {
         // Requests: the wanted levels as `request_plan` ranks them (every kept brick's `Lo`
         // level, then the `Hi` levels, each by descending error, equal errors in brick order),
         // then what is drawn `Hi` but not wanted `Hi` (in brick order), cut to the RAM budget.
-        radix_sort_by_high_word(by_error, sort_scratch);
-        by_error.truncate(kept);
+        debug_assert_eq!(by_error.len(), kept);
         let lo_count = by_error.len();
         let hi_count = report.wanted_hi + extra.len();
         // Every Lo level costs `cost_lo` and comes first, every Hi level `cost_hi`: the longest
@@ -901,22 +937,26 @@ impl ResidencyPlanner {
         let mut requests = std::mem::take(&mut plan.requests);
         requests.clear();
         requests.reserve(total);
-        let hi_levels = by_error
-            .iter()
-            .map(|&k| k as u32)
-            .filter(|&i| wanted[i as usize] == Level::Hi)
-            .take(report.wanted_hi)
-            .chain(extra.iter().copied())
-            .take(fit_hi)
-            .map(|i| (i, Level::Hi));
         requests.extend(
             by_error[..fit_lo]
                 .iter()
-                .map(|&k| (k as u32, Level::Lo))
-                .chain(hi_levels)
                 .enumerate()
-                .map(|(pos, (i, level))| (i, level, (total - pos) as f32)),
+                .map(|(pos, &k)| (k as u32, Level::Lo, (total - pos) as f32)),
         );
+        if fit_hi > 0 {
+            let hi_levels = by_error
+                .iter()
+                .map(|&k| k as u32)
+                .filter(|&i| wanted[i as usize] == Level::Hi)
+                .take(report.wanted_hi)
+                .chain(extra.iter().copied())
+                .take(fit_hi);
+            requests.extend(
+                hi_levels
+                    .enumerate()
+                    .map(|(pos, i)| (i, Level::Hi, (total - fit_lo - pos) as f32)),
+            );
+        }
         let prev_wanted = std::mem::replace(&mut plan.wanted, wanted);
         *spare_wanted = prev_wanted;
         plan.draw = draw;
@@ -925,194 +965,6 @@ impl ResidencyPlanner {
         plan.report = report;
         Ok(&self.plan)
     }
-}
-
-/// What the screen-space error of a brick with value range `range` is its projected pixel size
-/// times, as [`screen_space_error`] computes it: the range width, `+inf` for a NaN width, 0 for
-/// an empty or zero width; `-inf` for an inactive brick.
-fn width_factor(range: ValueRange, active: bool) -> f32 {
-    let width = range.max - range.min;
-    if !active {
-        f32::NEG_INFINITY
-    } else if width.is_nan() {
-        f32::INFINITY
-    } else if width > 0.0 {
-        width
-    } else {
-        0.0
-    }
-}
-
-/// Fills `work.error` and `work.distance` for every brick from `work.width`: the box distance
-/// from the eye and [`screen_space_error`], with the same floating-point operations (so the
-/// same values) but from per-axis squared distance components, so that the per-brick work is
-/// two additions, a square root, a division and a multiplication.
-fn compute_errors(geometry: &BrickGeometry, view: &LodView, work: &mut Work) {
-    let count = geometry.grid().brick_count();
-    if count == 0 {
-        return;
-    }
-    let eye = view.eye();
-    let bounds = geometry.axis_bounds();
-    for (axis, (sq, slabs)) in work.axis_sq.iter_mut().zip(&bounds).enumerate() {
-        let p = eye[axis];
-        sq.clear();
-        sq.extend(slabs.iter().map(|&(lo, hi)| {
-            // As `(min - p).max(p - max).max(0)` of `box_distance`, one axis.
-            let (a, b) = (lo - p, p - hi);
-            let c = if a > b { a } else { b };
-            let c = if c > 0.0 { c } else { 0.0 };
-            c * c
-        }));
-    }
-    let lo_voxel = 2.0 * geometry.voxel_size().max_element();
-    let height = view.image_height() as f32;
-    // `lo_voxel * pixels_per_world_unit(d.max(lo_voxel))`, split by projection.
-    let (scale, constant) = match view.projection() {
-        ViewProjection::Perspective { tan_half_y, .. } => (2.0 * tan_half_y, None),
-        ViewProjection::Orthographic { height: h } => (0.0, Some(lo_voxel * (height / h))),
-    };
-    work.error.resize(count, 0.0);
-    work.distance.resize(count, 0.0);
-    let [sx, sy, sz] = &work.axis_sq;
-    let nx = sx.len();
-    let mut rows = work
-        .error
-        .chunks_exact_mut(nx)
-        .zip(work.distance.chunks_exact_mut(nx))
-        .zip(work.width.chunks_exact(nx));
-    for &z2 in sz {
-        for &y2 in sy {
-            let Some(((error, distance), width)) = rows.next() else {
-                return;
-            };
-            for (((e, d), &w), &x2) in error.iter_mut().zip(distance).zip(width).zip(sx) {
-                let dist = ((x2 + y2) + z2).sqrt();
-                *d = dist;
-                let pixels = match constant {
-                    Some(c) => c,
-                    None => lo_voxel * (height / (scale * dist.max(lo_voxel))),
-                };
-                *e = if w == 0.0 || w.is_infinite() {
-                    w
-                } else {
-                    pixels * w
-                };
-            }
-        }
-    }
-}
-
-/// True when `a` and `b` hold the same bits.
-fn same_bits(a: &[ValueRange], b: &[ValueRange]) -> bool {
-    a.len() == b.len()
-        && a.iter().zip(b).fold(0u32, |acc, (x, y)| {
-            acc | (x.min.to_bits() ^ y.min.to_bits()) | (x.max.to_bits() ^ y.max.to_bits())
-        }) == 0
-}
-
-/// A key whose ascending order is the descending [`f32::total_cmp`] order of `v`.
-fn descending_key(v: f32) -> u32 {
-    let bits = v.to_bits();
-    // Negative: all bits flipped; positive: the sign bit set.
-    let flip = ((bits as i32) >> 31) as u32 | 0x8000_0000;
-    !(bits ^ flip)
-}
-
-/// Sorts `v` by the upper 32 bits of its entries, stably (an LSD radix sort, three passes of 11
-/// bits; a pass whose digit is the same for every entry is skipped).
-fn radix_sort_by_high_word(v: &mut Vec<u64>, scratch: &mut Vec<u64>) {
-    const BUCKETS: usize = 1 << 11;
-    let mut hist = [[0usize; BUCKETS]; 3];
-    for &x in v.iter() {
-        let k = (x >> 32) as usize;
-        hist[0][k & (BUCKETS - 1)] += 1;
-        hist[1][(k >> 11) & (BUCKETS - 1)] += 1;
-        hist[2][k >> 22] += 1;
-    }
-    scratch.clear();
-    scratch.resize(v.len(), 0);
-    for (pass, counts) in hist.iter_mut().enumerate() {
-        if counts.contains(&v.len()) {
-            continue;
-        }
-        let mut offset = 0;
-        for c in counts.iter_mut() {
-            let n = *c;
-            *c = offset;
-            offset += n;
-        }
-        let shift = 32 + 11 * pass;
-        for &x in v.iter() {
-            let d = (x >> shift) as usize & (BUCKETS - 1);
-            scratch[counts[d]] = x;
-            counts[d] += 1;
-        }
-        std::mem::swap(v, scratch);
-    }
-}
-
-/// For `0 < h < values.len()`: the value `b` and count `take` such that the `h` smallest of
-/// `values` are those below `b` and `take` of those equal to `b`, whose indices it leaves in
-/// `ties` (a radix selection, rounds of 11, 11 and 10 bits).
-fn radix_select(
-    values: &[u32],
-    h: usize,
-    scratch: &mut Vec<(u32, u32)>,
-    ties: &mut Vec<u32>,
-) -> (u32, usize) {
-    const BUCKETS: usize = 1 << 11;
-    let mut remaining = h;
-    let mut prefix = 0u32;
-    let mut hist = [0usize; BUCKETS];
-    for &v in values {
-        hist[(v >> 21) as usize] += 1;
-    }
-    scratch.clear();
-    for (round, (shift, bits)) in [(21u32, 11u32), (10, 11), (0, 10)].into_iter().enumerate() {
-        let mask = (1usize << bits) - 1;
-        if round > 0 {
-            hist = [0; BUCKETS];
-            for &(v, _) in scratch.iter() {
-                hist[(v >> shift) as usize & mask] += 1;
-            }
-        }
-        let mut below = 0;
-        let mut digit = mask;
-        for (d, &c) in hist[..=mask].iter().enumerate() {
-            if below + c >= remaining {
-                digit = d;
-                break;
-            }
-            below += c;
-        }
-        remaining -= below;
-        prefix = (prefix << bits) | digit as u32;
-        let matches = |v: u32| (v >> shift) as usize & mask == digit;
-        if round == 0 {
-            scratch.extend(
-                values
-                    .iter()
-                    .enumerate()
-                    .filter(|&(_, &v)| matches(v))
-                    .map(|(i, &v)| (v, i as u32)),
-            );
-        } else {
-            scratch.retain(|&(v, _)| matches(v));
-        }
-    }
-    ties.clear();
-    ties.extend(scratch.iter().map(|&(_, i)| i));
-    (prefix, remaining)
-}
-
-/// Importance order, most important first: larger error, then smaller distance, then lower index.
-fn more_important(error: &[f32], distance: &[f32], a: u32, b: u32) -> Ordering {
-    let (a, b) = (a as usize, b as usize);
-    error[b]
-        .total_cmp(&error[a])
-        .then(distance[a].total_cmp(&distance[b]))
-        .then(a.cmp(&b))
 }
 
 /// Distance from `p` to the nearest point of the box `[min, max]` (0 inside).

@@ -252,9 +252,8 @@ fn the_fast_paths_match_reference_computations() {
                 let d = box_distance(view.eye(), min, max);
                 assert_eq!(distance[i].to_bits(), d.to_bits());
             }
-            let wanted = reference_wanted(&input, options, &work.error, &distance, &{
-                prev_wanted
-            });
+            let wanted =
+                reference_wanted(&input, options, &work.error, &distance, &{ prev_wanted });
             assert_eq!(plan.wanted, wanted, "seed {seed} frame {f}");
             // Requests: `request_plan`, then what is drawn Hi but not wanted Hi, cut to the RAM.
             let mut expected: Vec<(u32, Level)> = request_plan(&plan.wanted, &work.error)

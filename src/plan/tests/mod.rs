@@ -1,5 +1,6 @@
 use super::*;
 use crate::bricks::{BrickGrid, SUB_SLOTS_PER_SLOT};
+use crate::cache::CacheGeometry;
 use crate::lod::{check_level_rule, level_number};
 use crate::optics::TfPreset;
 use crate::scene::{Camera, ClipPlane, ClipPlanes};

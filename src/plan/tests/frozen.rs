@@ -146,7 +146,7 @@ fn path_digest(seed: u64) -> u64 {
             2 => budget.ram_bytes = (rng.below(2) == 0).then(|| rng.below(1 << 22) as u64),
             3 => (width, height) = (64 + rng.below(600) as u32, 64 + rng.below(400) as u32),
             4 => ortho = !ortho,
-            5 | 6 | 7 => epoch += 1,
+            5..=7 => epoch += 1,
             8 => ranges = random_ranges(&mut rng),
             9 => {
                 let drawn: Vec<Level> = planner

@@ -285,6 +285,11 @@ impl BrickSource for RgbaBrickSource {
         }
         Ok(Some(out.into()))
     }
+
+    /// Every level of every brick is in memory (as for each channel): no packing to find out.
+    fn is_loaded(&self, brick: u32, level: Level) -> bool {
+        self.channels.iter().all(|c| c.is_loaded(brick, level))
+    }
 }
 
 /// An in-memory volume as a [`BrickSource`]: every brick is always available, packed on demand
@@ -399,5 +404,38 @@ impl BrickSource for VolumeBrickSource {
 
     fn is_loaded(&self, brick: u32, level: Level) -> bool {
         (brick as usize) < self.ranges.len() && level != Level::Absent
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::volume::RgbaVolume;
+    use glam::{UVec3, Vec4};
+
+    #[test]
+    fn rgba_is_loaded_says_what_brick_bytes_delivers() {
+        let dims = UVec3::new(12, 8, 8);
+        let voxels = (0..dims.element_product())
+            .map(|i| Vec4::new(0.5, 0.25, 1.0, (i % 7) as f32 / 7.0))
+            .collect();
+        let volume = RgbaVolume::new(dims, Vec3::ONE, voxels).unwrap();
+        let source =
+            RgbaBrickSource::new(&volume, SamplingModel::Opacity, 4, DownsampleFilter::Mean2)
+                .unwrap();
+        let count = source.grid().brick_count() as u32;
+        assert_eq!(count, 12);
+        // In range, out of range, every level (the override is what the planner asks per brick).
+        for brick in [0, 5, count - 1, count, count + 3, u32::MAX] {
+            for level in [Level::Hi, Level::Lo, Level::Absent] {
+                let delivers = matches!(source.brick_bytes(brick, level), Ok(Some(_)));
+                assert_eq!(
+                    source.is_loaded(brick, level),
+                    delivers,
+                    "brick {brick} {level:?}"
+                );
+                assert_eq!(delivers, brick < count && level != Level::Absent);
+            }
+        }
     }
 }

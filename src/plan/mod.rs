@@ -58,9 +58,13 @@
 //!    as `request_plan` keeps them).
 //!
 //! Errors and box distances are computed from per-axis squared distance components (the same
-//! floating-point operations as [`screen_space_error`], so the same values), and every buffer is
-//! kept in the planner between frames (the vectors of the returned [`FramePlan`] are the previous
-//! frame's, refilled): once they have grown, a frame allocates nothing.
+//! floating-point operations as [`screen_space_error`], so the same values; the distances, only
+//! needed to break ties of importance, on demand), and every buffer is kept in the planner
+//! between frames (the vectors of the returned [`FramePlan`] are the previous frame's,
+//! refilled): once they have grown, a frame allocates nothing. For a still camera (the same
+//! view, slot budget and culling inputs as the last frame) the errors, the dropping and the
+//! order by error are the last frame's and are reused; when the wanted levels, the RAM cut and
+//! the drawn-but-not-wanted `Hi` levels are the last frame's too, so are the requests.
 //! `benches/planner.rs` times a frame of about 10^5 bricks.
 //!
 //! # Guarantees
@@ -86,14 +90,18 @@
 //!
 //! Everything here is CPU-only bookkeeping; wiring it into the pass is the host's job.
 
-use crate::bricks::{hi_res_brick_extent, low_res_brick_extent, BrickSource, Level, ValueRange};
-use crate::cache::{CacheError, CacheGeometry};
+use crate::bricks::{BrickSource, Level, ValueRange};
+use crate::cache::CacheError;
 use crate::lod::{
     cull_bricks_into, max_hi_bricks, slots_needed, BrickGeometry, CullParams, LodError, LodView,
-    TfCullTable, ValueCulling, ViewProjection,
 };
-use crate::optics::TransferFunction;
-use crate::scene::{RenderMode, RenderSettings};
+// Used by the tests.
+#[cfg(test)]
+use crate::{
+    lod::{TfCullTable, ValueCulling},
+    optics::TransferFunction,
+    scene::{RenderMode, RenderSettings},
+};
 // Named by the documentation, and compared against by the tests.
 #[cfg(any(test, doc))]
 use crate::bricks::request_plan;
@@ -101,8 +109,19 @@ use crate::bricks::request_plan;
 use crate::lod::screen_space_error;
 #[cfg(test)]
 use glam::Vec3;
-use std::cmp::Ordering;
+use order::{
+    count_key, descending_key, more_important, radix_select, radix_sort_by_high_word, Distances,
+    Histograms, BUCKETS,
+};
+use screen_error::{compute_errors, same_bits, width_factor};
 
+pub use frame::{
+    cull_params, upload_bytes, FrameInput, FramePlan, PlanBudget, PlanOptions, PlanReport,
+};
+
+mod frame;
+mod order;
+mod screen_error;
 #[cfg(test)]
 mod tests;
 
@@ -123,195 +142,6 @@ pub enum PlanError {
         /// What is wrong.
         reason: &'static str,
     },
-}
-
-/// The culling criteria of `settings`: iso-surface mode culls by the iso-value; direct volume
-/// rendering by the transfer function `tf` seen through `window` (the value window the frame is
-/// classified with: [`RenderSettings::value_window`] or the volume's default); MIP and MIDA keep
-/// every non-empty brick (a transparent brick can still hold a ray's maximum, so culling it could
-/// change the image). The clip planes are those of `settings`.
-pub fn cull_params(
-    settings: &RenderSettings,
-    tf: &TransferFunction,
-    window: (f32, f32),
-) -> Result<CullParams, LodError> {
-    let value = match settings.mode {
-        RenderMode::Iso { value, .. } => ValueCulling::IsoValue(value),
-        RenderMode::Dvr => ValueCulling::TransferFunction(TfCullTable::new(tf, window)?),
-        RenderMode::Mip | RenderMode::Mida { .. } => ValueCulling::None,
-    };
-    Ok(CullParams {
-        value,
-        clip: settings.clip_planes,
-    })
-}
-
-/// Bytes one upload of `level` costs for bricks of `brick_size` voxels: `(n+2)^3` (`Hi`) or
-/// `(n/2+1)^3` (`Lo`) texels times `bytes_per_texel` (saturating); 0 for `Absent`.
-pub fn upload_bytes(level: Level, brick_size: u32, bytes_per_texel: u32) -> u64 {
-    let extent = match level {
-        Level::Hi => hi_res_brick_extent(brick_size),
-        Level::Lo => low_res_brick_extent(brick_size),
-        Level::Absent => return 0,
-    };
-    u64::from(extent)
-        .saturating_pow(3)
-        .saturating_mul(u64::from(bytes_per_texel))
-}
-
-/// The budgets of one frame.
-#[derive(Copy, Clone, Debug, PartialEq, Eq)]
-pub struct PlanBudget {
-    /// GPU cache slots (one `Hi` brick or eight `Lo` bricks each).
-    pub slots: usize,
-    /// Bytes of brick uploads allowed this frame.
-    pub upload_bytes_per_frame: u64,
-    /// Bytes per texel of the packed bricks (channels x scalar size; must be > 0).
-    pub bytes_per_texel: u32,
-    /// Optional RAM budget of the streamer: the request list is cut to what fits.
-    pub ram_bytes: Option<u64>,
-}
-
-impl PlanBudget {
-    /// The budget of a cache of geometry `cache`: all its slots.
-    pub fn for_cache(
-        cache: &CacheGeometry,
-        bytes_per_texel: u32,
-        upload_bytes_per_frame: u64,
-    ) -> Self {
-        Self {
-            slots: cache.slot_count() as usize,
-            upload_bytes_per_frame,
-            bytes_per_texel,
-            ram_bytes: None,
-        }
-    }
-
-    /// Slots of the largest cache image [`CacheGeometry::choose`] fits into `cache_bytes` for
-    /// bricks of `brick_size` voxels, `bytes_per_texel` bytes per texel and an image side of at
-    /// most `max_dim_3d`.
-    pub fn slots_in_bytes(
-        brick_size: u32,
-        bytes_per_texel: u32,
-        cache_bytes: u64,
-        max_dim_3d: u32,
-    ) -> Result<usize, PlanError> {
-        let cache = CacheGeometry::choose(
-            brick_size,
-            bytes_per_texel,
-            cache_bytes,
-            max_dim_3d,
-            u32::MAX,
-        )?;
-        Ok(cache.slot_count() as usize)
-    }
-
-    /// Bytes per texel of the bricks `source` delivers (channels x scalar size).
-    pub fn bytes_per_texel_of(source: &dyn BrickSource) -> u32 {
-        source.channels() * source.scalar().size_bytes() as u32
-    }
-}
-
-/// Tuning of the planner.
-#[derive(Copy, Clone, Debug, PartialEq)]
-pub struct PlanOptions {
-    /// Screen-space error (pixels x value range, [`screen_space_error`]) below which a brick is
-    /// not refined; 0 refines whatever the slot budget allows. Finite, >= 0.
-    pub error_threshold: f32,
-    /// Relative hysteresis margin `m` (finite, >= 0): see the module documentation.
-    pub hysteresis: f32,
-}
-
-impl Default for PlanOptions {
-    /// Budget-driven (threshold 0) with a 10 % hysteresis margin.
-    fn default() -> Self {
-        Self {
-            error_threshold: 0.0,
-            hysteresis: 0.1,
-        }
-    }
-}
-
-/// What one frame is planned from.
-#[derive(Copy, Clone, Debug)]
-pub struct FrameInput<'a> {
-    /// The brick grid in world space.
-    pub geometry: &'a BrickGeometry,
-    /// The camera and viewport.
-    pub view: &'a LodView,
-    /// Per-brick value ranges (one per brick, linear index).
-    pub ranges: &'a [ValueRange],
-    /// Culling criteria ([`cull_params`]).
-    pub cull: &'a CullParams,
-    /// The frame's budgets.
-    pub budget: PlanBudget,
-}
-
-/// The counts of one frame's plan.
-#[derive(Copy, Clone, Debug, Default, PartialEq)]
-pub struct PlanReport {
-    /// Bricks in the grid.
-    pub bricks: usize,
-    /// Bricks culled (transfer function, iso-value, clip planes).
-    pub culled: usize,
-    /// Active bricks dropped because even all-low-res did not fit the slot budget.
-    pub dropped: usize,
-    /// Bricks wanted `Hi`.
-    pub wanted_hi: usize,
-    /// Bricks wanted `Lo`.
-    pub wanted_lo: usize,
-    /// Bricks drawn `Hi`.
-    pub drawn_hi: usize,
-    /// Bricks drawn `Lo`.
-    pub drawn_lo: usize,
-    /// Wanted (not culled, not dropped) bricks drawn `Absent` this frame: not loaded yet, or
-    /// their upload did not fit this frame.
-    pub drawn_absent: usize,
-    /// Bricks whose wanted level is not loaded by the source, so that their target differs from
-    /// it: a lower loaded level, a kept `Hi` level (a brick wanted `Lo` but drawn `Hi`, see the
-    /// module documentation), or absent.
-    pub waiting_for_source: usize,
-    /// Bricks whose drawn level differs from their target and follows in a later frame.
-    pub deferred: usize,
-    /// Slots the drawn levels need.
-    pub slots_used: usize,
-    /// The slot budget.
-    pub slot_budget: usize,
-    /// Bytes the staged uploads cost.
-    pub upload_bytes: u64,
-    /// The upload budget.
-    pub upload_budget: u64,
-    /// Bytes of the levels requested from the source (after the RAM cut).
-    pub request_bytes: u64,
-    /// Requests left out by the RAM budget.
-    pub requests_cut: usize,
-    /// Largest screen-space error of a brick drawn `Lo` (0 when none is; `Hi` bricks have none).
-    pub max_drawn_error: f32,
-}
-
-impl PlanReport {
-    /// True when this frame uploads nothing and nothing is deferred: the plan has converged for
-    /// what the source has loaded.
-    pub fn is_settled(&self) -> bool {
-        self.upload_bytes == 0 && self.deferred == 0
-    }
-}
-
-/// One frame's plan.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct FramePlan {
-    /// The level to draw every brick at now (what the cache update gets).
-    pub draw: Vec<Level>,
-    /// The level the view wants for every brick (culled and dropped bricks `Absent`).
-    pub wanted: Vec<Level>,
-    /// The uploads staged this frame: `(brick, level)` for every brick whose drawn level changed
-    /// to a resident level, in staging order.
-    pub uploads: Vec<(u32, Level)>,
-    /// Requests for the source, `(brick, level, priority)` in priority order (priorities are
-    /// ranks, `len - position`, as [`request_plan`] returns them).
-    pub requests: Vec<(u32, Level, f32)>,
-    /// The counts.
-    pub report: PlanReport,
 }
 
 /// The per-frame residency planner; keeps the previous frame's plan (for hysteresis and for
@@ -338,10 +168,14 @@ struct Work {
     active: Vec<bool>,
     /// Per brick, what the error is the projected pixel size times ([`width_factor`]).
     width: Vec<f32>,
-    /// Squared per-axis components of the box distance from the eye, one per brick slab.
+    /// Squared per-axis components of the box distance from the eye, one per brick slab
+    /// (the distances are computed from them on demand, [`Distances`]).
     axis_sq: [Vec<f32>; 3],
     error: Vec<f32>,
-    distance: Vec<f32>,
+    /// The view and slot budget `error`, `active` (after dropping) and the sorted `by_error`
+    /// were computed for, with the count of dropped bricks: while they and the culling inputs
+    /// are unchanged (a still camera), those are reused as they are.
+    order_inputs: Option<(LodView, usize, usize)>,
     target: Vec<Level>,
     /// The buffer of the wanted levels before the previous frame's, reused for this frame's.
     spare_wanted: Vec<Level>,
@@ -352,9 +186,15 @@ struct Work {
     rank_scratch: Vec<(u32, u32)>,
     /// Candidates whose rank is the boundary rank of the `Hi` selection.
     ties: Vec<u32>,
-    /// Bricks drawn `Hi` but not wanted `Hi`.
+    /// Bricks drawn `Hi` but not wanted `Hi`, this frame's and the last one's.
     extra: Vec<u32>,
-    /// Bricks by descending error, then the kept ones: `key << 32 | brick`.
+    prev_extra: Vec<u32>,
+    /// The `Lo` and `Hi` request counts the last plan's requests were built with (`None`
+    /// when the plan was reset or replaced): with them, the last order and the same wanted
+    /// levels and `extra`, the requests are the same.
+    request_fit: Option<(usize, usize)>,
+    /// The kept bricks by descending error (NaN lowest), equal errors in brick order:
+    /// `key << 32 | brick`.
     by_error: Vec<u64>,
     sort_scratch: Vec<u64>,
     coarsen: Vec<u32>,
@@ -428,6 +268,7 @@ impl ResidencyPlanner {
     /// GPU cache was cleared, or for a new volume).
     pub fn reset(&mut self) {
         self.plan = FramePlan::default();
+        self.work.request_fit = None;
     }
 
     /// Replaces the drawn levels the next frame stages from with `drawn` (one per brick): for a
@@ -439,6 +280,7 @@ impl ResidencyPlanner {
         if drawn.len() == self.plan.draw.len() && drawn.len() == self.plan.wanted.len() {
             self.plan.draw.copy_from_slice(drawn);
         } else {
+            self.work.request_fit = None;
             self.plan = FramePlan {
                 draw: drawn.to_vec(),
                 wanted: drawn.to_vec(),
@@ -501,6 +343,7 @@ impl ResidencyPlanner {
             && same_bits(&work.cull_ranges, frame.ranges);
         if !cull_unchanged {
             work.cull_inputs = None;
+            work.order_inputs = None;
             cull_bricks_into(geometry, frame.ranges, frame.cull, &mut work.culled)?;
             work.cull_inputs = Some((*geometry, frame.cull.clone()));
             work.culled_count = work.culled.iter().filter(|&&a| a).count();
@@ -515,7 +358,10 @@ impl ResidencyPlanner {
                     .map(|(&r, &a)| width_factor(r, a)),
             );
         }
-        work.active.clone_from(&work.culled);
+        // A still camera: the errors, dropping and request order of the last frame hold.
+        let reuse_order = work
+            .order_inputs
+            .is_some_and(|(v, s, _)| v == *frame.view && s == budget.slots);
         if plan.draw.len() != count || plan.wanted.len() != count {
             plan.draw = vec![Level::Absent; count];
             plan.wanted = vec![Level::Absent; count];
@@ -527,10 +373,22 @@ impl ResidencyPlanner {
             ..PlanReport::default()
         };
 
-        // Errors and distances (of every brick; only the active ones are read).
-        compute_errors(geometry, frame.view, work);
         let active_count = work.culled_count;
         report.culled = count - active_count;
+        if let (true, Some((_, _, dropped))) = (reuse_order, work.order_inputs) {
+            report.dropped = dropped;
+        } else {
+            work.order_inputs = None;
+            work.active.clone_from(&work.culled);
+            // Errors (of every brick; only the active ones are read).
+            compute_errors(
+                geometry,
+                frame.view,
+                &work.width,
+                &mut work.axis_sq,
+                &mut work.error,
+            );
+        }
 
         // Dropping: keep the 8 x slots most important active bricks.
         let capacity = budget
@@ -539,7 +397,8 @@ impl ResidencyPlanner {
         let Work {
             active,
             error,
-            distance,
+            axis_sq,
+            order_inputs,
             target,
             spare_wanted,
             order,
@@ -547,6 +406,8 @@ impl ResidencyPlanner {
             rank_scratch,
             ties,
             extra,
+            prev_extra,
+            request_fit,
             by_error,
             sort_scratch,
             coarsen,
@@ -555,9 +416,10 @@ impl ResidencyPlanner {
             keep_hi,
             ..
         } = work;
-        let (error, distance) = (&*error, &*distance);
+        let error = &*error;
+        let distance = Distances::new(axis_sq);
         let importance = |a: &u32, b: &u32| more_important(error, distance, *a, *b);
-        if active_count > capacity {
+        if !reuse_order && active_count > capacity {
             order.clear();
             order.extend((0..count as u32).filter(|&i| active[i as usize]));
             if capacity > 0 {
@@ -584,30 +446,42 @@ impl ResidencyPlanner {
         // equal ranks are ordered by `rank_order` below.
         let mut candidate_count = 0usize;
         rank.resize(count, 0);
-        // And, for the requests, every brick keyed by descending error (NaN lowest), inactive
-        // ones last: `key << 32 | brick`.
-        by_error.resize(count, 0);
-        for (((r, &a), &e), &p) in rank
+        // Counts of the ranks' upper 11 bits, for the selection.
+        let mut top = [0u32; BUCKETS];
+        // And, unless reused, the kept bricks keyed by descending error (NaN lowest) for the
+        // requests (`key << 32 | brick`), with the counts of the keys' radix digits.
+        let mut hist: Histograms = [[0; BUCKETS]; 3];
+        let mut keys = 0usize;
+        if !reuse_order {
+            by_error.clear();
+            by_error.resize(count, 0);
+        }
+        let bricks = rank
             .iter_mut()
             .zip(active.iter())
             .zip(error)
-            .zip(prev_wanted)
-        {
+            .zip(prev_wanted);
+        for (i, (((r, &a), &e), &p)) in bricks.enumerate() {
             let was_hi = p == Level::Hi;
             let candidate = a & is_candidate(e, was_hi);
             let key = descending_key(rank_key(e, was_hi)).min(u32::MAX - 1);
-            *r = if candidate { key } else { u32::MAX };
+            let key = if candidate { key } else { u32::MAX };
+            *r = key;
+            top[(key >> 21) as usize] += 1;
             candidate_count += usize::from(candidate);
+            if !reuse_order {
+                // Written at the next free place, which only an active brick takes.
+                let e = if e.is_nan() { f32::NEG_INFINITY } else { e };
+                let k = descending_key(e);
+                count_key(&mut hist, k, u32::from(a));
+                by_error[keys] = (u64::from(k) << 32) | i as u64;
+                keys += usize::from(a);
+            }
         }
-        for (i, ((k, &a), &e)) in by_error
-            .iter_mut()
-            .zip(active.iter())
-            .zip(error)
-            .enumerate()
-        {
-            let e = if e.is_nan() { f32::NEG_INFINITY } else { e };
-            let request_key = if a { descending_key(e) } else { u32::MAX };
-            *k = (u64::from(request_key) << 32) | i as u64;
+        if !reuse_order {
+            by_error.truncate(keys);
+            radix_sort_by_high_word(by_error, sort_scratch, &mut hist);
+            *order_inputs = Some((*frame.view, budget.slots, report.dropped));
         }
         let hi = max_hi_bricks(kept, candidate_count, budget.slots).unwrap_or(0);
         // The `hi` best candidates are those with a rank below `boundary` and `take` of those
@@ -618,7 +492,7 @@ impl ResidencyPlanner {
         } else if hi >= candidate_count {
             (u32::MAX, 0)
         } else {
-            radix_select(rank, hi, rank_scratch, ties)
+            radix_select(rank, hi, &top, rank_scratch, ties)
         };
         // A kept brick is wanted `Hi` when its rank is below `hi_below`: the ties not taken are
         // moved above it.
@@ -667,9 +541,11 @@ impl ResidencyPlanner {
         let bricks = target
             .iter_mut()
             .zip(draw.iter_mut())
-            .zip(wanted.iter_mut())
+            .zip(wanted.iter_mut().zip(prev_wanted))
             .zip(active.iter().zip(rank.iter()));
-        for (i, (((t, d), w), (&a, &r))) in bricks.enumerate() {
+        // Whether a wanted level differs from the last frame's.
+        let mut wanted_changed = false;
+        for (i, (((t, d), (w, &p)), (&a, &r))) in bricks.enumerate() {
             *w = if !a {
                 Level::Absent
             } else if r < hi_below {
@@ -677,6 +553,7 @@ impl ResidencyPlanner {
             } else {
                 Level::Lo
             };
+            wanted_changed |= *w != p;
             let w = *w;
             let b = i as u32;
             let mut keep = false;
@@ -872,8 +749,7 @@ impl ResidencyPlanner {
         // Requests: the wanted levels as `request_plan` ranks them (every kept brick's `Lo`
         // level, then the `Hi` levels, each by descending error, equal errors in brick order),
         // then what is drawn `Hi` but not wanted `Hi` (in brick order), cut to the RAM budget.
-        radix_sort_by_high_word(by_error, sort_scratch);
-        by_error.truncate(kept);
+        debug_assert_eq!(by_error.len(), kept);
         let lo_count = by_error.len();
         let hi_count = report.wanted_hi + extra.len();
         // Every Lo level costs `cost_lo` and comes first, every Hi level `cost_hi`: the longest
@@ -898,221 +774,46 @@ impl ResidencyPlanner {
             .saturating_mul(cost_lo)
             .saturating_add((fit_hi as u64).saturating_mul(cost_hi));
         let total = fit_lo + fit_hi;
-        let mut requests = std::mem::take(&mut plan.requests);
-        requests.clear();
-        requests.reserve(total);
-        let hi_levels = by_error
-            .iter()
-            .map(|&k| k as u32)
-            .filter(|&i| wanted[i as usize] == Level::Hi)
-            .take(report.wanted_hi)
-            .chain(extra.iter().copied())
-            .take(fit_hi)
-            .map(|i| (i, Level::Hi));
-        requests.extend(
-            by_error[..fit_lo]
-                .iter()
-                .map(|&k| (k as u32, Level::Lo))
-                .chain(hi_levels)
-                .enumerate()
-                .map(|(pos, (i, level))| (i, level, (total - pos) as f32)),
-        );
+        // A still camera over a settled plan asks for the same again.
+        let same_requests = reuse_order
+            && !wanted_changed
+            && *request_fit == Some((fit_lo, fit_hi))
+            && extra == prev_extra;
+        if !same_requests {
+            let mut requests = std::mem::take(&mut plan.requests);
+            requests.clear();
+            requests.reserve(total);
+            requests.extend(
+                by_error[..fit_lo]
+                    .iter()
+                    .enumerate()
+                    .map(|(pos, &k)| (k as u32, Level::Lo, (total - pos) as f32)),
+            );
+            if fit_hi > 0 {
+                let hi_levels = by_error
+                    .iter()
+                    .map(|&k| k as u32)
+                    .filter(|&i| wanted[i as usize] == Level::Hi)
+                    .take(report.wanted_hi)
+                    .chain(extra.iter().copied())
+                    .take(fit_hi);
+                requests.extend(
+                    hi_levels
+                        .enumerate()
+                        .map(|(pos, i)| (i, Level::Hi, (total - fit_lo - pos) as f32)),
+                );
+            }
+            plan.requests = requests;
+        }
+        std::mem::swap(extra, prev_extra);
+        *request_fit = Some((fit_lo, fit_hi));
         let prev_wanted = std::mem::replace(&mut plan.wanted, wanted);
         *spare_wanted = prev_wanted;
         plan.draw = draw;
         plan.uploads = uploads;
-        plan.requests = requests;
         plan.report = report;
         Ok(&self.plan)
     }
-}
-
-/// What the screen-space error of a brick with value range `range` is its projected pixel size
-/// times, as [`screen_space_error`] computes it: the range width, `+inf` for a NaN width, 0 for
-/// an empty or zero width; `-inf` for an inactive brick.
-fn width_factor(range: ValueRange, active: bool) -> f32 {
-    let width = range.max - range.min;
-    if !active {
-        f32::NEG_INFINITY
-    } else if width.is_nan() {
-        f32::INFINITY
-    } else if width > 0.0 {
-        width
-    } else {
-        0.0
-    }
-}
-
-/// Fills `work.error` and `work.distance` for every brick from `work.width`: the box distance
-/// from the eye and [`screen_space_error`], with the same floating-point operations (so the
-/// same values) but from per-axis squared distance components, so that the per-brick work is
-/// two additions, a square root, a division and a multiplication.
-fn compute_errors(geometry: &BrickGeometry, view: &LodView, work: &mut Work) {
-    let count = geometry.grid().brick_count();
-    if count == 0 {
-        return;
-    }
-    let eye = view.eye();
-    let bounds = geometry.axis_bounds();
-    for (axis, (sq, slabs)) in work.axis_sq.iter_mut().zip(&bounds).enumerate() {
-        let p = eye[axis];
-        sq.clear();
-        sq.extend(slabs.iter().map(|&(lo, hi)| {
-            // As `(min - p).max(p - max).max(0)` of `box_distance`, one axis.
-            let (a, b) = (lo - p, p - hi);
-            let c = if a > b { a } else { b };
-            let c = if c > 0.0 { c } else { 0.0 };
-            c * c
-        }));
-    }
-    let lo_voxel = 2.0 * geometry.voxel_size().max_element();
-    let height = view.image_height() as f32;
-    // `lo_voxel * pixels_per_world_unit(d.max(lo_voxel))`, split by projection.
-    let (scale, constant) = match view.projection() {
-        ViewProjection::Perspective { tan_half_y, .. } => (2.0 * tan_half_y, None),
-        ViewProjection::Orthographic { height: h } => (0.0, Some(lo_voxel * (height / h))),
-    };
-    work.error.resize(count, 0.0);
-    work.distance.resize(count, 0.0);
-    let [sx, sy, sz] = &work.axis_sq;
-    let nx = sx.len();
-    let mut rows = work
-        .error
-        .chunks_exact_mut(nx)
-        .zip(work.distance.chunks_exact_mut(nx))
-        .zip(work.width.chunks_exact(nx));
-    for &z2 in sz {
-        for &y2 in sy {
-            let Some(((error, distance), width)) = rows.next() else {
-                return;
-            };
-            for (((e, d), &w), &x2) in error.iter_mut().zip(distance).zip(width).zip(sx) {
-                let dist = ((x2 + y2) + z2).sqrt();
-                *d = dist;
-                let pixels = match constant {
-                    Some(c) => c,
-                    None => lo_voxel * (height / (scale * dist.max(lo_voxel))),
-                };
-                *e = if w == 0.0 || w.is_infinite() {
-                    w
-                } else {
-                    pixels * w
-                };
-            }
-        }
-    }
-}
-
-/// True when `a` and `b` hold the same bits.
-fn same_bits(a: &[ValueRange], b: &[ValueRange]) -> bool {
-    a.len() == b.len()
-        && a.iter().zip(b).fold(0u32, |acc, (x, y)| {
-            acc | (x.min.to_bits() ^ y.min.to_bits()) | (x.max.to_bits() ^ y.max.to_bits())
-        }) == 0
-}
-
-/// A key whose ascending order is the descending [`f32::total_cmp`] order of `v`.
-fn descending_key(v: f32) -> u32 {
-    let bits = v.to_bits();
-    // Negative: all bits flipped; positive: the sign bit set.
-    let flip = ((bits as i32) >> 31) as u32 | 0x8000_0000;
-    !(bits ^ flip)
-}
-
-/// Sorts `v` by the upper 32 bits of its entries, stably (an LSD radix sort, three passes of 11
-/// bits; a pass whose digit is the same for every entry is skipped).
-fn radix_sort_by_high_word(v: &mut Vec<u64>, scratch: &mut Vec<u64>) {
-    const BUCKETS: usize = 1 << 11;
-    let mut hist = [[0usize; BUCKETS]; 3];
-    for &x in v.iter() {
-        let k = (x >> 32) as usize;
-        hist[0][k & (BUCKETS - 1)] += 1;
-        hist[1][(k >> 11) & (BUCKETS - 1)] += 1;
-        hist[2][k >> 22] += 1;
-    }
-    scratch.clear();
-    scratch.resize(v.len(), 0);
-    for (pass, counts) in hist.iter_mut().enumerate() {
-        if counts.contains(&v.len()) {
-            continue;
-        }
-        let mut offset = 0;
-        for c in counts.iter_mut() {
-            let n = *c;
-            *c = offset;
-            offset += n;
-        }
-        let shift = 32 + 11 * pass;
-        for &x in v.iter() {
-            let d = (x >> shift) as usize & (BUCKETS - 1);
-            scratch[counts[d]] = x;
-            counts[d] += 1;
-        }
-        std::mem::swap(v, scratch);
-    }
-}
-
-/// For `0 < h < values.len()`: the value `b` and count `take` such that the `h` smallest of
-/// `values` are those below `b` and `take` of those equal to `b`, whose indices it leaves in
-/// `ties` (a radix selection, rounds of 11, 11 and 10 bits).
-fn radix_select(
-    values: &[u32],
-    h: usize,
-    scratch: &mut Vec<(u32, u32)>,
-    ties: &mut Vec<u32>,
-) -> (u32, usize) {
-    const BUCKETS: usize = 1 << 11;
-    let mut remaining = h;
-    let mut prefix = 0u32;
-    let mut hist = [0usize; BUCKETS];
-    for &v in values {
-        hist[(v >> 21) as usize] += 1;
-    }
-    scratch.clear();
-    for (round, (shift, bits)) in [(21u32, 11u32), (10, 11), (0, 10)].into_iter().enumerate() {
-        let mask = (1usize << bits) - 1;
-        if round > 0 {
-            hist = [0; BUCKETS];
-            for &(v, _) in scratch.iter() {
-                hist[(v >> shift) as usize & mask] += 1;
-            }
-        }
-        let mut below = 0;
-        let mut digit = mask;
-        for (d, &c) in hist[..=mask].iter().enumerate() {
-            if below + c >= remaining {
-                digit = d;
-                break;
-            }
-            below += c;
-        }
-        remaining -= below;
-        prefix = (prefix << bits) | digit as u32;
-        let matches = |v: u32| (v >> shift) as usize & mask == digit;
-        if round == 0 {
-            scratch.extend(
-                values
-                    .iter()
-                    .enumerate()
-                    .filter(|&(_, &v)| matches(v))
-                    .map(|(i, &v)| (v, i as u32)),
-            );
-        } else {
-            scratch.retain(|&(v, _)| matches(v));
-        }
-    }
-    ties.clear();
-    ties.extend(scratch.iter().map(|&(_, i)| i));
-    (prefix, remaining)
-}
-
-/// Importance order, most important first: larger error, then smaller distance, then lower index.
-fn more_important(error: &[f32], distance: &[f32], a: u32, b: u32) -> Ordering {
-    let (a, b) = (a as usize, b as usize);
-    error[b]
-        .total_cmp(&error[a])
-        .then(distance[a].total_cmp(&distance[b]))
-        .then(a.cmp(&b))
 }
 
 /// Distance from `p` to the nearest point of the box `[min, max]` (0 inside).

@@ -115,7 +115,13 @@ fn reference_wanted(
 ) -> Vec<Level> {
     let bricks = frame.geometry.grid().brick_count();
     let active = cull_bricks(frame.geometry, frame.ranges, frame.cull).unwrap();
-    let importance = |a: &u32, b: &u32| more_important(error, distance, *a, *b);
+    let importance = |a: &u32, b: &u32| {
+        let (a, b) = (*a as usize, *b as usize);
+        error[b]
+            .total_cmp(&error[a])
+            .then(distance[a].total_cmp(&distance[b]))
+            .then(a.cmp(&b))
+    };
     let mut kept: Vec<u32> = (0..bricks as u32).filter(|&i| active[i as usize]).collect();
     kept.sort_by(importance);
     kept.truncate(frame.budget.slots * SUB_SLOTS_PER_SLOT as usize);
@@ -230,6 +236,8 @@ fn the_fast_paths_match_reference_computations() {
             check_frame(&input, &prev_draw, plan, &loaded);
             let work = &planner.work;
             let active = cull_bricks(&geometry, &ranges, &cull).unwrap();
+            let distances = Distances::new(&work.axis_sq);
+            let distance: Vec<f32> = (0..bricks as u32).map(|i| distances.get(i)).collect();
             for i in 0..bricks {
                 if !active[i] {
                     continue;
@@ -242,11 +250,10 @@ fn the_fast_paths_match_reference_computations() {
                     "seed {seed} brick {i}"
                 );
                 let d = box_distance(view.eye(), min, max);
-                assert_eq!(work.distance[i].to_bits(), d.to_bits());
+                assert_eq!(distance[i].to_bits(), d.to_bits());
             }
-            let wanted = reference_wanted(&input, options, &work.error, &work.distance, &{
-                prev_wanted
-            });
+            let wanted =
+                reference_wanted(&input, options, &work.error, &distance, &{ prev_wanted });
             assert_eq!(plan.wanted, wanted, "seed {seed} frame {f}");
             // Requests: `request_plan`, then what is drawn Hi but not wanted Hi, cut to the RAM.
             let mut expected: Vec<(u32, Level)> = request_plan(&plan.wanted, &work.error)

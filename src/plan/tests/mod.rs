@@ -1,5 +1,6 @@
 use super::*;
 use crate::bricks::{BrickGrid, SUB_SLOTS_PER_SLOT};
+use crate::cache::CacheGeometry;
 use crate::lod::{check_level_rule, level_number};
 use crate::optics::TfPreset;
 use crate::scene::{Camera, ClipPlane, ClipPlanes};
@@ -836,3 +837,4 @@ fn a_brick_source_drives_the_plan_like_fallback_levels() {
 }
 
 mod fallback;
+mod frozen;

@@ -1,0 +1,152 @@
+//! The orders the planner ranks bricks by: f32 keys for radix passes, the stable radix sort of
+//! the requests, the radix selection of the `Hi` candidates, and the importance order (error,
+//! then box distance, then index) with distances computed on demand.
+
+use std::cmp::Ordering;
+
+/// Buckets of one radix digit (11 bits).
+pub(super) const BUCKETS: usize = 1 << 11;
+
+/// Per-digit counts of the three 11-bit digits of 32-bit keys (bits 0-10, 11-21, 22-31).
+pub(super) type Histograms = [[u32; BUCKETS]; 3];
+
+/// A key whose ascending order is the descending [`f32::total_cmp`] order of `v`.
+#[inline]
+pub(super) fn descending_key(v: f32) -> u32 {
+    let bits = v.to_bits();
+    // Negative: all bits flipped; positive: the sign bit set.
+    let flip = ((bits as i32) >> 31) as u32 | 0x8000_0000;
+    !(bits ^ flip)
+}
+
+/// Adds the key `k` to the counts (`add` = 1) or leaves them alone (`add` = 0), without a
+/// branch.
+#[inline]
+pub(super) fn count_key(hist: &mut Histograms, k: u32, add: u32) {
+    let k = k as usize;
+    hist[0][k & (BUCKETS - 1)] += add;
+    hist[1][(k >> 11) & (BUCKETS - 1)] += add;
+    hist[2][k >> 22] += add;
+}
+
+/// Sorts `v` by the upper 32 bits of its entries, stably (an LSD radix sort, three passes of 11
+/// bits; a pass whose digit is the same for every entry is skipped). `hist` holds the counts
+/// of the upper words of `v` ([`count_key`]), gathered while `v` was filled.
+pub(super) fn radix_sort_by_high_word(
+    v: &mut Vec<u64>,
+    scratch: &mut Vec<u64>,
+    hist: &mut Histograms,
+) {
+    let len = v.len() as u32;
+    scratch.clear();
+    scratch.resize(v.len(), 0);
+    for (pass, counts) in hist.iter_mut().enumerate() {
+        if counts.contains(&len) {
+            continue;
+        }
+        let mut offset = 0;
+        for c in counts.iter_mut() {
+            let n = *c;
+            *c = offset;
+            offset += n;
+        }
+        let shift = 32 + 11 * pass;
+        for &x in v.iter() {
+            let d = (x >> shift) as usize & (BUCKETS - 1);
+            scratch[counts[d] as usize] = x;
+            counts[d] += 1;
+        }
+        std::mem::swap(v, scratch);
+    }
+}
+
+/// For `0 < h < values.len()`: the value `b` and count `take` such that the `h` smallest of
+/// `values` are those below `b` and `take` of those equal to `b`, whose indices it leaves in
+/// `ties` (a radix selection, rounds of 11, 11 and 10 bits). `top` holds the counts of the
+/// upper 11 bits of `values`, gathered while they were computed.
+pub(super) fn radix_select(
+    values: &[u32],
+    h: usize,
+    top: &[u32; BUCKETS],
+    scratch: &mut Vec<(u32, u32)>,
+    ties: &mut Vec<u32>,
+) -> (u32, usize) {
+    let mut remaining = h;
+    let mut prefix = 0u32;
+    let mut hist = *top;
+    scratch.clear();
+    for (round, (shift, bits)) in [(21u32, 11u32), (10, 11), (0, 10)].into_iter().enumerate() {
+        let mask = (1usize << bits) - 1;
+        if round > 0 {
+            hist = [0; BUCKETS];
+            for &(v, _) in scratch.iter() {
+                hist[(v >> shift) as usize & mask] += 1;
+            }
+        }
+        let mut below = 0;
+        let mut digit = mask;
+        for (d, &c) in hist[..=mask].iter().enumerate() {
+            let c = c as usize;
+            if below + c >= remaining {
+                digit = d;
+                break;
+            }
+            below += c;
+        }
+        remaining -= below;
+        prefix = (prefix << bits) | digit as u32;
+        let matches = |v: u32| (v >> shift) as usize & mask == digit;
+        if round == 0 {
+            scratch.extend(
+                values
+                    .iter()
+                    .enumerate()
+                    .filter(|&(_, &v)| matches(v))
+                    .map(|(i, &v)| (v, i as u32)),
+            );
+        } else {
+            scratch.retain(|&(v, _)| matches(v));
+        }
+    }
+    ties.clear();
+    ties.extend(scratch.iter().map(|&(_, i)| i));
+    (prefix, remaining)
+}
+
+/// Box distances from the eye, computed on demand from the per-axis squared components (one
+/// per brick slab along x, y and z; bricks in x-fastest order) with the same floating-point
+/// operations as the errors were, so the same values.
+#[derive(Copy, Clone)]
+pub(super) struct Distances<'a> {
+    x: &'a [f32],
+    y: &'a [f32],
+    z: &'a [f32],
+}
+
+impl<'a> Distances<'a> {
+    /// The distances of the components `axis_sq` (x, y, z).
+    pub(super) fn new(axis_sq: &'a [Vec<f32>; 3]) -> Self {
+        Self {
+            x: &axis_sq[0],
+            y: &axis_sq[1],
+            z: &axis_sq[2],
+        }
+    }
+
+    /// The box distance of brick `i`.
+    #[inline]
+    pub(super) fn get(&self, i: u32) -> f32 {
+        let i = i as usize;
+        let (nx, ny) = (self.x.len(), self.y.len());
+        let (x, row) = (i % nx, i / nx);
+        ((self.x[x] + self.y[row % ny]) + self.z[row / ny]).sqrt()
+    }
+}
+
+/// Importance order, most important first: larger error, then smaller distance, then lower index.
+pub(super) fn more_important(error: &[f32], distance: Distances<'_>, a: u32, b: u32) -> Ordering {
+    error[b as usize]
+        .total_cmp(&error[a as usize])
+        .then_with(|| distance.get(a).total_cmp(&distance.get(b)))
+        .then(a.cmp(&b))
+}

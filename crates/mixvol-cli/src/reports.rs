@@ -10,6 +10,7 @@ use mixvol::{Error, Result};
 use mixvol_experiments::accuracy::{
     report_camera, ReportError, ReportOptions, QUICK_VOLUME_SIZE, REPORT_FILES,
 };
+use mixvol_experiments::junction::JunctionScene;
 use std::sync::Arc;
 
 /// Runs `mixvol report`: the accuracy-versus-time report of the default scene.
@@ -27,6 +28,7 @@ pub fn accuracy(args: &ReportArgs) -> Result<()> {
                 frames: args.frames,
                 brick_size: args.brick_size,
                 camera: report_camera(),
+                junction: JunctionScene::full(),
             },
             args.volume_size,
             format!(

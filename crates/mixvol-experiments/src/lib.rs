@@ -5,12 +5,15 @@
 //! - [`accuracy`]: the accuracy-versus-time report behind `mixvol report`
 //!   (`docs/report/accuracy-vs-time.*`, `docs/report/seams-vs-time.*`): one scene under every
 //!   setting that trades accuracy for time, against a high-quality reference.
+//! - [`junction`]: the accuracy report's close-up of an edge-on hi/lo junction (its transition
+//!   rows).
 //! - [`metrics`]: the image metrics of the accuracy report (RMSE/PSNR, gradient error, SSIM,
 //!   the seam measure).
 //! - [`plot`]: the charts of both reports (plotters, PNG and SVG).
 #![warn(missing_docs)]
 
 pub mod accuracy;
+pub mod junction;
 pub mod kraus;
 pub mod metrics;
 pub mod plot;

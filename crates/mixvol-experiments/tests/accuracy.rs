@@ -67,22 +67,43 @@ fn quick_report_rows_trade_accuracy_for_time_consistently() {
         assert!(lod("0%").rmse > lod("50%").rmse && lod("50%").rmse > lod("100%").rmse);
         assert!(lod("0%").ssim < lod("100%").ssim);
         assert!((lod("50%").hi_fraction - 0.5).abs() < 0.05);
-        // The transition rows share their residency, so their seam lines; shaded rows differ
-        // from unshaded ones (their own references).
-        for family in [FAMILIES[1], FAMILIES[2]] {
+        // The transition rows: the junction close-up, the same residency for both. Measured
+        // (lavapipe, 2026-12-02, 64 px over 4 voxels): seam max / mean, smooth against
+        // discontinuous, 0.0045 / 0.00045 against 0.0318 / 0.0138 unshaded (7x / 30x) and
+        // 0.0040 / 0.00054 against 0.262 / 0.046 shaded (65x / 85x); the full-resolution frame
+        // jumps by 0 there (the plane is Marschner-Lobb's mirror plane). RMSE and gradient RMSE
+        // agree to 1-2% (the seam is one column).
+        for (family, max_ratio, mean_ratio, disc_max) in [
+            (FAMILIES[1], 3.0, 10.0, 0.015),
+            (FAMILIES[2], 20.0, 20.0, 0.12),
+        ] {
             let (s, d) = (row(family, "Smooth"), row(family, "Discontinuous"));
-            assert_eq!(s.resident_bytes, d.resident_bytes);
+            assert_eq!(
+                (s.resident_bytes, s.hi_fraction),
+                (d.resident_bytes, d.hi_fraction)
+            );
+            assert!((s.hi_fraction - 0.5).abs() < 1e-9, "{s:?}");
             assert_eq!(
                 (s.seam.faces, s.seam.samples),
                 (d.seam.faces, d.seam.samples)
             );
-            assert!(s.seam.faces > 0 && s.seam.samples > 100, "{s:?}");
-            // Where the level changes the frame jumps where the full-resolution frame does not.
+            assert!(s.seam.faces > 0 && s.seam.samples > 1000, "{s:?}");
+            assert!(d.seam.max_excess > disc_max, "{d:?}");
             assert!(
-                d.seam.max_excess > 0.05 && d.seam.mean_excess > 0.0,
-                "{d:?}"
+                s.seam.max_excess * max_ratio < d.seam.max_excess,
+                "{family}: seam max smooth {s:?}\ndiscontinuous {d:?}"
             );
+            assert!(
+                s.seam.mean_excess * mean_ratio < d.seam.mean_excess,
+                "{family}: seam mean smooth {s:?}\ndiscontinuous {d:?}"
+            );
+            assert!((s.rmse / d.rmse - 1.0).abs() < 0.05, "{s:?}\n{d:?}");
         }
+        // Shading amplifies the discontinuous seam (Beyer et al., Fig. 8): measured 8x.
+        assert!(
+            row(FAMILIES[2], "Discontinuous").seam.max_excess
+                > 3.0 * row(FAMILIES[1], "Discontinuous").seam.max_excess
+        );
         assert!(row(FAMILIES[2], "Smooth").shaded && !row(FAMILIES[1], "Smooth").shaded);
         assert!(row(FAMILIES[2], "Smooth").rmse != row(FAMILIES[1], "Smooth").rmse);
 

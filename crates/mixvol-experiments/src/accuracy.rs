@@ -11,10 +11,14 @@
 //! Rows: samples per voxel (single resolution), smooth against discontinuous transitions at the
 //! same residency unshaded and shaded (shading amplifies seams, Beyer et al. Fig. 8) on the
 //! close-up of an edge-on junction of [`crate::junction`] (where a seam is an image jump; on the
-//! overview the two transitions' seam measures agree to 0.4%), and the LOD budget. Written as Markdown, CSV and JSON, with two charts (PNG and
-//! SVG): error against frame time, and the seam measure against frame time, one line per knob.
-//! Other knobs (filters, extinction, pre-integration, tricubic, coarse sampling, early
-//! termination) and real-data scenes are not measured yet.
+//! overview the two transitions' seam measures agree to 0.4%), the LOD budget, early ray
+//! termination, pre-integration and extinction-based sampling (single resolution, against the
+//! same step without them), the downsampling filter of the low-res level (mean, LaMar's
+//! subsampling, Kraus' 4-tap box and 13/19/19/13, at one residency) and LaMar's coarse steps
+//! through low-res bricks. Written as Markdown, CSV and JSON, with two charts (PNG and SVG):
+//! error against frame time, and the seam measure against frame time, one line per knob.
+//! Not measured yet: tricubic reconstruction (its reference would have to be tricubic too),
+//! shaded rows of the knobs other than the transition, and real-data scenes over an orbit.
 
 use crate::junction::JunctionScene;
 use crate::metrics::gradient::gradient_rmse;
@@ -32,6 +36,7 @@ use mixvol::lod::{
     cull_bricks, select_levels, BrickGeometry, CullParams, LodView, SelectionOptions, TfCullTable,
     ValueCulling,
 };
+use mixvol::optics::SamplingModel;
 use mixvol::optics::TransferFunction;
 use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, ClipPlanes, RenderSettings, Shading, Transition};
@@ -219,11 +224,16 @@ pub fn levels_for_fraction(
 }
 
 /// The families of the report in chart order, with their colours.
-pub const FAMILIES: [&str; 4] = [
+pub const FAMILIES: [&str; 9] = [
     "samples per voxel",
     "transition",
     "transition, shaded",
     "LOD budget",
+    "early termination",
+    "pre-integration",
+    "extinction sampling",
+    "downsampling filter",
+    "coarse low-res steps",
 ];
 
 /// The image metrics of one frame.
@@ -267,6 +277,8 @@ struct MixedSetting {
     setting: String,
     levels: Vec<Level>,
     transition: Transition,
+    filter: DownsampleFilter,
+    coarse_low_res_steps: bool,
     shaded: bool,
 }
 
@@ -347,12 +359,16 @@ impl MixedScene {
             config: MixedConfig {
                 brick_size: self.brick_size,
                 transition: s.transition,
+                filter: s.filter,
                 ..MixedConfig::default()
             },
         })?;
         let report = renderer.set_levels(&s.levels)?;
         let lit = usize::from(s.shaded);
-        let settings = plain_and_lit()[lit];
+        let settings = RenderSettings {
+            coarse_low_res_steps: s.coarse_low_res_steps,
+            ..plain_and_lit()[lit]
+        };
         let (ms, pixels) = timed(&mut renderer, &self.camera, size, frames, &settings)?;
         let lines = seam_lines(&self.geometry, &s.levels, &self.camera, size, size)?;
         let seam = SeamInput {
@@ -407,11 +423,11 @@ pub fn accuracy_report(
     single.set_source(VolumeSource::Volume(&volume))?;
     let volume_bytes = volume.data().as_bytes().len() as u64;
     let mut rows = Vec::new();
-    for spv in [0.5f32, 1.0, 2.0, 4.0] {
-        let settings = RenderSettings {
-            samples_per_voxel: spv,
-            ..RenderSettings::default()
-        };
+    let mut single_row = |family: &'static str,
+                          label: String,
+                          setting: String,
+                          settings: RenderSettings|
+     -> Result<ReportRow> {
         let (ms, pixels) = timed(
             &mut single,
             &options.camera,
@@ -420,10 +436,10 @@ pub fn accuracy_report(
             &settings,
         )?;
         let m = metrics(size, &pixels, &overview.reference[0], None)?;
-        rows.push(ReportRow {
-            family: FAMILIES[0],
-            label: format!("{spv}"),
-            setting: format!("{spv} samples/voxel, single resolution"),
+        Ok(ReportRow {
+            family,
+            label,
+            setting,
             shaded: false,
             frame_ms: ms,
             rmse: m.rmse,
@@ -433,7 +449,52 @@ pub fn accuracy_report(
             seam: m.seam,
             resident_bytes: volume_bytes,
             hi_fraction: 1.0,
-        });
+        })
+    };
+    let at = |spv: f32| RenderSettings {
+        samples_per_voxel: spv,
+        ..RenderSettings::default()
+    };
+    for spv in [0.5f32, 1.0, 2.0, 4.0] {
+        rows.push(single_row(
+            FAMILIES[0],
+            format!("{spv}"),
+            format!("{spv} samples/voxel, single resolution"),
+            at(spv),
+        )?);
+    }
+    for threshold in [0.8f32, 0.9, 0.95, 1.0] {
+        rows.push(single_row(
+            FAMILIES[4],
+            format!("{threshold}"),
+            format!("early termination at opacity {threshold}, 1 sample/voxel"),
+            RenderSettings {
+                early_termination: threshold,
+                ..at(1.0)
+            },
+        )?);
+    }
+    for spv in [0.5f32, 1.0, 2.0] {
+        rows.push(single_row(
+            FAMILIES[5],
+            format!("{spv}"),
+            format!("{spv} samples/voxel, pre-integrated"),
+            RenderSettings {
+                preintegrated: true,
+                ..at(spv)
+            },
+        )?);
+    }
+    for spv in [0.5f32, 1.0, 2.0] {
+        rows.push(single_row(
+            FAMILIES[6],
+            format!("{spv}"),
+            format!("{spv} samples/voxel, extinction-based"),
+            RenderSettings {
+                sampling_model: SamplingModel::Extinction,
+                ..at(spv)
+            },
+        )?);
     }
     drop(single);
     let j = &options.junction;
@@ -460,29 +521,78 @@ pub fn accuracy_report(
                     ),
                     levels: JunctionScene::levels(&junction.grid),
                     transition,
+                    filter: DownsampleFilter::Mean2,
+                    coarse_low_res_steps: false,
                     shaded,
                 },
             )?);
         }
     }
-    for fraction in [1.0, 0.5, 0.25, 0.0] {
+    let overview_row = |family: &'static str,
+                        label: String,
+                        setting: String,
+                        fraction: f64,
+                        filter: DownsampleFilter,
+                        coarse_low_res_steps: bool|
+     -> Result<ReportRow> {
         let levels =
             levels_for_fraction(&volume, &overview.grid, tf, &options.camera, size, fraction)?;
-        rows.push(overview.row(
+        overview.row(
             ctx,
             tf,
             options.frames,
             MixedSetting {
-                family: FAMILIES[3],
-                label: format!("{:.0}%", fraction * 100.0),
-                setting: format!(
-                    "{:.0}% of bricks hi-res, smooth, 1 sample/voxel",
-                    fraction * 100.0
-                ),
+                family,
+                label,
+                setting,
                 levels,
                 transition: Transition::Smooth,
+                filter,
+                coarse_low_res_steps,
                 shaded: false,
             },
+        )
+    };
+    let percent = |f: f64| format!("{:.0}%", f * 100.0);
+    for fraction in [1.0, 0.5, 0.25, 0.0] {
+        rows.push(overview_row(
+            FAMILIES[3],
+            percent(fraction),
+            format!(
+                "{} of bricks hi-res, smooth, 1 sample/voxel",
+                percent(fraction)
+            ),
+            fraction,
+            DownsampleFilter::Mean2,
+            false,
+        )?);
+    }
+    for (label, filter) in [
+        ("mean", DownsampleFilter::Mean2),
+        ("LaMar", DownsampleFilter::LaMarSubsample),
+        ("box4", DownsampleFilter::Box4),
+        ("13/19", DownsampleFilter::BSpline4),
+    ] {
+        rows.push(overview_row(
+            FAMILIES[7],
+            label.into(),
+            format!("{filter:?} low-res level, 25% of bricks hi-res, smooth, 1 sample/voxel"),
+            0.25,
+            filter,
+            false,
+        )?);
+    }
+    for fraction in [0.5, 0.25, 0.0] {
+        rows.push(overview_row(
+            FAMILIES[8],
+            percent(fraction),
+            format!(
+                "{} of bricks hi-res, LaMar's coarse low-res steps, smooth, 1 sample/voxel",
+                percent(fraction)
+            ),
+            fraction,
+            DownsampleFilter::Mean2,
+            true,
         )?);
     }
     let info = ctx.info();

@@ -10,7 +10,7 @@ use mixvol::{Error, Result};
 use mixvol_experiments::accuracy::{
     report_camera, ReportError, ReportOptions, QUICK_VOLUME_SIZE, REPORT_FILES,
 };
-use mixvol_experiments::junction::JunctionScene;
+use mixvol_experiments::junction::{JunctionScene, JUNCTION_FIGURE};
 use std::sync::Arc;
 
 /// Runs `mixvol report`: the accuracy-versus-time report of the default scene.
@@ -63,9 +63,12 @@ pub fn accuracy(args: &ReportArgs) -> Result<()> {
     report
         .write(&args.output_dir, &when, &command)
         .map_err(report_error)?;
+    let figure =
+        mixvol_experiments::junction::figure(&ctx, &tf, &options.junction).map_err(report_error)?;
+    mixvol::renderer::save_png(&figure, &args.output_dir.join(JUNCTION_FIGURE))?;
     print!("{}", report.to_markdown(&when, &command));
     println!(
-        "wrote {} into {}",
+        "wrote {}, {JUNCTION_FIGURE} into {}",
         REPORT_FILES.join(", "),
         args.output_dir.display()
     );

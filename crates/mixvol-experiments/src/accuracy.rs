@@ -628,6 +628,27 @@ impl Report {
             .find(|r| r.family == family && r.setting.starts_with(prefix))
     }
 
+    /// The row a knob's row is compared with: the same settings without the knob (the
+    /// samples-per-voxel row of its rate for early termination, pre-integration and extinction,
+    /// the mean filter for the downsampling filters, the LOD row of its residency for coarse
+    /// low-res steps); `None` for the other families.
+    pub fn baseline(&self, r: &ReportRow) -> Option<&ReportRow> {
+        let spv = |s: &str| self.row(FAMILIES[0], &format!("{s} samples/voxel"));
+        match r.family {
+            f if f == FAMILIES[4] => spv("1"),
+            f if f == FAMILIES[5] || f == FAMILIES[6] => spv(&r.label),
+            f if f == FAMILIES[7] && r.label != "mean" => self
+                .rows
+                .iter()
+                .find(|b| b.family == f && b.label == "mean"),
+            f if f == FAMILIES[8] => self
+                .rows
+                .iter()
+                .find(|b| b.family == FAMILIES[3] && b.label == r.label),
+            _ => None,
+        }
+    }
+
     /// The rows as CSV with a header line.
     pub fn to_csv(&self) -> String {
         let mut out = String::from(
@@ -704,7 +725,7 @@ impl Report {
         ));
         out.push_str("- Frame time is the median GPU ray-cast time (timestamps). On a CPU device (lavapipe) it is CPU time: compare rows, not absolute numbers.\n");
         out.push_str("- Metrics (`crates/mixvol-experiments/src/metrics/`): RMSE and PSNR of premultiplied RGBA; *grad RMSE*: RMS error of the image's horizontal and vertical finite differences against the reference's; *SSIM*: mean SSIM over 8x8 windows (`image-compare`), 1 = identical; *seam max / mean*: along the projected edges of every face between a hi-res and a low-res brick (every half pixel), each side extrapolated linearly to the line from bilinear samples 0.5 and 1.5 pixels from it, `J` the largest RGBA difference of the two extrapolations (a step of height h scores h, a continuous kink 0), and the seam the excess `max(0, J - J_ref)` over `J_ref` of the full-resolution frame of the same settings (single resolution, 1 sample/voxel, shaded for shaded rows: so what both share is not counted as a seam); *jump max*: the largest `J` of this frame / of the full-resolution frame there. Rows without a level change have no seam lines (0).\n");
-        out.push_str("- Transition rows: a close-up of a junction seen edge-on (its own scene, above). A face crossed by the rays at an angle integrates into a continuous image whether or not the field jumps on it, and at about a voxel per pixel the smooth transition's half-voxel ramp is sub-pixel: on the overview the two transitions' seam measures agreed to 0.4% (measured 2026-12-01). Here the rays run along the face, the image's middle column is the seam, and the ramp spans 8 pixels.\n\n");
+        out.push_str("- Transition rows: a close-up of a junction seen edge-on (its own scene, above). A face crossed by the rays at an angle integrates into a continuous image whether or not the field jumps on it, and at about a voxel per pixel the smooth transition's half-voxel ramp is sub-pixel: on the overview the two transitions' seam measures agreed to 0.4% (measured 2026-12-01). Here the rays run along the face, the image's middle column is the seam, and the ramp spans 8 pixels. `mixvol report` draws the close-up as `junction.png`: unshaded (top) and shaded (bottom), smooth, discontinuous and their difference (x4); the low-res half is on the left.\n\n");
         out.push_str("| knob | setting | frame ms | RMSE | PSNR dB | grad RMSE | SSIM | seam max | seam mean | jump max (frame / ref) | resident MB | hi-res fraction |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n");
         for r in &self.rows {
             out.push_str(&format!(
@@ -748,6 +769,19 @@ impl Report {
             }
         }
         out.push_str("\nA ratio far above 1 is the seam the smooth transition removes; RMSE and SSIM barely see it (one column of the image).\n");
+        out.push_str("\nEach knob against its baseline, the same row without the knob (knob / baseline; RMSE below 1: closer to the reference):\n\n| knob | setting | baseline | RMSE | grad RMSE | frame time |\n|---|---|---|---|---|---|\n");
+        for r in &self.rows {
+            let Some(b) = self.baseline(r) else { continue };
+            out.push_str(&format!(
+                "| {} | {} | {} | {:.3} | {:.3} | {:.3} |\n",
+                r.family,
+                r.setting,
+                b.setting,
+                r.rmse / b.rmse,
+                r.gradient_rmse / b.gradient_rmse,
+                r.frame_ms / b.frame_ms
+            ));
+        }
         out.push_str("\nCharts (PNG and SVG): `accuracy-vs-time`: RMSE (left) and gradient RMSE (right) against frame time; `seams-vs-time`: the seam measure's max (left) and mean (right) against frame time. One line per knob joining its settings, each point labelled with its setting.\n");
         out
     }

@@ -12,10 +12,17 @@
 //! that the smooth ramp spans pixels.
 
 use crate::accuracy::Result;
-use glam::{UVec3, Vec3};
+use glam::{UVec3, Vec3, Vec4};
+use image::imageops::FilterType;
+use image::Rgba;
 use mixvol::bricks::{BrickGrid, Level};
-use mixvol::scene::Camera;
+use mixvol::embed::MixedConfig;
+use mixvol::gpu::GpuContext;
+use mixvol::optics::TransferFunction;
+use mixvol::renderer::{pixels_to_rgba8, Renderer, TargetFormat, VolumeSource};
+use mixvol::scene::{Camera, RenderSettings, Shading, Transition};
 use mixvol::volume::{ScalarType, SyntheticField, Volume};
+use std::sync::Arc;
 
 /// The junction close-up: volume, bricks, image and magnification.
 #[derive(Clone, Debug, PartialEq)]
@@ -87,4 +94,68 @@ impl JunctionScene {
             self.width_voxels / self.volume_size as f32,
         )
     }
+}
+
+/// The file name `mixvol report` writes [`figure`] under, next to the report.
+pub const JUNCTION_FIGURE: &str = "junction.png";
+
+/// Pixels per frame pixel in [`figure`].
+pub const FIGURE_ZOOM: u32 = 2;
+
+/// The figure of the junction (`docs/report/junction.png`): one row unshaded, one shaded; in each
+/// the smooth frame, the discontinuous frame (the low-res half on the left of both) and their
+/// difference amplified four times, every pixel drawn as a [`FIGURE_ZOOM`]-pixel square.
+pub fn figure(
+    ctx: &GpuContext,
+    tf: &TransferFunction,
+    scene: &JunctionScene,
+) -> Result<image::RgbaImage> {
+    let volume = Arc::new(scene.volume()?);
+    let grid = BrickGrid::new(volume.dims(), scene.brick_size)?;
+    let levels = JunctionScene::levels(&grid);
+    let camera = scene.camera();
+    let s = scene.size;
+    let (z, gap) = (FIGURE_ZOOM, 4);
+    let cell = s * z + gap;
+    let mut out = image::RgbaImage::from_pixel(3 * cell - gap, 2 * cell - gap, Rgba([255; 4]));
+    for (row, shading) in [None, Some(Shading::default())].into_iter().enumerate() {
+        let settings = RenderSettings {
+            shading,
+            ..RenderSettings::default()
+        };
+        let mut frames = Vec::new();
+        for transition in [Transition::Smooth, Transition::Discontinuous] {
+            let mut renderer = Renderer::new(ctx, TargetFormat::Rgba32Float)?;
+            renderer.set_transfer_function(tf)?;
+            renderer.set_source(VolumeSource::Mixed {
+                volume: volume.clone(),
+                config: MixedConfig {
+                    brick_size: scene.brick_size,
+                    transition,
+                    ..MixedConfig::default()
+                },
+            })?;
+            renderer.set_levels(&levels)?;
+            frames.push(renderer.render(&camera, &settings, s, s)?.pixels);
+        }
+        let difference: Vec<Vec4> = frames[0]
+            .iter()
+            .zip(&frames[1])
+            .map(|(a, b)| ((*a - *b).abs() * 4.0).truncate().extend(1.0))
+            .collect();
+        for (column, pixels) in [&frames[0], &frames[1], &difference]
+            .into_iter()
+            .enumerate()
+        {
+            let img = pixels_to_rgba8(pixels, s, s, Vec3::splat(0.08));
+            let big = image::imageops::resize(&img, s * z, s * z, FilterType::Nearest);
+            image::imageops::overlay(
+                &mut out,
+                &big,
+                i64::from(column as u32 * cell),
+                i64::from(row as u32 * cell),
+            );
+        }
+    }
+    Ok(out)
 }

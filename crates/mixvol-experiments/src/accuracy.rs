@@ -1,6 +1,6 @@
 //! The accuracy-versus-time report: renders one scene under the settings that trade accuracy for
-//! time, each against a high-quality reference render (full resolution, 8 samples per voxel,
-//! shaded when the row is), and records GPU frame time, cache memory and the image metrics of
+//! time, each against a high-quality reference render (full resolution, 8 samples per voxel, no
+//! early ray termination, shaded when the row is), and records GPU frame time, cache memory and the image metrics of
 //! [`crate::metrics`]: RMSE and PSNR, the gradient error, SSIM and the seam measure (the image
 //! jump across the projected faces where the brick level changes, beyond the jump of the
 //! full-resolution frame at the row's own settings there: against the 8 samples/voxel reference
@@ -95,8 +95,11 @@ pub struct ReportOptions {
     pub brick_size: u32,
     /// The camera.
     pub camera: Camera,
-    /// The scene of the transition rows (smooth against discontinuous).
-    pub junction: JunctionScene,
+    /// The scene of the transition rows (smooth against discontinuous); `None` leaves them out
+    /// (the orbit of [`crate::scenes`] measures them once, not per view).
+    pub junction: Option<JunctionScene>,
+    /// What the volume is, in words (the report's scene line).
+    pub volume_name: String,
 }
 
 impl ReportOptions {
@@ -108,7 +111,8 @@ impl ReportOptions {
             frames: 1,
             brick_size: 8,
             camera: report_camera(),
-            junction: JunctionScene::quick(),
+            junction: Some(JunctionScene::quick()),
+            volume_name: "Marschner-Lobb".into(),
         }
     }
 }
@@ -291,7 +295,8 @@ struct MixedScene {
     brick_size: u32,
     camera: Camera,
     size: u32,
-    /// 8 samples/voxel, unshaded and shaded: the error metrics' references.
+    /// 8 samples/voxel without early termination, unshaded and shaded: the error metrics'
+    /// references.
     reference: [Vec<Vec4>; 2],
     /// 1 sample/voxel (the rows' own rate), unshaded and shaded: the seam measure's.
     full_resolution: [Vec<Vec4>; 2],
@@ -319,9 +324,17 @@ impl MixedScene {
         let mut single = Renderer::new(ctx, TargetFormat::Rgba32Float)?;
         single.set_transfer_function(tf)?;
         single.set_source(VolumeSource::Volume(&volume))?;
+        // The 8 samples/voxel references run every ray to its end (no early termination: the
+        // early termination rows are measured against them too); the 1 sample/voxel
+        // full-resolution frames keep the rows' own settings.
         let mut render_at = |settings: &RenderSettings, spv: f32| -> Result<Vec<Vec4>> {
             let settings = RenderSettings {
                 samples_per_voxel: spv,
+                early_termination: if spv > 1.0 {
+                    1.0
+                } else {
+                    settings.early_termination
+                },
                 ..*settings
             };
             Ok(single.render(&camera, &settings, size, size)?.pixels)
@@ -497,35 +510,36 @@ pub fn accuracy_report(
         )?);
     }
     drop(single);
-    let j = &options.junction;
-    let junction = MixedScene::new(
-        ctx,
-        tf,
-        Arc::new(j.volume()?),
-        j.brick_size,
-        j.camera(),
-        j.size,
-    )?;
-    for (family, shaded) in [(FAMILIES[1], false), (FAMILIES[2], true)] {
-        for transition in [Transition::Smooth, Transition::Discontinuous] {
-            rows.push(junction.row(
-                ctx,
-                tf,
-                options.frames,
-                MixedSetting {
-                    family,
-                    label: format!("{transition:?}").to_lowercase(),
-                    setting: format!(
-                        "{transition:?}, junction close-up (x < middle low-res), 1 sample/voxel{}",
-                        if shaded { ", shaded" } else { "" }
-                    ),
-                    levels: JunctionScene::levels(&junction.grid),
-                    transition,
-                    filter: DownsampleFilter::Mean2,
-                    coarse_low_res_steps: false,
-                    shaded,
-                },
-            )?);
+    if let Some(j) = &options.junction {
+        let junction = MixedScene::new(
+            ctx,
+            tf,
+            Arc::new(j.volume()?),
+            j.brick_size,
+            j.camera(),
+            j.size,
+        )?;
+        for (family, shaded) in [(FAMILIES[1], false), (FAMILIES[2], true)] {
+            for transition in [Transition::Smooth, Transition::Discontinuous] {
+                rows.push(junction.row(
+                    ctx,
+                    tf,
+                    options.frames,
+                    MixedSetting {
+                        family,
+                        label: format!("{transition:?}").to_lowercase(),
+                        setting: format!(
+                            "{transition:?}, junction close-up (x < middle low-res), 1 sample/voxel{}",
+                            if shaded { ", shaded" } else { "" }
+                        ),
+                        levels: JunctionScene::levels(&junction.grid),
+                        transition,
+                        filter: DownsampleFilter::Mean2,
+                        coarse_low_res_steps: false,
+                        shaded,
+                    },
+                )?);
+            }
         }
     }
     let overview_row = |family: &'static str,
@@ -600,10 +614,13 @@ pub fn accuracy_report(
     Ok(Report {
         device: format!("{} ({:?})", info.name, info.device_type),
         scene: format!(
-            "{}x{}x{} {:?} Marschner-Lobb volume, {}x{} image, bricks {}^3, one camera; transition rows: {}^3 F32 Marschner-Lobb in bricks {}^3, orthographic close-up of the junction plane x = 0 seen edge-on (bricks below the middle low-res), {}x{} image over {} voxels ({:.0} px/voxel); reference: single resolution at 8 samples/voxel (shaded for shaded rows)",
-            d.x, d.y, d.z, volume.scalar_type(), size, size, options.brick_size,
-            j.volume_size, j.brick_size, j.size, j.size, j.width_voxels,
-            j.size as f32 / j.width_voxels
+            "{}x{}x{} {:?} {} volume, {}x{} image, bricks {}^3, one camera; {}reference: single resolution at 8 samples/voxel without early termination (shaded for shaded rows)",
+            d.x, d.y, d.z, volume.scalar_type(), options.volume_name, size, size, options.brick_size,
+            options.junction.as_ref().map_or(String::new(), |j| format!(
+                "transition rows: {}^3 F32 Marschner-Lobb in bricks {}^3, orthographic close-up of the junction plane x = 0 seen edge-on (bricks below the middle low-res), {}x{} image over {} voxels ({:.0} px/voxel); ",
+                j.volume_size, j.brick_size, j.size, j.size, j.width_voxels,
+                j.size as f32 / j.width_voxels
+            )),
         ),
         rows,
     })

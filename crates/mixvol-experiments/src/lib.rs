@@ -9,6 +9,8 @@
 //!   rows).
 //! - [`metrics`]: the image metrics of the accuracy report (RMSE/PSNR, gradient error, SSIM,
 //!   the seam measure).
+//! - [`scenes`]: the accuracy report over several scenes (Marschner-Lobb, MNI152, the VolPack
+//!   head), each from an orbit of views, mean and worst over the views.
 //! - [`plot`]: the charts of both reports (plotters, PNG and SVG).
 #![warn(missing_docs)]
 
@@ -17,3 +19,4 @@ pub mod junction;
 pub mod kraus;
 pub mod metrics;
 pub mod plot;
+pub mod scenes;

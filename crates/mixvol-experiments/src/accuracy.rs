@@ -799,14 +799,23 @@ impl Report {
                 r.frame_ms / b.frame_ms
             ));
         }
-        out.push_str("\nCharts (PNG and SVG): `accuracy-vs-time`: RMSE (left) and gradient RMSE (right) against frame time; `seams-vs-time`: the seam measure's max (left) and mean (right) against frame time. One line per knob joining its settings, each point labelled with its setting.\n");
+        out.push_str("\nCharts (PNG and SVG): `accuracy-vs-time`: RMSE (left) and gradient RMSE (right) against frame time; `seams-vs-time`: the seam measure's max (left) and mean (right) against frame time, for the knobs with a level change. One line per knob joining its settings, each point labelled with its setting.\n");
         out
     }
 
-    fn series(&self, y: impl Fn(&ReportRow) -> f64) -> Vec<Series> {
+    /// One series per family; with `seams_only`, only the families with seam lines (a level
+    /// change somewhere), the others being 0 on the seam chart.
+    fn series(&self, y: impl Fn(&ReportRow) -> f64, seams_only: bool) -> Vec<Series> {
         FAMILIES
             .iter()
             .zip(PALETTE)
+            .filter(|(family, _)| {
+                !seams_only
+                    || self
+                        .rows
+                        .iter()
+                        .any(|r| r.family == **family && r.seam.faces > 0)
+            })
             .map(|(family, colour)| {
                 let rows: Vec<&ReportRow> =
                     self.rows.iter().filter(|r| r.family == *family).collect();
@@ -826,27 +835,32 @@ impl Report {
     /// `seams-vs-time` (the seam measure against frame time), one line per knob.
     pub fn charts(&self) -> [(&'static str, Chart); 2] {
         let x = "frame time (ms, median)".to_string();
-        let panel = |title: &str, y_label: &str, y: &dyn Fn(&ReportRow) -> f64| Panel {
-            title: title.into(),
-            x_label: x.clone(),
-            y_label: y_label.into(),
-            y_range: None,
-            series: self.series(y),
-            legend_left: false,
-        };
+        let panel =
+            |title: &str, y_label: &str, y: &dyn Fn(&ReportRow) -> f64, seams: bool| Panel {
+                title: title.into(),
+                x_label: x.clone(),
+                y_label: y_label.into(),
+                y_range: None,
+                series: self.series(y, seams),
+                legend_left: false,
+            };
         [
             (
                 "accuracy-vs-time",
                 Chart {
                     title: "Error against the 8 samples/voxel reference vs frame time".into(),
                     panels: vec![
-                        panel("Image error", "RMSE of premultiplied RGBA (0-1)", &|r| {
-                            r.rmse
-                        }),
+                        panel(
+                            "Image error",
+                            "RMSE of premultiplied RGBA (0-1)",
+                            &|r| r.rmse,
+                            false,
+                        ),
                         panel(
                             "Gradient error",
                             "RMSE of image finite differences (0-1)",
                             &|r| r.gradient_rmse,
+                            false,
                         ),
                     ],
                     panel_size: (560, 420),
@@ -861,11 +875,13 @@ impl Report {
                             "Largest excess jump",
                             "max(0, J - J_ref), max along seam lines (0-1)",
                             &|r| r.seam.max_excess,
+                            true,
                         ),
                         panel(
                             "Mean excess jump",
                             "max(0, J - J_ref), mean along seam lines (0-1)",
                             &|r| r.seam.mean_excess,
+                            true,
                         ),
                     ],
                     panel_size: (560, 420),

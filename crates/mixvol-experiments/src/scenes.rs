@@ -142,7 +142,7 @@ pub fn orbit_report(
     Ok(out)
 }
 
-/// The files [`write`] writes besides one chart per scene.
+/// The files [`write()`] writes besides one chart per scene.
 pub const SCENE_FILES: [&str; 3] = ["scenes.md", "scenes.csv", "scenes.json"];
 
 /// The summaries as Markdown (`when` and `command` go into the header).

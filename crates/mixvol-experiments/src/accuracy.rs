@@ -229,7 +229,7 @@ pub fn levels_for_fraction(
 }
 
 /// The families of the report in chart order, with their colours.
-pub const FAMILIES: [&str; 9] = [
+pub const FAMILIES: [&str; 11] = [
     "samples per voxel",
     "transition",
     "transition, shaded",
@@ -239,6 +239,8 @@ pub const FAMILIES: [&str; 9] = [
     "extinction sampling",
     "downsampling filter",
     "coarse low-res steps",
+    "samples per voxel, shaded",
+    "LOD budget, shaded",
 ];
 
 /// The image metrics of one frame.
@@ -449,12 +451,14 @@ pub fn accuracy_report(
             options.frames,
             &settings,
         )?;
-        let m = metrics(size, &pixels, &overview.reference[0], None)?;
+        let shaded = settings.shading.is_some();
+        let reference = &overview.reference[usize::from(shaded)];
+        let m = metrics(size, &pixels, reference, None)?;
         Ok(ReportRow {
             family,
             label,
             setting,
-            shaded: false,
+            shaded,
             frame_ms: ms,
             rmse: m.rmse,
             psnr_db: psnr(m.rmse),
@@ -510,7 +514,6 @@ pub fn accuracy_report(
             },
         )?);
     }
-    drop(single);
     if let Some(j) = &options.junction {
         let junction = MixedScene::new(
             ctx,
@@ -548,7 +551,8 @@ pub fn accuracy_report(
                         setting: String,
                         fraction: f64,
                         filter: DownsampleFilter,
-                        coarse_low_res_steps: bool|
+                        coarse_low_res_steps: bool,
+                        shaded: bool|
      -> Result<ReportRow> {
         let levels =
             levels_for_fraction(&volume, &overview.grid, tf, &options.camera, size, fraction)?;
@@ -564,7 +568,7 @@ pub fn accuracy_report(
                 transition: Transition::Smooth,
                 filter,
                 coarse_low_res_steps,
-                shaded: false,
+                shaded,
             },
         )
     };
@@ -579,6 +583,7 @@ pub fn accuracy_report(
             ),
             fraction,
             DownsampleFilter::Mean2,
+            false,
             false,
         )?);
     }
@@ -595,6 +600,7 @@ pub fn accuracy_report(
             0.25,
             filter,
             false,
+            false,
         )?);
     }
     for fraction in [0.5, 0.25, 0.0] {
@@ -608,8 +614,37 @@ pub fn accuracy_report(
             fraction,
             DownsampleFilter::Mean2,
             true,
+            false,
         )?);
     }
+    // Shaded rows (Blinn-Phong, against the shaded reference): shading turns the field's
+    // gradient into colour, so it shows what the step and the LOD cost in normals.
+    for spv in [0.5f32, 1.0, 2.0] {
+        rows.push(single_row(
+            FAMILIES[9],
+            format!("{spv}"),
+            format!("{spv} samples/voxel, single resolution, shaded"),
+            RenderSettings {
+                shading: Some(Shading::default()),
+                ..at(spv)
+            },
+        )?);
+    }
+    for fraction in [1.0, 0.5, 0.0] {
+        rows.push(overview_row(
+            FAMILIES[10],
+            percent(fraction),
+            format!(
+                "{} of bricks hi-res, smooth, 1 sample/voxel, shaded",
+                percent(fraction)
+            ),
+            fraction,
+            DownsampleFilter::Mean2,
+            false,
+            true,
+        )?);
+    }
+    drop(single);
     let info = ctx.info();
     let d = volume.dims();
     Ok(Report {

@@ -74,7 +74,7 @@ pub struct Chart {
 }
 
 /// Colours of the report's series, in order.
-pub const PALETTE: [[u8; 3]; 10] = [
+pub const PALETTE: [[u8; 3]; 11] = [
     [30, 90, 220],
     [20, 150, 60],
     [230, 120, 10],
@@ -85,6 +85,7 @@ pub const PALETTE: [[u8; 3]; 10] = [
     [190, 150, 0],
     [220, 60, 150],
     [110, 70, 30],
+    [0, 0, 0],
 ];
 
 const FONT: &str = "sans-serif";

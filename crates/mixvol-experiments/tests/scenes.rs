@@ -53,7 +53,7 @@ fn orbit_summary_is_mean_and_worst_of_the_views() {
         let s = &summaries[0];
         assert_eq!(s.views, 2);
         // Every row of the report but the transition rows (measured on their close-up).
-        assert_eq!(s.rows.len(), 29 - 4);
+        assert_eq!(s.rows.len(), 35 - 4);
         assert!(s
             .rows
             .iter()
@@ -92,7 +92,7 @@ fn orbit_summary_is_mean_and_worst_of_the_views() {
             assert!(len > 200, "{name}: {len} bytes");
         }
         let csv = std::fs::read_to_string(dir.join("scenes.csv")).unwrap();
-        assert_eq!(csv.lines().count(), 1 + 25);
+        assert_eq!(csv.lines().count(), 1 + 31);
         let chart = image::open(dir.join("scene-ml.png")).unwrap();
         assert!(chart.width() > 1000, "{}", chart.width());
         assert!(dir.join("scene-ml.svg").exists());

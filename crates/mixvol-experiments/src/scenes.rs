@@ -6,7 +6,7 @@
 //! frame time, one line per knob.
 
 use crate::accuracy::{
-    accuracy_report, report_camera, ReportError, ReportOptions, Result, FAMILIES,
+    accuracy_report, report_camera, Report, ReportError, ReportOptions, Result, FAMILIES,
 };
 use crate::plot::{Chart, Panel, Series, PALETTE};
 use glam::{Quat, Vec3};
@@ -89,57 +89,89 @@ pub fn orbit_report(
     options: &ReportOptions,
     views: u32,
 ) -> Result<Vec<SceneSummary>> {
-    let mut out = Vec::new();
-    for scene in scenes {
-        let mut reports = Vec::new();
-        for camera in orbit_cameras(views) {
+    scenes
+        .iter()
+        .map(|scene| {
+            let reports = view_reports(ctx, scene, options, views)?;
+            Ok(summarise(&scene.name, &reports))
+        })
+        .collect()
+}
+
+/// The report of `scene` from each of `views` orbit cameras ([`orbit_cameras`]), without the
+/// transition rows.
+pub fn view_reports(
+    ctx: &GpuContext,
+    scene: &OrbitScene,
+    options: &ReportOptions,
+    views: u32,
+) -> Result<Vec<Report>> {
+    orbit_cameras(views)
+        .into_iter()
+        .map(|camera| {
             let opts = ReportOptions {
                 camera,
                 junction: None,
                 volume_name: scene.description.clone(),
                 ..options.clone()
             };
-            reports.push(accuracy_report(
-                ctx,
-                scene.volume.clone(),
-                &scene.tf,
-                &opts,
-            )?);
-        }
-        let first = &reports[0];
-        let rows = (0..first.rows.len())
-            .map(|i| {
-                let all: Vec<_> = reports.iter().map(|r| &r.rows[i]).collect();
-                let n = all.len() as f64;
-                let mean = |f: &dyn Fn(&crate::accuracy::ReportRow) -> f64| {
-                    all.iter().map(|r| f(r)).sum::<f64>() / n
-                };
-                let max = |f: &dyn Fn(&crate::accuracy::ReportRow) -> f64| {
-                    all.iter().map(|r| f(r)).fold(f64::NEG_INFINITY, f64::max)
-                };
-                let min = |f: &dyn Fn(&crate::accuracy::ReportRow) -> f64| {
-                    all.iter().map(|r| f(r)).fold(f64::INFINITY, f64::min)
-                };
-                OrbitRow {
-                    family: all[0].family,
-                    label: all[0].label.clone(),
-                    setting: all[0].setting.clone(),
-                    frame_ms_mean: mean(&|r| r.frame_ms),
-                    rmse: (mean(&|r| r.rmse), max(&|r| r.rmse)),
-                    gradient_rmse: (mean(&|r| r.gradient_rmse), max(&|r| r.gradient_rmse)),
-                    ssim: (mean(&|r| r.ssim), min(&|r| r.ssim)),
-                    seam_max: (mean(&|r| r.seam.max_excess), max(&|r| r.seam.max_excess)),
-                }
-            })
-            .collect();
-        out.push(SceneSummary {
-            name: scene.name.clone(),
-            description: first.scene.replace(", one camera", ""),
-            views: reports.len(),
-            rows,
-        });
+            accuracy_report(ctx, scene.volume.clone(), &scene.tf, &opts)
+        })
+        .collect()
+}
+
+/// The mean and the worst over `reports` (one per view) of every row of the first, matched by
+/// family and setting; an empty summary without reports.
+pub fn summarise(name: &str, reports: &[Report]) -> SceneSummary {
+    let Some(first) = reports.first() else {
+        return SceneSummary {
+            name: name.into(),
+            description: String::new(),
+            views: 0,
+            rows: Vec::new(),
+        };
+    };
+    let rows = first
+        .rows
+        .iter()
+        .map(|row| {
+            // The same setting in every view's report (a report lacking it is left out).
+            let all: Vec<_> = reports
+                .iter()
+                .filter_map(|r| {
+                    r.rows
+                        .iter()
+                        .find(|x| x.family == row.family && x.setting == row.setting)
+                })
+                .collect();
+            let n = all.len() as f64;
+            let mean = |f: &dyn Fn(&crate::accuracy::ReportRow) -> f64| {
+                all.iter().map(|r| f(r)).sum::<f64>() / n
+            };
+            let max = |f: &dyn Fn(&crate::accuracy::ReportRow) -> f64| {
+                all.iter().map(|r| f(r)).fold(f64::NEG_INFINITY, f64::max)
+            };
+            let min = |f: &dyn Fn(&crate::accuracy::ReportRow) -> f64| {
+                all.iter().map(|r| f(r)).fold(f64::INFINITY, f64::min)
+            };
+            OrbitRow {
+                family: all[0].family,
+                label: all[0].label.clone(),
+                setting: all[0].setting.clone(),
+                frame_ms_mean: mean(&|r| r.frame_ms),
+                rmse: (mean(&|r| r.rmse), max(&|r| r.rmse)),
+                gradient_rmse: (mean(&|r| r.gradient_rmse), max(&|r| r.gradient_rmse)),
+                ssim: (mean(&|r| r.ssim), min(&|r| r.ssim)),
+                seam_max: (mean(&|r| r.seam.max_excess), max(&|r| r.seam.max_excess)),
+            }
+        })
+        .collect();
+    SceneSummary {
+        name: name.into(),
+        description: first.scene.replace(", one camera", ""),
+        views: reports.len(),
+        rows,
     }
-    Ok(out)
 }
 
 /// The files [`write()`] writes besides one chart per scene.

@@ -43,6 +43,16 @@ pub struct ReportArgs {
     /// The quick report of the test suite (48x48 image, 32^3 volume, bricks of 8, 1 frame).
     #[arg(long)]
     pub quick: bool,
+    /// Views of the orbit over the scenes (Marschner-Lobb, MNI152 T1, VolPack head) written as
+    /// scenes.{md,csv,json} and scene-NAME.{png,svg}; 0 skips it (the quick report never runs it).
+    #[arg(long, default_value_t = 4)]
+    pub views: u32,
+    /// Image width and height of the orbit's views.
+    #[arg(long, default_value_t = 96)]
+    pub orbit_size: u32,
+    /// Folder of the real volumes (scripts/fetch-datasets.sh fetches them there).
+    #[arg(long, default_value = "target/datasets")]
+    pub data_dir: PathBuf,
 }
 
 #[derive(Args, Debug)]

@@ -10,6 +10,7 @@ use mixvol::{Error, Result};
 use mixvol_experiments::accuracy::{
     report_camera, ReportError, ReportOptions, QUICK_VOLUME_SIZE, REPORT_FILES,
 };
+use mixvol_experiments::junction::{JunctionScene, JUNCTION_FIGURE};
 use std::sync::Arc;
 
 /// Runs `mixvol report`: the accuracy-versus-time report of the default scene.
@@ -27,6 +28,8 @@ pub fn accuracy(args: &ReportArgs) -> Result<()> {
                 frames: args.frames,
                 brick_size: args.brick_size,
                 camera: report_camera(),
+                junction: Some(JunctionScene::full()),
+                volume_name: "Marschner-Lobb".into(),
             },
             args.volume_size,
             format!(
@@ -50,7 +53,7 @@ pub fn accuracy(args: &ReportArgs) -> Result<()> {
             message: other.to_string(),
         },
     };
-    let report = mixvol_experiments::accuracy::accuracy_report(&ctx, volume, &tf, &options)
+    let report = mixvol_experiments::accuracy::accuracy_report(&ctx, volume.clone(), &tf, &options)
         .map_err(report_error)?;
     let when = std::process::Command::new("date")
         .arg("-u")
@@ -61,10 +64,81 @@ pub fn accuracy(args: &ReportArgs) -> Result<()> {
     report
         .write(&args.output_dir, &when, &command)
         .map_err(report_error)?;
+    let figure = mixvol_experiments::junction::figure(
+        &ctx,
+        &tf,
+        options.junction.as_ref().unwrap_or(&JunctionScene::quick()),
+    )
+    .map_err(report_error)?;
+    mixvol::renderer::save_png(&figure, &args.output_dir.join(JUNCTION_FIGURE))?;
+    if !args.quick && args.views > 0 {
+        orbit(args, &ctx, volume, &options, &when, &report_error)?;
+    }
     print!("{}", report.to_markdown(&when, &command));
     println!(
-        "wrote {} into {}",
+        "wrote {}, {JUNCTION_FIGURE} into {}",
         REPORT_FILES.join(", "),
+        args.output_dir.display()
+    );
+    Ok(())
+}
+
+/// The real volumes of the orbit: file name in the data folder, scene name, description.
+const REAL_SCENES: [(&str, &str, &str); 2] = [
+    (
+        "mni_icbm152_t1_tal_nlin_sym_09a_converted.nii.gz",
+        "mni152",
+        "MNI ICBM152 2009a T1 template",
+    ),
+    ("brainsmall.den", "brainsmall", "VolPack MRI head"),
+];
+
+/// The orbit over the scenes: Marschner-Lobb (the report's volume, its transfer function) and
+/// the real volumes (MRI transfer function), `args.views` views each.
+fn orbit(
+    args: &ReportArgs,
+    ctx: &GpuContext,
+    volume: Arc<mixvol::volume::Volume>,
+    options: &ReportOptions,
+    when: &str,
+    report_error: &dyn Fn(ReportError) -> Error,
+) -> Result<()> {
+    use mixvol_experiments::scenes::{orbit_report, write, OrbitScene, SCENE_FILES};
+    let mut scenes = vec![OrbitScene {
+        name: "marschner-lobb".into(),
+        description: "Marschner-Lobb".into(),
+        volume,
+        tf: TransferFunction::preset(TfPreset::Fire),
+    }];
+    for (file, name, description) in REAL_SCENES {
+        let path = args.data_dir.join(file);
+        if !path.exists() {
+            return Err(Error::InvalidInput(format!(
+                "{}: missing (scripts/fetch-datasets.sh fetches it; --views 0 skips the orbit)",
+                path.display()
+            )));
+        }
+        scenes.push(OrbitScene {
+            name: name.into(),
+            description: description.into(),
+            volume: Arc::new(mixvol::volume::load_volume(&path)?),
+            tf: TransferFunction::preset(TfPreset::Mri),
+        });
+    }
+    let options = ReportOptions {
+        size: args.orbit_size,
+        frames: 1,
+        ..options.clone()
+    };
+    let summaries = orbit_report(ctx, &scenes, &options, args.views).map_err(report_error)?;
+    let command = format!(
+        "cargo run --release -- report --views {} --orbit-size {} --brick-size {}",
+        args.views, args.orbit_size, args.brick_size
+    );
+    write(&summaries, &args.output_dir, when, &command).map_err(report_error)?;
+    println!(
+        "wrote {} and scene-NAME.{{png,svg}} into {}",
+        SCENE_FILES.join(", "),
         args.output_dir.display()
     );
     Ok(())

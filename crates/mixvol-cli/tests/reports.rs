@@ -33,7 +33,8 @@ fn command_writes_report_files() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// `mixvol report --quick` writes every file of the accuracy report.
+/// `mixvol report --quick` writes every file of the accuracy report and the junction figure,
+/// and runs no orbit.
 #[test]
 fn quick_accuracy_report_writes_its_files() {
     let dir = std::env::temp_dir().join(format!("mixvol-accuracy-cli-{}", std::process::id()));
@@ -53,5 +54,12 @@ fn quick_accuracy_report_writes_its_files() {
     let md = std::fs::read_to_string(dir.join("accuracy-vs-time.md")).unwrap();
     assert!(md.contains("`cargo run --release -- report --quick`"));
     assert!(md.contains("| transition, shaded | Smooth"));
+    assert!(md.contains("| early termination |") && md.contains("| downsampling filter |"));
+    let figure = image::open(dir.join(mixvol_experiments::junction::JUNCTION_FIGURE)).unwrap();
+    assert!(figure.width() > figure.height() && figure.height() > 200);
+    // The orbit over scenes belongs to the full report only.
+    for name in mixvol_experiments::scenes::SCENE_FILES {
+        assert!(!dir.join(name).exists(), "{name} written by --quick");
+    }
     std::fs::remove_dir_all(&dir).ok();
 }

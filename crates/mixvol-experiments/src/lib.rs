@@ -5,12 +5,18 @@
 //! - [`accuracy`]: the accuracy-versus-time report behind `mixvol report`
 //!   (`docs/report/accuracy-vs-time.*`, `docs/report/seams-vs-time.*`): one scene under every
 //!   setting that trades accuracy for time, against a high-quality reference.
+//! - [`junction`]: the accuracy report's close-up of an edge-on hi/lo junction (its transition
+//!   rows).
 //! - [`metrics`]: the image metrics of the accuracy report (RMSE/PSNR, gradient error, SSIM,
 //!   the seam measure).
+//! - [`scenes`]: the accuracy report over several scenes (Marschner-Lobb, MNI152, the VolPack
+//!   head), each from an orbit of views, mean and worst over the views.
 //! - [`plot`]: the charts of both reports (plotters, PNG and SVG).
 #![warn(missing_docs)]
 
 pub mod accuracy;
+pub mod junction;
 pub mod kraus;
 pub mod metrics;
 pub mod plot;
+pub mod scenes;

@@ -74,13 +74,18 @@ pub struct Chart {
 }
 
 /// Colours of the report's series, in order.
-pub const PALETTE: [[u8; 3]; 6] = [
+pub const PALETTE: [[u8; 3]; 11] = [
     [30, 90, 220],
     [20, 150, 60],
     [230, 120, 10],
     [200, 30, 30],
     [130, 60, 180],
     [90, 90, 90],
+    [0, 170, 190],
+    [190, 150, 0],
+    [220, 60, 150],
+    [110, 70, 30],
+    [0, 0, 0],
 ];
 
 const FONT: &str = "sans-serif";

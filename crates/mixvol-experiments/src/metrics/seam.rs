@@ -4,17 +4,29 @@
 //! The cache model says which bricks are at which level ([`Level`] per brick, linear index as in
 //! [`BrickGrid`]). Every face between a [`Level::Hi`] and a [`Level::Lo`] brick is projected into
 //! the image with the frame's camera (the view frame the ray-caster and the LOD selection share,
-//! [`LodView`]); the four edges of each projected face are the *seam lines*. A discontinuous
-//! reconstruction puts a jump in the field on the face; rays on either side of a projected
-//! face edge cross the level change in different bricks (or not at all), and that is where the
-//! image jumps (measured on the report's scene, 48 and 128 px: 55-58% of the difference between
-//! the smooth and the discontinuous frame lies within 0.75 px of these lines, which cover 17-20%
-//! of the image).
-//! Along every seam line the image is sampled (bilinearly, every half pixel) at [`SIDE_OFFSET`]
-//! pixels on both sides; the jump `J` is the largest RGBA difference of the two samples, and
-//! `J_ref` the same on the full-resolution frame. A seam is a jump that frame does not have,
-//! so the measure is the excess `max(0, J - J_ref)`: its largest and its mean value over the
-//! samples; the plain jumps of both frames are kept beside it.
+//! [`LodView`]); the four edges of each projected face are the *seam lines*.
+//!
+//! Where the image jumps. A discontinuous reconstruction puts a jump in the field on the face.
+//! A ray that crosses the face transversally integrates over it, so in the continuum the image
+//! stays continuous there (only its derivative breaks); what it does jump at is a face seen edge
+//! on, a face whose plane holds the eye (or, orthographic, the view direction): rays on one side
+//! of its projected line see only the low-res brick, rays on the other only the hi-res one. That
+//! face projects to a line made of its edges, so the seam lines lie on it. Faces seen at an
+//! angle leave only sampling artefacts (a sample crossing the face) along curves inside their
+//! projection, at the scale of a sample; the accuracy report therefore measures transitions on a
+//! close-up of an edge-on junction (`crate::junction`).
+//!
+//! What a jump is. A C0 reconstruction (the smooth transition) still bends the image at the line:
+//! it ramps from the low-res to the hi-res value over half a hi-res voxel, so the plain difference
+//! of two samples either side of the line is as large as the discontinuous jump once the ramp
+//! spans less than their distance, and a kink of a steep feature gives large differences too.
+//! The measure therefore extrapolates each side linearly to the line from two samples (bilinear,
+//! at [`SIDE_OFFSET`] and `SIDE_OFFSET + 1` pixels from it, every [`LINE_SPACING`] pixels along
+//! it) and takes the largest RGBA difference of the two extrapolations: a step of height `h`
+//! scores `h`, a kink (continuous, two slopes) scores 0, whatever its slopes. `J` is that jump in
+//! the frame, `J_ref` in the full-resolution frame of the same settings; a seam is a jump that
+//! frame does not have, so the measure is the excess `max(0, J - J_ref)`: its largest and its
+//! mean value over the samples; the plain jumps of both frames are kept beside it.
 //!
 //! Faces with a corner behind the eye are skipped (the report's cameras look at the volume from
 //! outside, so none is), and so are samples with a side outside the image.
@@ -115,8 +127,10 @@ pub fn level_change_faces(
     Ok(faces)
 }
 
-/// Pixels between the seam line and each of its two samples.
-pub const SIDE_OFFSET: f32 = 1.0;
+/// Pixels between the seam line and the nearer sample on each side (the farther one is a pixel
+/// beyond): half a pixel, so the two nearer samples are neighbouring pixel centres when the line
+/// runs between pixels.
+pub const SIDE_OFFSET: f32 = 0.5;
 
 /// Distance in pixels between samples along a seam line.
 pub const LINE_SPACING: f32 = 0.5;
@@ -190,10 +204,15 @@ pub fn seam_measure(
     if image.width < 2 || image.height < 2 {
         return Ok(m);
     }
-    let jump = |f: &Frame<'_>, a: Vec2, b: Vec2| -> Option<f64> {
-        Some(f64::from(
-            (bilinear(f, a)? - bilinear(f, b)?).abs().max_element(),
-        ))
+    // The difference of the two sides' linear extrapolations to the line, `normal` one pixel
+    // long: near sample plus half the step from the far one, on either side.
+    let jump = |f: &Frame<'_>, p: Vec2, normal: Vec2| -> Option<f64> {
+        let side = |s: f32| -> Option<Vec4> {
+            let near = bilinear(f, p + normal * (s * SIDE_OFFSET))?;
+            let far = bilinear(f, p + normal * (s * (SIDE_OFFSET + 1.0)))?;
+            Some(near + (near - far) * SIDE_OFFSET)
+        };
+        Some(f64::from((side(1.0)? - side(-1.0)?).abs().max_element()))
     };
     let (mut excess_sum, mut jump_sum, mut ref_sum) = (0.0, 0.0, 0.0);
     for &(a, b) in &lines.segments {
@@ -202,14 +221,12 @@ pub fn seam_measure(
         if !(length.is_finite() && length > 1e-6) {
             continue;
         }
-        let normal = along.perp() / length * SIDE_OFFSET;
+        let normal = along.perp() / length;
         let steps = (length / LINE_SPACING).ceil() as usize;
         for k in 0..=steps {
             let p = a + along * (k as f32 / steps as f32);
-            let (Some(j), Some(r)) = (
-                jump(image, p + normal, p - normal),
-                jump(full_resolution, p + normal, p - normal),
-            ) else {
+            let (Some(j), Some(r)) = (jump(image, p, normal), jump(full_resolution, p, normal))
+            else {
                 continue;
             };
             let e = (j - r).max(0.0);
@@ -300,6 +317,13 @@ mod tests {
         let shared = seam_measure(&Frame::new(w, h, &seamed).unwrap(), &f, &at3).unwrap();
         assert_eq!(shared.max_excess, 0.0);
         assert!((shared.reference_max_jump - 0.3).abs() < 1e-6);
+        // A kink (continuous, slope 0 left of x = 8 and 0.1 per pixel right of it) is no jump;
+        // the plain difference of the two nearer samples would see 0.05 there.
+        let kink: Vec<Vec4> = (0..w * h)
+            .map(|i| Vec4::splat(0.1 * ((i % w) as f32 + 0.5 - 8.0).max(0.0)))
+            .collect();
+        let bent = seam_measure(&Frame::new(w, h, &kink).unwrap(), &f, &lines).unwrap();
+        assert!(bent.max_jump < 1e-6, "{bent:?}");
         // A line off the image takes no samples.
         let off = SeamLines {
             faces: 1,

@@ -1,0 +1,311 @@
+//! The accuracy report over several scenes, each seen from an orbit of views: the rows of
+//! [`crate::accuracy`] (without the transition rows, which need their edge-on close-up and are
+//! measured once there) per view, summarised per setting as the mean and the worst over the
+//! views. Written as `scenes.md`, `scenes.csv`, `scenes.json` and per scene a chart
+//! `scene-NAME.{png,svg}` of the mean RMSE (left) and the worst RMSE (right) against the mean
+//! frame time, one line per knob.
+
+use crate::accuracy::{
+    accuracy_report, report_camera, Report, ReportError, ReportOptions, Result, FAMILIES,
+};
+use crate::plot::{Chart, Panel, Series, PALETTE};
+use glam::{Quat, Vec3};
+use mixvol::gpu::GpuContext;
+use mixvol::optics::TransferFunction;
+use mixvol::scene::Camera;
+use mixvol::volume::Volume;
+use std::path::Path;
+use std::sync::Arc;
+
+/// One scene of the orbit: a volume and the transfer function it is seen through.
+#[derive(Clone, Debug)]
+pub struct OrbitScene {
+    /// Short name (file names: `scene-NAME.png`), lower case, no spaces.
+    pub name: String,
+    /// What it is, in words.
+    pub description: String,
+    /// The volume.
+    pub volume: Arc<Volume>,
+    /// Its transfer function.
+    pub tf: TransferFunction,
+}
+
+/// `views` cameras around the volume: the report's camera turned about the vertical axis in
+/// equal steps (the first is [`report_camera`]).
+pub fn orbit_cameras(views: u32) -> Vec<Camera> {
+    let base = report_camera();
+    (0..views.max(1))
+        .map(|k| {
+            let turn =
+                Quat::from_rotation_y(std::f32::consts::TAU * k as f32 / views.max(1) as f32);
+            Camera {
+                eye: turn * base.eye,
+                target: Vec3::ZERO,
+                ..base
+            }
+        })
+        .collect()
+}
+
+/// One setting summarised over the views.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OrbitRow {
+    /// The knob (as in [`crate::accuracy::ReportRow::family`]).
+    pub family: &'static str,
+    /// The setting in a word or two.
+    pub label: String,
+    /// The setting, in words.
+    pub setting: String,
+    /// Mean frame time over the views, ms.
+    pub frame_ms_mean: f64,
+    /// Mean and largest RMSE over the views.
+    pub rmse: (f64, f64),
+    /// Mean and largest gradient RMSE over the views.
+    pub gradient_rmse: (f64, f64),
+    /// Mean and smallest SSIM over the views.
+    pub ssim: (f64, f64),
+    /// Mean and largest seam max over the views.
+    pub seam_max: (f64, f64),
+}
+
+/// The orbit report of one scene.
+#[derive(Clone, Debug)]
+pub struct SceneSummary {
+    /// The scene's name.
+    pub name: String,
+    /// The scene line of its first view's report (volume, image, bricks).
+    pub description: String,
+    /// Views rendered.
+    pub views: usize,
+    /// One row per setting.
+    pub rows: Vec<OrbitRow>,
+}
+
+/// Renders every scene from `views` orbit cameras with `options` (its camera and junction are
+/// replaced) and summarises each setting over the views.
+pub fn orbit_report(
+    ctx: &GpuContext,
+    scenes: &[OrbitScene],
+    options: &ReportOptions,
+    views: u32,
+) -> Result<Vec<SceneSummary>> {
+    scenes
+        .iter()
+        .map(|scene| {
+            let reports = view_reports(ctx, scene, options, views)?;
+            Ok(summarise(&scene.name, &reports))
+        })
+        .collect()
+}
+
+/// The report of `scene` from each of `views` orbit cameras ([`orbit_cameras`]), without the
+/// transition rows.
+pub fn view_reports(
+    ctx: &GpuContext,
+    scene: &OrbitScene,
+    options: &ReportOptions,
+    views: u32,
+) -> Result<Vec<Report>> {
+    orbit_cameras(views)
+        .into_iter()
+        .map(|camera| {
+            let opts = ReportOptions {
+                camera,
+                junction: None,
+                volume_name: scene.description.clone(),
+                ..options.clone()
+            };
+            accuracy_report(ctx, scene.volume.clone(), &scene.tf, &opts)
+        })
+        .collect()
+}
+
+/// The mean and the worst over `reports` (one per view) of every row of the first, matched by
+/// family and setting; an empty summary without reports.
+pub fn summarise(name: &str, reports: &[Report]) -> SceneSummary {
+    let Some(first) = reports.first() else {
+        return SceneSummary {
+            name: name.into(),
+            description: String::new(),
+            views: 0,
+            rows: Vec::new(),
+        };
+    };
+    let rows = first
+        .rows
+        .iter()
+        .map(|row| {
+            // The same setting in every view's report (a report lacking it is left out).
+            let all: Vec<_> = reports
+                .iter()
+                .filter_map(|r| {
+                    r.rows
+                        .iter()
+                        .find(|x| x.family == row.family && x.setting == row.setting)
+                })
+                .collect();
+            let n = all.len() as f64;
+            let mean = |f: &dyn Fn(&crate::accuracy::ReportRow) -> f64| {
+                all.iter().map(|r| f(r)).sum::<f64>() / n
+            };
+            let max = |f: &dyn Fn(&crate::accuracy::ReportRow) -> f64| {
+                all.iter().map(|r| f(r)).fold(f64::NEG_INFINITY, f64::max)
+            };
+            let min = |f: &dyn Fn(&crate::accuracy::ReportRow) -> f64| {
+                all.iter().map(|r| f(r)).fold(f64::INFINITY, f64::min)
+            };
+            OrbitRow {
+                family: all[0].family,
+                label: all[0].label.clone(),
+                setting: all[0].setting.clone(),
+                frame_ms_mean: mean(&|r| r.frame_ms),
+                rmse: (mean(&|r| r.rmse), max(&|r| r.rmse)),
+                gradient_rmse: (mean(&|r| r.gradient_rmse), max(&|r| r.gradient_rmse)),
+                ssim: (mean(&|r| r.ssim), min(&|r| r.ssim)),
+                seam_max: (mean(&|r| r.seam.max_excess), max(&|r| r.seam.max_excess)),
+            }
+        })
+        .collect();
+    SceneSummary {
+        name: name.into(),
+        description: first.scene.replace(", one camera", ""),
+        views: reports.len(),
+        rows,
+    }
+}
+
+/// The files [`write()`] writes besides one chart per scene.
+pub const SCENE_FILES: [&str; 3] = ["scenes.md", "scenes.csv", "scenes.json"];
+
+/// The summaries as Markdown (`when` and `command` go into the header).
+pub fn to_markdown(summaries: &[SceneSummary], when: &str, command: &str) -> String {
+    let mut out = String::from("# Accuracy versus time over scenes and views\n\n");
+    out.push_str(&format!(
+        "- Measured: {when}\n- Regenerate: `{command}`\n- Every scene is rendered from an orbit of views (the report's camera turned about the vertical axis in equal steps); each cell is the mean over the views and, after the slash, the worst (largest error, smallest SSIM). Metrics and rows as in `accuracy-vs-time.md`; the transition rows are measured there, on their edge-on close-up. Frame time is CPU time on lavapipe: compare rows, not absolute numbers.\n"
+    ));
+    for s in summaries {
+        out.push_str(&format!(
+            "\n## {}\n\n- {} views; {}\n- Chart: `scene-{}.png` / `.svg`\n\n| knob | setting | frame ms (mean) | RMSE mean / worst | grad RMSE mean / worst | SSIM mean / worst | seam max mean / worst |\n|---|---|---|---|---|---|---|\n",
+            s.name, s.views, s.description, s.name
+        ));
+        for r in &s.rows {
+            out.push_str(&format!(
+                "| {} | {} | {:.2} | {:.5} / {:.5} | {:.5} / {:.5} | {:.4} / {:.4} | {:.4} / {:.4} |\n",
+                r.family, r.setting, r.frame_ms_mean, r.rmse.0, r.rmse.1, r.gradient_rmse.0,
+                r.gradient_rmse.1, r.ssim.0, r.ssim.1, r.seam_max.0, r.seam_max.1
+            ));
+        }
+    }
+    out
+}
+
+/// The summaries as CSV with a header line.
+pub fn to_csv(summaries: &[SceneSummary]) -> String {
+    let mut out = String::from("scene,views,family,setting,frame_ms_mean,rmse_mean,rmse_worst,gradient_rmse_mean,gradient_rmse_worst,ssim_mean,ssim_worst,seam_max_mean,seam_max_worst\n");
+    for s in summaries {
+        for r in &s.rows {
+            out.push_str(&format!(
+                "{},{},\"{}\",\"{}\",{:.4},{:.6},{:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{:.5}\n",
+                s.name,
+                s.views,
+                r.family,
+                r.setting,
+                r.frame_ms_mean,
+                r.rmse.0,
+                r.rmse.1,
+                r.gradient_rmse.0,
+                r.gradient_rmse.1,
+                r.ssim.0,
+                r.ssim.1,
+                r.seam_max.0,
+                r.seam_max.1
+            ));
+        }
+    }
+    out
+}
+
+/// The summaries as JSON: one object per scene with its rows.
+pub fn to_json(summaries: &[SceneSummary]) -> serde_json::Value {
+    let pair = |p: (f64, f64)| serde_json::json!({ "mean": p.0, "worst": p.1 });
+    serde_json::Value::Array(
+        summaries
+            .iter()
+            .map(|s| {
+                serde_json::json!({
+                    "scene": s.name,
+                    "description": s.description,
+                    "views": s.views,
+                    "rows": s.rows.iter().map(|r| serde_json::json!({
+                        "family": r.family,
+                        "label": r.label,
+                        "setting": r.setting,
+                        "frame_ms_mean": r.frame_ms_mean,
+                        "rmse": pair(r.rmse),
+                        "gradient_rmse": pair(r.gradient_rmse),
+                        "ssim": pair(r.ssim),
+                        "seam_max": pair(r.seam_max),
+                    })).collect::<Vec<_>>(),
+                })
+            })
+            .collect(),
+    )
+}
+
+/// The chart of one scene: mean RMSE (left) and worst RMSE (right) against mean frame time.
+pub fn chart(s: &SceneSummary) -> Chart {
+    let series = |y: &dyn Fn(&OrbitRow) -> f64| -> Vec<Series> {
+        FAMILIES
+            .iter()
+            .zip(PALETTE)
+            .map(|(family, colour)| {
+                let rows: Vec<&OrbitRow> = s.rows.iter().filter(|r| r.family == *family).collect();
+                Series {
+                    name: (*family).to_string(),
+                    colour,
+                    dashed: false,
+                    points: rows.iter().map(|r| (r.frame_ms_mean, y(r))).collect(),
+                    labels: rows.iter().map(|r| r.label.clone()).collect(),
+                }
+            })
+            .filter(|series| !series.points.is_empty())
+            .collect()
+    };
+    let panel = |title: &str, y: &dyn Fn(&OrbitRow) -> f64| Panel {
+        title: title.into(),
+        x_label: "frame time (ms, mean over views)".into(),
+        y_label: "RMSE of premultiplied RGBA (0-1)".into(),
+        y_range: None,
+        series: series(y),
+        legend_left: false,
+    };
+    Chart {
+        title: format!("{}: error vs frame time over {} views", s.name, s.views),
+        panels: vec![
+            panel("Mean over views", &|r| r.rmse.0),
+            panel("Worst view", &|r| r.rmse.1),
+        ],
+        panel_size: (560, 420),
+    }
+}
+
+/// Writes [`SCENE_FILES`] and `scene-NAME.{png,svg}` per scene into `dir`.
+pub fn write(summaries: &[SceneSummary], dir: &Path, when: &str, command: &str) -> Result<()> {
+    let io = |path: &Path, e: &dyn std::fmt::Display| ReportError::Write {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    std::fs::create_dir_all(dir).map_err(|e| io(dir, &e))?;
+    for (name, text) in [
+        (SCENE_FILES[0], to_markdown(summaries, when, command)),
+        (SCENE_FILES[1], to_csv(summaries)),
+        (SCENE_FILES[2], format!("{:#}\n", to_json(summaries))),
+    ] {
+        let path = dir.join(name);
+        mixvol::output::write_file_atomically(&path, text.as_bytes()).map_err(|e| io(&path, &e))?;
+    }
+    for s in summaries {
+        chart(s).write(dir, &format!("scene-{}", s.name))?;
+    }
+    Ok(())
+}

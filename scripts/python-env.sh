@@ -10,6 +10,7 @@ cd "$(dirname "$0")/.."
 # One line per requirements file; each is installed into the same venv.
 requirements=(
   scripts/requirements-zarr.txt
+  scripts/requirements-nifti.txt
 )
 
 venv="$PWD/target/python-venv"

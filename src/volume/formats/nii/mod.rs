@@ -56,8 +56,9 @@ pub struct NiftiInfo {
     pub stored: StoredType,
     /// True for a big-endian file (detected from `sizeof_hdr`).
     pub big_endian: bool,
-    /// Voxel spacing in file axis order, `|pixdim[1..=3]|` (in the file's `xyzt_units`; only
-    /// ratios matter here).
+    /// Voxel spacing in file axis order: the lengths of the transform's columns (sform, else
+    /// qform, which is `|pixdim[1..=3]|`), else `|pixdim[1..=3]|` (in the file's `xyzt_units`;
+    /// only ratios matter here).
     pub spacing: [f64; 3],
     /// Byte offset of the voxels (`vox_offset`).
     pub vox_offset: u64,
@@ -302,7 +303,15 @@ fn validate(path: &Path, h: &RawHeader) -> Result<NiftiInfo, VolumeError> {
         meta.scale_slope = slope;
         meta.scale_inter = if inter.is_finite() { inter } else { 0.0 };
     }
-    let (reorientation, directions, origin) = orient::reorientation(orient::affine(h), dims);
+    let affine = orient::affine(h);
+    if let Some((m, _)) = &affine {
+        // The voxel size in world space is the transform's (an sform need not agree with
+        // pixdim, which nibabel keeps with the qform).
+        for (i, s) in spacing.iter_mut().enumerate() {
+            *s = (0..3).map(|r| m[r][i] * m[r][i]).sum::<f64>().sqrt();
+        }
+    }
+    let (reorientation, directions, origin) = orient::reorientation(affine, dims);
     meta.directions = directions;
     meta.origin = origin;
     meta.reorientation = Some(reorientation.clone());

@@ -5,7 +5,16 @@
 //!
 //! Every voxel is checked against the formula the generator used (never the loader against
 //! itself): after reorientation each file loads to the RAS+ volume, with its spacing and origin.
+//! On the GPU (lavapipe, validation on), the LAS file renders the same image as the RAS file, and
+//! the LAS voxels in their own file order would not.
+mod common;
+
+use glam::{UVec3, Vec3};
+use mixvol::optics::{TfPreset, TransferFunction};
+use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
+use mixvol::scene::{Camera, RenderSettings};
 use mixvol::volume::formats::{parse_nifti_header, TransformSource};
+use mixvol::volume::Volume;
 use mixvol::volume::{
     load_volume_with_meta, open_slabs, FileFormat, LoadedVolume, ScalarType, StoredType,
     VolumeError, VoxelData,
@@ -102,15 +111,27 @@ fn check_anatomy(name: &str, code: &str, source: TransformSource, version: u8) {
             }
         }
     }
-    let r = loaded.meta.reorientation.as_ref().expect("NIfTI reorientation");
+    let r = loaded
+        .meta
+        .reorientation
+        .as_ref()
+        .expect("NIfTI reorientation");
     assert_eq!(r.file_code(), code, "{name}");
     assert_eq!(r.source, source, "{name}");
     assert!(r.oblique_degrees < 1e-6, "{name}: {r:?}");
     for i in 0..3 {
-        assert!((loaded.meta.origin[i] - ORIGIN[i]).abs() < 1e-9, "{name}: origin {:?}", loaded.meta.origin);
+        assert!(
+            (loaded.meta.origin[i] - ORIGIN[i]).abs() < 1e-9,
+            "{name}: origin {:?}",
+            loaded.meta.origin
+        );
         for j in 0..3 {
             let want = if i == j { 1.0 } else { 0.0 };
-            assert!((loaded.meta.directions[i][j] - want).abs() < 1e-9, "{name}: {:?}", loaded.meta.directions);
+            assert!(
+                (loaded.meta.directions[i][j] - want).abs() < 1e-9,
+                "{name}: {:?}",
+                loaded.meta.directions
+            );
         }
     }
     assert_eq!(loaded.meta.flipped(), [false; 3], "{name}");
@@ -145,7 +166,11 @@ fn every_orientation_loads_to_the_ras_volume() {
     assert_eq!(ras.volume, las.volume);
     let r = las.meta.reorientation.unwrap();
     assert_eq!(r.flipped, [true, false, false]);
-    assert!(r.describe().starts_with("LAS -> RAS (flipped x)"), "{}", r.describe());
+    assert!(
+        r.describe().starts_with("LAS -> RAS (flipped x)"),
+        "{}",
+        r.describe()
+    );
     let pir = load("pir_sform.nii").meta.reorientation.unwrap();
     assert_eq!(pir.permutation, [2, 0, 1]);
     assert_eq!(pir.flipped, [false, true, true]);
@@ -158,7 +183,11 @@ fn the_slab_reader_refuses_what_it_would_read_differently() {
     for name in ["las_sform.nii", "pir_qform.nii", "ct_scaled.nii"] {
         let p = fixtures().join(name);
         match open_slabs(&p, None) {
-            Err(VolumeError::Format { path, field, message }) => {
+            Err(VolumeError::Format {
+                path,
+                field,
+                message,
+            }) => {
                 assert_eq!(path, p);
                 assert_eq!(field, "orientation", "{message}");
                 println!("{name}: {message}");
@@ -190,7 +219,10 @@ fn scl_slope_and_inter_give_physical_values() {
     // Windows are in HU: the value range is [-1024, 2020 - 1024].
     assert_eq!(ct.volume.value_range(), (-1024.0, 996.0));
     let (lo, hi) = ct.volume.auto_window();
-    assert!((-1024.0..=996.0).contains(&lo) && (lo..=996.0).contains(&hi), "{lo} {hi}");
+    assert!(
+        (-1024.0..=996.0).contains(&lo) && (lo..=996.0).contains(&hi),
+        "{lo} {hi}"
+    );
     assert_eq!(ct.meta.normalized(-1000.0), -1000.0);
     assert_eq!(ct.meta.file_value(-1000.0), -1000.0);
 
@@ -210,7 +242,10 @@ fn scl_slope_and_inter_give_physical_values() {
     }
     let (lo, hi) = signed.volume.auto_window();
     let (lo_hu, hi_hu) = (signed.meta.file_value(lo), signed.meta.file_value(hi));
-    assert!((-1024.5..=996.5).contains(&lo_hu) && (lo_hu..=996.5).contains(&hi_hu), "{lo_hu} {hi_hu}");
+    assert!(
+        (-1024.5..=996.5).contains(&lo_hu) && (lo_hu..=996.5).contains(&hi_hu),
+        "{lo_hu} {hi_hu}"
+    );
 
     // uint8 with slope 2, inter -10.
     let u8s = load("u8_scaled.nii");
@@ -226,4 +261,65 @@ fn scl_slope_and_inter_give_physical_values() {
             }
         }
     }
+}
+
+#[test]
+fn las_renders_the_same_image_as_ras() {
+    const SIZE: u32 = 64;
+    let ras = load("ras_sform.nii").volume;
+    let las = load("las_sform.nii").volume;
+    // The LAS file's voxels in file order (no reorientation): file voxel (i, j, k) holds
+    // f(4 - i, j, k), recomputed from the generator's formula.
+    let [nx, ny, nz] = SHAPE;
+    let mut raw = Vec::new();
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                raw.push(f(nx - 1 - i, j, k) as u8);
+            }
+        }
+    }
+    let unreoriented = Volume::new(
+        UVec3::from_array(SHAPE),
+        Vec3::from_array(SPACING),
+        VoxelData::U8(raw),
+    )
+    .unwrap();
+    let settings = RenderSettings {
+        value_window: Some((0.0, 0.55)),
+        ..RenderSettings::default()
+    };
+    let camera = Camera::perspective(Vec3::new(1.1, 0.7, 1.5), Vec3::ZERO, 40.0);
+    let ctx = common::validated_context();
+    {
+        let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
+        renderer
+            .set_transfer_function(&TransferFunction::preset(TfPreset::Bands))
+            .unwrap();
+        let mut render = |v: &Volume| {
+            renderer.set_source(VolumeSource::Volume(v)).unwrap();
+            renderer
+                .render(&camera, &settings, SIZE, SIZE)
+                .unwrap()
+                .pixels
+        };
+        let (a, b, c) = (render(&ras), render(&las), render(&unreoriented));
+        let visible = a.iter().filter(|p| p.w > 0.05).count();
+        assert!(
+            visible > (SIZE * SIZE / 10) as usize,
+            "{visible} visible pixels"
+        );
+        assert!(
+            a == b,
+            "LAS and RAS render differently: {:?}",
+            common::diff(&a, &b, 1.0 / 255.0)
+        );
+        let d = common::diff(&a, &c, 1.0 / 255.0);
+        eprintln!("RAS vs the LAS voxels un-reoriented: {d:?}");
+        assert!(
+            d.max > 0.03 && d.large_fraction > 0.1,
+            "without the reorientation the LAS file should render mirrored: {d:?}"
+        );
+    }
+    common::finish(ctx);
 }

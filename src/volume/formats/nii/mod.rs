@@ -117,7 +117,12 @@ pub fn parse_nifti_header(path: &Path, bytes: &[u8]) -> Result<NiftiInfo, Volume
 }
 
 /// The NIfTI-1 header through the `nifti` crate.
-fn header1(path: &Path, bytes: &[u8], size_le: i32, size_be: i32) -> Result<RawHeader, VolumeError> {
+fn header1(
+    path: &Path,
+    bytes: &[u8],
+    size_le: i32,
+    size_be: i32,
+) -> Result<RawHeader, VolumeError> {
     if bytes.len() < NIFTI1_HEADER_BYTES {
         return Err(format_err(
             path,
@@ -396,23 +401,33 @@ pub(super) fn describe_nifti(path: &Path) -> Result<Described, VolumeError> {
 /// The header, checked, and the reordering the loader applies.
 fn describe(path: &Path) -> Result<(Described, Reorientation), VolumeError> {
     let gzip = read::is_gzip(path)?;
-    let most = NIFTI2_HEADER_BYTES;
     let header = if gzip {
         let (file, _) = read::open_regular(path)?;
-        let mut bytes = Vec::with_capacity(most);
-        MultiGzDecoder::new(BufReader::new(file))
-            .take(most as u64)
-            .read_to_end(&mut bytes)
-            .map_err(|e| {
-                format_err(
-                    path,
-                    "header",
-                    format!("cannot decompress the NIfTI header: {e}"),
-                )
-            })?;
+        let mut decoder = MultiGzDecoder::new(BufReader::new(file));
+        let mut bytes = Vec::with_capacity(NIFTI2_HEADER_BYTES);
+        let mut read_up_to = |bytes: &mut Vec<u8>, n: usize| {
+            (&mut decoder)
+                .take((n - bytes.len()) as u64)
+                .read_to_end(bytes)
+                .map_err(|e| {
+                    format_err(
+                        path,
+                        "header",
+                        format!("cannot decompress the NIfTI header: {e}"),
+                    )
+                })
+        };
+        // NIfTI-1's 348 bytes first (a small NIfTI-1 stream may end before 540), then the rest
+        // of a NIfTI-2 header.
+        read_up_to(&mut bytes, NIFTI1_HEADER_BYTES)?;
+        if bytes.len() >= 4
+            && (bytes[..4] == 540i32.to_le_bytes() || bytes[..4] == 540i32.to_be_bytes())
+        {
+            read_up_to(&mut bytes, NIFTI2_HEADER_BYTES)?;
+        }
         bytes
     } else {
-        read::read_prefix(path, most as u64)?.0
+        read::read_prefix(path, NIFTI2_HEADER_BYTES as u64)?.0
     };
     let info = parse_nifti_header(path, &header)?;
     let layout = layout(path, "dim", info.dims, info.stored)?;

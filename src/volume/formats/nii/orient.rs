@@ -266,7 +266,11 @@ pub(super) fn reorientation(
 /// Reorders `volume`'s voxels as `r` says: volume axis `j` is file axis `r.permutation[j]`,
 /// reversed where `r.flipped[j]`; the spacing is permuted alike. Needs a second voxel buffer
 /// (checked against the host-memory limit first).
-pub(super) fn reorder(path: &Path, volume: Volume, r: &Reorientation) -> Result<Volume, VolumeError> {
+pub(super) fn reorder(
+    path: &Path,
+    volume: Volume,
+    r: &Reorientation,
+) -> Result<Volume, VolumeError> {
     if r.is_identity() {
         return Ok(volume);
     }
@@ -288,7 +292,13 @@ pub(super) fn reorder(path: &Path, volume: Volume, r: &Reorientation) -> Result<
     };
     let (nx, ny, nz) = (dims.x as usize, dims.y as usize, dims.z as usize);
     let xs: Vec<usize> = (0..nx).map(|a| axis_index(0, a)).collect();
-    fn gather<T: Copy>(src: &[T], xs: &[usize], ny: usize, nz: usize, yz: impl Fn(usize, usize) -> usize) -> Vec<T> {
+    fn gather<T: Copy>(
+        src: &[T],
+        xs: &[usize],
+        ny: usize,
+        nz: usize,
+        yz: impl Fn(usize, usize) -> usize,
+    ) -> Vec<T> {
         let mut out = Vec::with_capacity(src.len());
         for z in 0..nz {
             for y in 0..ny {

@@ -323,3 +323,32 @@ fn las_renders_the_same_image_as_ras() {
     }
     common::finish(ctx);
 }
+
+#[test]
+fn broken_nifti2_headers_are_typed_errors_naming_the_field() {
+    let good = std::fs::read(fixtures().join("ras_n2.nii")).unwrap();
+    let p = Path::new("n2.nii");
+    assert_eq!(parse_nifti_header(p, &good).unwrap().version, 2);
+    let field_of = |bytes: &[u8]| match parse_nifti_header(p, bytes) {
+        Err(VolumeError::Format { field, .. }) => field,
+        other => panic!("expected a format error, got {other:?}"),
+    };
+    // Every truncation of the 540-byte header (past the magic) is a `header` error.
+    for len in 12..540 {
+        assert_eq!(field_of(&good[..len]), "header", "{len} bytes");
+    }
+    let with = |at: usize, bytes: &[u8]| {
+        let mut h = good.clone();
+        h[at..at + bytes.len()].copy_from_slice(bytes);
+        h
+    };
+    assert_eq!(field_of(&with(4, b"ni2\0\r\n\x1a\n")), "magic");
+    assert_eq!(field_of(&with(4, b"n+1\0")), "magic");
+    assert_eq!(field_of(&with(12, &1i16.to_le_bytes())), "datatype");
+    assert_eq!(field_of(&with(14, &9i16.to_le_bytes())), "bitpix");
+    assert_eq!(field_of(&with(16, &9i64.to_le_bytes())), "dim[0]");
+    assert_eq!(field_of(&with(24, &0i64.to_le_bytes())), "dim[1]");
+    assert_eq!(field_of(&with(24, &(1i64 << 40).to_le_bytes())), "dim");
+    assert_eq!(field_of(&with(112, &f64::NAN.to_le_bytes())), "pixdim[1]");
+    assert_eq!(field_of(&with(168, &100i64.to_le_bytes())), "vox_offset");
+}

@@ -119,16 +119,16 @@ fn check_anatomy(name: &str, code: &str, source: TransformSource, version: u8) {
     assert_eq!(r.file_code(), code, "{name}");
     assert_eq!(r.source, source, "{name}");
     assert!(r.oblique_degrees < 1e-6, "{name}: {r:?}");
-    for i in 0..3 {
+    for (i, (o, want_o)) in loaded.meta.origin.iter().zip(ORIGIN).enumerate() {
         assert!(
-            (loaded.meta.origin[i] - ORIGIN[i]).abs() < 1e-9,
+            (o - want_o).abs() < 1e-9,
             "{name}: origin {:?}",
             loaded.meta.origin
         );
-        for j in 0..3 {
+        for (j, d) in loaded.meta.directions[i].iter().enumerate() {
             let want = if i == j { 1.0 } else { 0.0 };
             assert!(
-                (loaded.meta.directions[i][j] - want).abs() < 1e-9,
+                (d - want).abs() < 1e-9,
                 "{name}: {:?}",
                 loaded.meta.directions
             );

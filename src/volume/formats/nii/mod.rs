@@ -334,8 +334,13 @@ fn validate(path: &Path, h: &RawHeader) -> Result<NiftiInfo, VolumeError> {
 
 /// Loads a NIfTI-1 or NIfTI-2 file (`.nii`, or gzip-compressed `.nii.gz`; compression is detected
 /// from the content). The header is validated by [`parse_nifti_header`]; raw files must hold
-/// exactly `vox_offset` + the voxel bytes, gzip streams must decode to exactly that. The voxels
-/// are reordered to RAS+ and `scl_slope` / `scl_inter` applied (see the module docs).
+/// exactly `vox_offset` + the voxel bytes, gzip streams must decode to exactly that.
+///
+/// The voxels are reordered to RAS+ (+x right, +y anterior, +z superior, as NIfTI and nibabel):
+/// flips and permutations from the sform, else the qform, else none, recorded in
+/// [`VolumeMeta::reorientation`]; a residual oblique rotation is reported there and is not
+/// applied. `scl_slope` / `scl_inter` other than (1, 0) are applied, giving f32 physical values
+/// ([`VolumeMeta::scale_applied`]).
 pub fn load_nifti(path: &Path) -> Result<LoadedVolume, VolumeError> {
     let (described, reorientation) = describe(path)?;
     let LoadedVolume { volume, mut meta } = described.load()?;

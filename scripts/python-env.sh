@@ -11,6 +11,7 @@ cd "$(dirname "$0")/.."
 requirements=(
   scripts/requirements-zarr.txt
   scripts/requirements-servers.txt
+  scripts/requirements-nifti.txt
 )
 
 venv="$PWD/target/python-venv"

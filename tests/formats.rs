@@ -380,15 +380,21 @@ fn nifti_orientation_and_scaling_in_meta() {
     let p = dir.write("sform.nii", &n.file(&data));
     let l = load_nifti(&p).unwrap();
     assert_eq!(l.volume.spacing(), Vec3::new(0.5, 1.0, 2.5));
+    // The voxels are reordered to RAS+ (x reversed): the directions left are the identity and
+    // the origin is the world position of the new voxel 0, the file's last along x.
     assert_eq!(
         l.meta.directions,
-        [[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+        [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
     );
-    assert_eq!(l.meta.origin, [90.0, -126.0, -72.0]);
-    assert_eq!(l.meta.flipped(), [true, false, false]);
+    assert_eq!(l.meta.origin, [90.0 - 0.5 * 2.0, -126.0, -72.0]);
+    assert_eq!(l.meta.flipped(), [false; 3]);
+    let r = l.meta.reorientation.clone().unwrap();
+    assert_eq!(r.file_code(), "LAS");
+    assert_eq!(r.flipped, [true, false, false]);
+    // scl_slope / scl_inter applied: f32 physical values 2 * 5 - 1024.
     assert_eq!((l.meta.scale_slope, l.meta.scale_inter), (2.0, -1024.0));
-    // Data order is kept: the voxels are not mirrored.
-    assert_eq!(l.volume.data(), &VoxelData::U8(data.to_vec()));
+    assert!(l.meta.scale_applied);
+    assert_eq!(l.volume.data(), &VoxelData::F32(vec![-1014.0; 12]));
 
     // qform: 180 degrees about z (b=c=0, d=1) with qfac -1 flips x, y and z.
     let mut pixdim = Nifti::new(StoredType::U8).pixdim;
@@ -400,13 +406,20 @@ fn nifti_orientation_and_scaling_in_meta() {
     };
     let p = dir.write("qform.nii", &n.file(&data));
     let l = load_nifti(&p).unwrap();
+    let r = l.meta.reorientation.clone().unwrap();
+    assert_eq!(r.file_code(), "LPI");
+    assert_eq!(r.flipped, [true; 3]);
     let d = l.meta.directions;
     let close = |a: [f64; 3], b: [f64; 3]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-6);
-    assert!(close(d[0], [-1.0, 0.0, 0.0]), "{d:?}");
-    assert!(close(d[1], [0.0, -1.0, 0.0]), "{d:?}");
-    assert!(close(d[2], [0.0, 0.0, -1.0]), "{d:?}");
-    assert_eq!(l.meta.origin, [1.0, 2.0, 3.0]);
-    assert_eq!(l.meta.flipped(), [true, true, true]);
+    assert!(close(d[0], [1.0, 0.0, 0.0]), "{d:?}");
+    assert!(close(d[1], [0.0, 1.0, 0.0]), "{d:?}");
+    assert!(close(d[2], [0.0, 0.0, 1.0]), "{d:?}");
+    assert!(
+        close(l.meta.origin, [1.0 - 0.5 * 2.0, 2.0 - 1.0, 3.0 - 2.5]),
+        "{:?}",
+        l.meta.origin
+    );
+    assert_eq!(l.meta.flipped(), [false; 3]);
     assert_eq!(l.volume.spacing(), Vec3::new(0.5, 1.0, 2.5));
     // No transform at all: identity.
     let p = dir.write("none.nii", &Nifti::new(StoredType::U8).file(&data));
@@ -572,7 +585,8 @@ fn nifti_malformed_headers_name_the_field() {
                 sizeof_hdr: 540,
                 ..base.clone()
             },
-            "sizeof_hdr",
+            // Read as NIfTI-2 now, whose magic ("n+2") this NIfTI-1 header lacks.
+            "magic",
         ),
     ];
     for (tag, n, field) in cases {

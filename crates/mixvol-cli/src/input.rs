@@ -9,13 +9,19 @@ use mixvol::volume::formats::{
     load_zarr_at, load_zarr_level, FileFormat, RemoteOptions, ZarrLocation,
 };
 use mixvol::volume::memory::check_host_bytes;
-use mixvol::volume::{load_raw, RawDescriptor, SyntheticField, Volume, VolumeError};
+use mixvol::volume::{load_raw, RawDescriptor, SyntheticField, Volume, VolumeError, VolumeMeta};
 use mixvol::{Error, Result};
 use std::path::Path;
 use std::sync::Arc;
 
 /// Loads or generates the volume `--volume` names (see `mixvol render --help`).
 pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
+    Ok(load_volume_with_meta(args)?.0)
+}
+
+/// [`load_volume`], with the file's metadata (`None` for synthetic fields and headerless raw
+/// data).
+pub fn load_volume_with_meta(args: &RenderArgs) -> Result<(Volume, Option<VolumeMeta>)> {
     // A URL is never looked up as a local file: s3:// and http(s):// name remote OME-Zarr
     // images (timeouts and retries from MIXVOL_REMOTE_*), file:// a local path.
     let local;
@@ -27,7 +33,8 @@ pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
             }
             remote => {
                 let level = args.zarr_level.unwrap_or(0);
-                return Ok(load_zarr_at(&remote, level, &RemoteOptions::from_env()?)?.volume);
+                let loaded = load_zarr_at(&remote, level, &RemoteOptions::from_env()?)?;
+                return Ok((loaded.volume, Some(loaded.meta)));
             }
         }
     } else {
@@ -41,13 +48,15 @@ pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
                 args.volume
             )));
         }
-        return Ok(load_zarr_level(path, level)?.volume);
+        let loaded = load_zarr_level(path, level)?;
+        return Ok((loaded.volume, Some(loaded.meta)));
     }
     if let Some(field) = SyntheticField::parse(&args.volume) {
-        return Ok(field.generate(args.dims, args.scalar)?);
+        return Ok((field.generate(args.dims, args.scalar)?, None));
     }
     if format.is_some() {
-        return Ok(mixvol::volume::load_volume(path)?);
+        let loaded = mixvol::volume::load_volume_with_meta(path)?;
+        return Ok((loaded.volume, Some(loaded.meta)));
     }
     if path.is_dir() {
         return Err(Error::InvalidInput(format!(
@@ -56,7 +65,7 @@ pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
             args.volume
         )));
     }
-    load_raw(
+    let raw = load_raw(
         path,
         &RawDescriptor {
             dims: args.dims,
@@ -81,7 +90,8 @@ pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
             args.header_bytes
         )),
         e => e.into(),
-    })
+    })?;
+    Ok((raw, None))
 }
 
 /// Checks a synthetic field the scene will draw as one plain texture (no `--levels`, no
@@ -139,6 +149,12 @@ pub fn is_brick_store(path: &Path) -> bool {
 
 /// Opens `--volume`: a brick store when the file is one, else [`load_volume`].
 pub fn open_input(args: &RenderArgs) -> Result<Input> {
+    Ok(open_input_with_meta(args)?.0)
+}
+
+/// [`open_input`], with the metadata of a volume file (`None` for a brick store, a synthetic
+/// field or headerless raw data).
+pub fn open_input_with_meta(args: &RenderArgs) -> Result<(Input, Option<VolumeMeta>)> {
     let path = Path::new(&args.volume);
     if !ZarrLocation::is_url(&args.volume) && is_brick_store(path) {
         if args.zarr_level.is_some() {
@@ -147,9 +163,42 @@ pub fn open_input(args: &RenderArgs) -> Result<Input> {
                 args.volume
             )));
         }
-        return Ok(Input::Store(Box::new(BrickStore::open(path)?)));
+        return Ok((Input::Store(Box::new(BrickStore::open(path)?)), None));
     }
-    Ok(Input::Volume(Arc::new(load_volume(args)?)))
+    let (volume, meta) = load_volume_with_meta(args)?;
+    Ok((Input::Volume(Arc::new(volume)), meta))
+}
+
+/// The lines `mixvol render` prints about a NIfTI file's orientation, e.g.
+/// `orientation: LAS -> RAS (flipped x), from the sform (RAS+ world: +x right, +y anterior,
+/// +z superior)`; `None` for other inputs.
+pub fn orientation_line(meta: Option<&VolumeMeta>) -> Option<String> {
+    let r = meta?.reorientation.as_ref()?;
+    Some(format!(
+        "orientation: {} (RAS+ world: +x right, +y anterior, +z superior)",
+        r.describe()
+    ))
+}
+
+/// How `mixvol render` prints a window: in normalised values, plus the file's units where they
+/// differ (an i16 CT: HU), or in the file's physical units where `scl_slope` / `scl_inter` were
+/// applied.
+pub fn window_line(meta: Option<&VolumeMeta>, (lo, hi): (f32, f32)) -> String {
+    match meta {
+        Some(m) if m.scale_applied => format!(
+            "window: [{lo:.4}, {hi:.4}] (file units after scl_slope {} / scl_inter {}: HU for CT)",
+            m.scale_slope, m.scale_inter
+        ),
+        Some(m) if m.stored.value_offset() != 0 => format!(
+            "window: [{lo:.4}, {hi:.4}] (normalised values) = [{:.1}, {:.1}] in file units \
+             ({} stored + {}: HU for CT)",
+            m.file_value(lo),
+            m.file_value(hi),
+            m.stored.name(),
+            m.stored.value_offset()
+        ),
+        _ => format!("window: [{lo:.4}, {hi:.4}] (normalised values)"),
+    }
 }
 
 /// The value window from `--window` / `--preset`; `volume` is `None` for a brick store (whose

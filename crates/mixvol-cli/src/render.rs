@@ -7,7 +7,7 @@ use crate::camera_path::{dolly, load_path, orbit};
 use crate::compare::Difference;
 use crate::files::create_parent;
 use crate::frame_log::{write_log, FrameRow};
-use crate::input::{open_input, window_of, Input};
+use crate::input::{open_input_with_meta, orientation_line, window_line, window_of, Input};
 use crate::levels::level_pattern;
 use crate::stats::{peak_rss_bytes, Summary};
 use mixvol::bricks::BrickGrid;
@@ -278,7 +278,7 @@ pub fn render(args: &RenderArgs) -> Result<()> {
     // The context comes first so that a synthetic field is checked against the device's
     // limits before it is generated.
     crate::input::check_plain_synthetic(args, &ctx)?;
-    let input = open_input(args)?;
+    let (input, meta) = open_input_with_meta(args)?;
     if args.compare && matches!(input, Input::Store(_)) {
         return Err(Error::InvalidInput(
             "--compare needs the volume in memory for the CPU reference; render the source file \
@@ -303,10 +303,13 @@ pub fn render(args: &RenderArgs) -> Result<()> {
             ""
         }
     );
+    if let Some(line) = orientation_line(meta.as_ref()) {
+        println!("{line}");
+    }
     let tf = TransferFunction::preset(args.preset.unwrap_or(args.tf));
     let value_window = window_of(args, volume_for_window)?;
-    if let Some((lo, hi)) = value_window {
-        println!("window: [{lo:.4}, {hi:.4}] (normalised values)");
+    if let Some(window) = value_window {
+        println!("{}", window_line(meta.as_ref(), window));
     }
     let settings = args.optics.apply(RenderSettings {
         samples_per_voxel: args.samples_per_voxel,

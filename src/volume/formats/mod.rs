@@ -1,4 +1,4 @@
-//! Volume file formats: NIfTI-1 (`.nii`, `.nii.gz`), NRRD (`.nrrd`, detached `.nhdr`; raw or gzip
+//! Volume file formats: NIfTI-1 and NIfTI-2 (`.nii`, `.nii.gz`), NRRD (`.nrrd`, detached `.nhdr`; raw or gzip
 //! encoding), raw data described by a JSON sidecar (`.json`, or `.raw` beside one) and VolPack /
 //! Levoy density files (`.den`), and OME-Zarr images (`.zarr` folders, Zarr v2 and v3, through
 //! the `zarrs` crate; see [`zarr`]).
@@ -37,19 +37,23 @@
 //!
 //! The integer offsets keep the data exact and keep the GPU's UNORM sampling; to set a window
 //! in file units (e.g. Hounsfield units of an i16 CT) use [`VolumeMeta::normalized`], which maps
-//! a stored value to the normalised value the renderer sees. NIfTI `scl_slope` / `scl_inter` are
-//! not applied to the voxels; they are reported in [`VolumeMeta`].
+//! a stored value to the normalised value the renderer sees ([`VolumeMeta::file_value`] back).
+//! NIfTI `scl_slope` / `scl_inter` other than (1, 0) are applied: the voxels become f32 physical
+//! values (HU for CT; [`VolumeMeta::scale_applied`]), so windows are in those units.
 //!
 //! # Spacing and orientation
 //!
-//! Voxels are kept in file order (first axis fastest), never resampled or flipped. Spacing is the
+//! NIfTI voxels are reordered to RAS+ (+x right, +y anterior, +z superior; flips and
+//! permutations from the sform, else the qform; see [`load_nifti`] and
+//! [`VolumeMeta::reorientation`]); an oblique residual rotation is not applied. Other formats keep
+//! voxels in file order (first axis fastest), never resampled or flipped. Spacing is the
 //! size of a voxel step along each index axis: NIfTI `|pixdim[1..=3]|`, NRRD the norms of the
 //! `space directions` vectors (else `|spacings|`, else 1), the sidecar's `spacing`, 1 for `.den`.
 //! So anisotropic voxels render with the right aspect. The direction of each index axis in the
 //! file's world frame (NIfTI: sform, else qform, else identity; NRRD: `space directions`) is
-//! reported as unit vectors in [`VolumeMeta::directions`], with [`VolumeMeta::origin`]; an axis
-//! whose direction points the "wrong" way (e.g. a NIfTI file stored LAS instead of RAS) therefore
-//! renders mirrored relative to the world frame: the renderer works in index space.
+//! reported as unit vectors in [`VolumeMeta::directions`], with [`VolumeMeta::origin`]; for NRRD
+//! an axis whose direction points the "wrong" way therefore renders mirrored relative to the
+//! world frame: the renderer works in index space.
 
 mod den;
 mod nii;
@@ -60,7 +64,10 @@ pub(crate) mod slab_readers;
 pub mod zarr;
 
 pub use den::{load_den, parse_den_header, DenHeader, DEN_HEADER_BYTES};
-pub use nii::{load_nifti, parse_nifti_header, NiftiInfo, NIFTI1_HEADER_BYTES};
+pub use nii::{
+    load_nifti, parse_nifti_header, NiftiInfo, Reorientation, TransformSource, NIFTI1_HEADER_BYTES,
+    NIFTI2_HEADER_BYTES,
+};
 pub use nrrd::{load_nrrd, parse_nrrd_header, NrrdHeader};
 pub use sidecar::{load_sidecar, parse_sidecar, Sidecar};
 pub use zarr::{
@@ -253,7 +260,9 @@ pub struct VolumeMeta {
     pub big_endian: bool,
     /// Unit vectors: the world direction of increasing x, y and z index (`directions[i]` for
     /// index axis `i`), in the file's world frame (NIfTI: RAS+; NRRD: its `space`). Identity when
-    /// the file has no orientation. The voxels are not reordered to match.
+    /// the file has no orientation. NIfTI voxels are reordered to RAS+ (see
+    /// [`VolumeMeta::reorientation`]), so these are the residual rotation, near identity; other
+    /// formats keep file order and report the file's directions.
     pub directions: [[f64; 3]; 3],
     /// World position of voxel (0, 0, 0)'s centre; zero when the file has none.
     pub origin: [f64; 3],
@@ -262,6 +271,12 @@ pub struct VolumeMeta {
     pub scale_slope: f64,
     /// NIfTI `scl_inter` (0 elsewhere).
     pub scale_inter: f64,
+    /// True when the loader applied `scale_slope` / `scale_inter`: the volume then holds f32
+    /// physical values (NIfTI with a non-identity scaling).
+    pub scale_applied: bool,
+    /// NIfTI: how the voxels were reordered to RAS+ (`None` for the other formats, which keep
+    /// file order).
+    pub reorientation: Option<Reorientation>,
 }
 
 impl VolumeMeta {
@@ -275,19 +290,41 @@ impl VolumeMeta {
             origin: [0.0; 3],
             scale_slope: 1.0,
             scale_inter: 0.0,
+            scale_applied: false,
+            reorientation: None,
         }
     }
 
-    /// The normalised value (what transfer functions see, see [`crate::volume`]) of a value as
-    /// stored in the file: `(stored + offset) / 255` for u8 / i8, `(stored + offset) / 65535` for
-    /// u16 / i16, the value itself for float volumes. Use it to place a window given in file
-    /// units, e.g. `meta.normalized(-1000.0)` for air in an i16 CT.
-    pub fn normalized(&self, stored: f64) -> f32 {
-        let raw = stored + f64::from(self.stored.value_offset());
+    /// The normalised value (what transfer functions see, see [`crate::volume`]) of a value in
+    /// file units: as stored for integer volumes, `(stored + offset) / 255` for u8 / i8,
+    /// `(stored + offset) / 65535` for u16 / i16, the value itself for float volumes and for
+    /// volumes whose scaling was applied ([`VolumeMeta::scale_applied`]: the value is then the
+    /// physical one, e.g. HU). Use it to place a window given in file units, e.g.
+    /// `meta.normalized(-1000.0)` for air in an i16 CT.
+    pub fn normalized(&self, value: f64) -> f32 {
+        if self.scale_applied {
+            return value as f32;
+        }
+        let raw = value + f64::from(self.stored.value_offset());
         match self.stored.volume_scalar() {
             ScalarType::U8 => (raw / 255.0) as f32,
             ScalarType::U16 => (raw / 65535.0) as f32,
             ScalarType::F32 => raw as f32,
+        }
+    }
+
+    /// The inverse of [`VolumeMeta::normalized`]: the value in file units (HU for an i16 CT) of a
+    /// normalised value, e.g. to print a window the renderer uses.
+    pub fn file_value(&self, normalized: f32) -> f64 {
+        let n = f64::from(normalized);
+        if self.scale_applied {
+            return n;
+        }
+        let offset = f64::from(self.stored.value_offset());
+        match self.stored.volume_scalar() {
+            ScalarType::U8 => n * 255.0 - offset,
+            ScalarType::U16 => n * 65535.0 - offset,
+            ScalarType::F32 => n - offset,
         }
     }
 

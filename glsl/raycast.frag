@@ -66,14 +66,18 @@ FIELD cache_fetch(vec3 texel) {
 #include "include/mixed.glsl"
 
 // The brick b of volume point x and what sampling in it needs: its layout entry, neighbour bits
-// and band bounds (bits are 0 for low-res and absent bricks, so they have no band). Mirrors the
-// lookup in `sample_mixed`.
+// and band bounds (bits are 0 for low-res and absent bricks, so they have no band; without
+// transitions no brick has one). Mirrors the lookup in `sample_mixed`.
 void look_up_brick(vec3 x, float n, ivec3 bricks, out ivec3 b, out vec4 entry, out uint bits,
                    out vec3 band_lo, out vec3 band_hi) {
     b = brick_of(x, n, bricks);
     int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
     entry = layout_entries[bi];
+#ifdef SMOOTH_TRANSITIONS
     bits = neighbour_bits[bi];
+#else
+    bits = 0u;
+#endif
     band_bounds(bits, n, band_lo, band_hi);
 }
 
@@ -264,9 +268,22 @@ int merge_low_res_pair(int i, int steps, float t0, float t1, float step_len, Ray
 }
 #endif
 
-#ifndef SMOOTH_TRANSITIONS
-// Without transitions every sample is one fetch: a single loop over the samples that reloads the
-// layout entry only when a sample lands in a new brick (cheaper on SIMD CPUs than nested loops).
+// Which loop walks the bricks. With transitions, or with a gradient at every sample (shading or
+// gradient opacity in DVR / MIDA), the run schedule below: interior runs read a sample's six
+// gradient points through its own brick's layout entry instead of looking each one up (six
+// lookups per sample: 1.6-1.9x the plain texture, shaded). The B-spline keeps the flat loop
+// (it reads across bricks at every sample).
+#if (defined(SHADING) || defined(GRADIENT_OPACITY)) && !defined(MODE_ISO) && !defined(MODE_MIP)
+#define SAMPLE_GRADIENTS
+#endif
+#if defined(SMOOTH_TRANSITIONS) || (defined(SAMPLE_GRADIENTS) && !defined(TRICUBIC))
+#define RUN_SCHEDULE
+#endif
+
+#ifndef RUN_SCHEDULE
+// Without transitions or per-sample gradients every sample is one fetch: a single loop over the
+// samples that reloads the layout entry only when a sample lands in a new brick (cheaper on SIMD
+// CPUs than nested loops).
 vec4 cast_ray(Ray ray) {
     vec2 hit = intersect_box(ray, params.box_min.xyz, params.box_max.xyz);
     float t0 = max(hit.x, params.forward.w);

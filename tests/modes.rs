@@ -229,12 +229,13 @@ fn check(name: &str, gpu: &[Vec4], cpu: &[Vec4], iso: bool) {
 
 /// A smooth mixed-resolution renderer of `volume` with bricks of `brick_size` on a random plan of
 /// hi (4/9), lo (4/9) and absent (1/9) bricks, and the CPU reference cache of the same plan.
-fn random_smooth_mixed(
+fn random_mixed(
     ctx: &mixvol::gpu::GpuContext,
     volume: &Arc<Volume>,
     tf: &TransferFunction,
     brick_size: u32,
     seed: u64,
+    transition: Transition,
 ) -> (Renderer, ReferenceCache) {
     let mut mixed = Renderer::new(ctx, TargetFormat::Rgba32Float).unwrap();
     mixed.set_transfer_function(tf).unwrap();
@@ -245,7 +246,7 @@ fn random_smooth_mixed(
                 brick_size,
                 filter: DownsampleFilter::Mean2,
                 cache_budget_bytes: 64 << 20,
-                transition: Transition::Smooth,
+                transition,
             },
         })
         .unwrap();
@@ -266,7 +267,7 @@ fn random_smooth_mixed(
         DownsampleFilter::Mean2,
         mixed.brick_cache().unwrap(),
         volume.scalar_type(),
-        Transition::Smooth,
+        transition,
     )
     .unwrap();
     (mixed, cache)
@@ -286,7 +287,8 @@ fn every_mode_and_option_matches_the_reference_single_and_mixed() {
         let mut single = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
         single.set_transfer_function(&tf).unwrap();
         single.set_source(VolumeSource::Volume(&volume)).unwrap();
-        let (mut mixed, cache) = random_smooth_mixed(&ctx, &volume, &tf, N, 0x5eed);
+        let mut mixed_renderers = [Transition::Smooth, Transition::Discontinuous]
+            .map(|t| (t, random_mixed(&ctx, &volume, &tf, N, 0x5eed, t)));
         for (name, settings) in scenes() {
             let iso = matches!(settings.mode, RenderMode::Iso { .. });
             let frame = single.render(&camera, &settings, SIZE, SIZE).unwrap();
@@ -304,20 +306,33 @@ fn every_mode_and_option_matches_the_reference_single_and_mixed() {
             );
             check(&format!("{name}-single"), &frame.pixels, &expected, iso);
 
-            let frame = mixed.render(&camera, &settings, SIZE, SIZE).unwrap();
-            assert!(frame.variant.mixed_resolution && frame.variant.smooth_transitions);
-            // Low-res bricks are resident: tricubic stays off (see Reconstruction).
-            assert!(!frame.variant.features.tricubic, "{name}");
-            let params = mixed.params(&camera, &settings, SIZE, SIZE).unwrap();
-            let expected = reference::render_mixed_scene(
-                &cache.view(),
-                Transition::Smooth,
-                &tf,
-                &settings,
-                &params,
-            )
-            .unwrap();
-            check(&format!("{name}-mixed"), &frame.pixels, &expected, iso);
+            // Both transitions: the discontinuous variant with gradients walks the bricks in
+            // runs too (raycast.frag, RUN_SCHEDULE), which must not change the image.
+            for (transition, (mixed, cache)) in &mut mixed_renderers {
+                let frame = mixed.render(&camera, &settings, SIZE, SIZE).unwrap();
+                assert!(frame.variant.mixed_resolution);
+                assert_eq!(
+                    frame.variant.smooth_transitions,
+                    *transition == Transition::Smooth
+                );
+                // Low-res bricks are resident: tricubic stays off (see Reconstruction).
+                assert!(!frame.variant.features.tricubic, "{name}");
+                let params = mixed.params(&camera, &settings, SIZE, SIZE).unwrap();
+                let expected = reference::render_mixed_scene(
+                    &cache.view(),
+                    *transition,
+                    &tf,
+                    &settings,
+                    &params,
+                )
+                .unwrap();
+                check(
+                    &format!("{name}-mixed-{transition:?}"),
+                    &frame.pixels,
+                    &expected,
+                    iso,
+                );
+            }
         }
     }
     common::finish(ctx);
@@ -338,7 +353,8 @@ fn small_bricks_with_gradients_and_coarse_pairs_match_the_reference() {
         );
         let tf = TransferFunction::preset(TfPreset::Bands);
         let camera = Camera::perspective(Vec3::new(1.1, 0.7, 1.4), Vec3::ZERO, 40.0);
-        let (mut mixed, cache) = random_smooth_mixed(&ctx, &volume, &tf, SMALL, 0x4b1d);
+        let mut mixed_renderers = [Transition::Smooth, Transition::Discontinuous]
+            .map(|t| (t, random_mixed(&ctx, &volume, &tf, SMALL, 0x4b1d, t)));
         let base = RenderSettings {
             samples_per_voxel: 1.3,
             ..RenderSettings::default()
@@ -376,27 +392,38 @@ fn small_bricks_with_gradients_and_coarse_pairs_match_the_reference() {
             ),
         ];
         for (name, settings) in scenes {
-            let frame = mixed.render(&camera, &settings, SIZE, SIZE).unwrap();
-            assert!(frame.variant.smooth_transitions, "{name}");
-            assert_eq!(
-                frame.variant.features.coarse_low_res,
-                settings.coarse_low_res_steps
-            );
-            let params = mixed.params(&camera, &settings, SIZE, SIZE).unwrap();
-            let expected = reference::render_mixed_scene(
-                &cache.view(),
-                Transition::Smooth,
-                &tf,
-                &settings,
-                &params,
-            )
-            .unwrap();
-            let visible = expected.iter().filter(|p| p.w > 0.05).count();
-            assert!(
-                visible > (SIZE * SIZE / 20) as usize,
-                "{name}: {visible} pixels"
-            );
-            check(name, &frame.pixels, &expected, false);
+            for (transition, (mixed, cache)) in &mut mixed_renderers {
+                let frame = mixed.render(&camera, &settings, SIZE, SIZE).unwrap();
+                assert_eq!(
+                    frame.variant.smooth_transitions,
+                    *transition == Transition::Smooth,
+                    "{name}"
+                );
+                assert_eq!(
+                    frame.variant.features.coarse_low_res,
+                    settings.coarse_low_res_steps
+                );
+                let params = mixed.params(&camera, &settings, SIZE, SIZE).unwrap();
+                let expected = reference::render_mixed_scene(
+                    &cache.view(),
+                    *transition,
+                    &tf,
+                    &settings,
+                    &params,
+                )
+                .unwrap();
+                let visible = expected.iter().filter(|p| p.w > 0.05).count();
+                assert!(
+                    visible > (SIZE * SIZE / 20) as usize,
+                    "{name}: {visible} pixels"
+                );
+                check(
+                    &format!("{name}-{transition:?}"),
+                    &frame.pixels,
+                    &expected,
+                    false,
+                );
+            }
         }
     }
     common::finish(ctx);

@@ -19,7 +19,9 @@ pub mod shared_defs;
 mod upload;
 mod validation;
 
-pub use context::{ContextDesc, DeviceInfo, GpuContext, HostDevice, MemoryLimits};
+pub use context::{
+    ContextDesc, DeviceInfo, GpuContext, HostDevice, MemoryLimits, ALLOCATION_CAP_ENV,
+};
 pub use shaders::ShaderStage;
 pub use validation::{DebugMessage, MessageLog, Severity, INVALID_CALL_ENV};
 

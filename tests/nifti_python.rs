@@ -7,6 +7,8 @@
 //! itself): after reorientation each file loads to the RAS+ volume, with its spacing and origin.
 //! On the GPU (lavapipe, validation on), the LAS file renders the same image as the RAS file, and
 //! the LAS voxels in their own file order would not.
+mod python_env;
+
 mod common;
 
 use glam::{UVec3, Vec3};
@@ -20,58 +22,17 @@ use mixvol::volume::{
     VolumeError, VoxelData,
 };
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
-
-/// The environment variable naming the python of the venv with nibabel.
-const PYTHON_ENV: &str = "MIXVOL_PYTHON";
-
-/// The python to run the generator with: `MIXVOL_PYTHON`, else the venv scripts/python-env.sh
-/// makes. Panics (the test fails) with what to run when neither exists.
-fn python() -> PathBuf {
-    if let Some(p) = std::env::var_os(PYTHON_ENV) {
-        return PathBuf::from(p);
-    }
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/python-venv/bin/python");
-    assert!(
-        venv.is_file(),
-        "{PYTHON_ENV} is not set and {} does not exist: run scripts/python-env.sh (scripts/test.sh \
-         does, and exports {PYTHON_ENV}) to install nibabel",
-        venv.display()
-    );
-    venv
-}
 
 /// The folder holding every fixture, written once per test binary.
 fn fixtures() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("nibabel-fixtures");
-        let _ = std::fs::remove_dir_all(&dir);
-        let script =
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/write_nifti_fixtures.py");
-        let python = python();
-        let out = Command::new(&python)
-            .arg(&script)
-            .arg(&dir)
-            .output()
-            .unwrap_or_else(|e| {
-                panic!(
-                    "cannot run {} ({PYTHON_ENV}): {e}; scripts/python-env.sh makes the venv",
-                    python.display()
-                )
-            });
-        assert!(
-            out.status.success(),
-            "{} {} failed ({}; is it the venv of scripts/python-env.sh, with \
-             scripts/requirements-nifti.txt?):\n{}\n{}",
-            python.display(),
-            script.display(),
-            out.status,
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        dir
+        python_env::write_fixtures(
+            "write_nifti_fixtures.py",
+            "nibabel-fixtures",
+            "scripts/requirements-nifti.txt",
+        )
     })
 }
 

@@ -9,63 +9,23 @@
 //! The OME metadata (levels, scales, translations) is checked against the numbers the generator
 //! passed to ome-zarr-py. A corrupted Blosc or Zstd chunk must be a `VolumeError::Format` naming
 //! the chunk file.
+mod python_env;
+
 use mixvol::volume::formats::{load_zarr_level, parse_zarr_root, ZarrRoot, ZarrVersion};
 use mixvol::volume::VoxelData;
 use mixvol::volume::{load_volume, load_zarr, FileFormat, LoadedVolume, StoredType, VolumeError};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
-
-/// The environment variable naming the python of the venv with zarr-python and ome-zarr-py.
-const PYTHON_ENV: &str = "MIXVOL_PYTHON";
-
-/// The python to run the generator with: `MIXVOL_PYTHON`, else the venv scripts/python-env.sh
-/// makes. Panics (the test fails) with what to run when neither exists.
-fn python() -> PathBuf {
-    if let Some(p) = std::env::var_os(PYTHON_ENV) {
-        return PathBuf::from(p);
-    }
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/python-venv/bin/python");
-    assert!(
-        venv.is_file(),
-        "{PYTHON_ENV} is not set and {} does not exist: run scripts/python-env.sh (scripts/test.sh \
-         does, and exports {PYTHON_ENV}) to install zarr-python and ome-zarr-py",
-        venv.display()
-    );
-    venv
-}
 
 /// The folder holding every fixture, written once per test binary.
 fn fixtures() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("zarr-python-fixtures");
-        let _ = std::fs::remove_dir_all(&dir);
-        let script =
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/write_zarr_fixtures.py");
-        let python = python();
-        let out = Command::new(&python)
-            .arg(&script)
-            .arg(&dir)
-            .output()
-            .unwrap_or_else(|e| {
-                panic!(
-                    "cannot run {} ({PYTHON_ENV}): {e}; scripts/python-env.sh makes the venv \
-                     and prints its python",
-                    python.display()
-                )
-            });
-        assert!(
-            out.status.success(),
-            "{} {} failed ({}; is it the venv of scripts/python-env.sh, with \
-             scripts/requirements-zarr.txt?):\n{}\n{}",
-            python.display(),
-            script.display(),
-            out.status,
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        dir
+        python_env::write_fixtures(
+            "write_zarr_fixtures.py",
+            "zarr-python-fixtures",
+            "scripts/requirements-zarr.txt",
+        )
     })
 }
 

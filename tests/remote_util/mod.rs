@@ -5,6 +5,9 @@
 //! small hand-written OME-Zarr store (v2 + gzip, v3 + raw) with known voxel values.
 #![allow(dead_code)]
 
+#[path = "../python_env/mod.rs"]
+mod python_env;
+
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -24,20 +27,10 @@ pub fn repo() -> PathBuf {
     }
 }
 
-/// The Python of the test environment (`MIXVOL_PYTHON`, which scripts/test.sh exports, else the
-/// venv scripts/python-env.sh creates at target/python-venv); panics with what to run when it is
-/// missing.
+/// The Python of the test environment (see tests/python_env); panics with what to run when it
+/// is missing.
 pub fn python() -> PathBuf {
-    let python = std::env::var_os("MIXVOL_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| repo().join("target/python-venv/bin/python"));
-    assert!(
-        python.is_file(),
-        "the test Python environment {} is missing: run scripts/python-env.sh (scripts/test.sh \
-         does) to create it with moto and boto3",
-        python.display()
-    );
-    python
+    python_env::python("moto and boto3")
 }
 
 /// A free loopback TCP port (bound and released: another process could take it in between,

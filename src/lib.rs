@@ -35,6 +35,7 @@ pub mod reference;
 pub mod renderer;
 pub mod scene;
 pub mod store;
+pub mod stream;
 pub mod volume;
 
 pub use error::{Error, Result};

@@ -25,12 +25,14 @@
 //!   into levels whose bytes are available right now (a missing hi-res brick falls back to its
 //!   low-res version), so the renderer never waits for the disk.
 
+pub mod backend;
 pub mod format;
 pub mod reader;
 pub mod slab_writer;
 pub mod streamer;
 pub mod writer;
 
+pub use backend::BrickBackend;
 pub use format::{StoreHeader, FORMAT_VERSION, HEADER_SIZE, MAGIC};
 pub use reader::BrickStore;
 pub use slab_writer::{plan_slab_write, slab_store_desc, write_store_from_slabs, SlabPlan};

@@ -40,7 +40,7 @@
 //! Bytes handed out are `Arc<[u8]>` clones: a level evicted while a caller still holds its `Arc`
 //! stays allocated until the caller drops it (the budget counts the cache's own references).
 
-use super::{BrickStore, StoreError};
+use super::{BrickBackend, BrickStore, StoreError};
 use crate::bricks::{BrickGrid, BrickSource, DownsampleFilter, Level, SourceError, ValueRange};
 use crate::error::Result;
 use crate::volume::ScalarType;
@@ -139,7 +139,7 @@ struct State {
     peak: usize,
     budget: usize,
     in_flight: Option<Key>,
-    failed: HashMap<Key, Arc<StoreError>>,
+    failed: HashMap<Key, Arc<dyn std::error::Error + Send + Sync>>,
     shutdown: bool,
     loads: u64,
     evictions: u64,
@@ -349,8 +349,8 @@ impl State {
 }
 
 /// What the loader thread and the handle share.
-struct Shared {
-    store: BrickStore,
+struct Shared<B> {
+    store: B,
     state: Mutex<State>,
     /// Signalled when there may be work (request, budget change, shutdown).
     work: Condvar,
@@ -358,7 +358,7 @@ struct Shared {
     progress: Condvar,
 }
 
-impl Shared {
+impl<B> Shared<B> {
     fn lock(&self) -> MutexGuard<'_, State> {
         self.state.lock().unwrap_or_else(|p| p.into_inner())
     }
@@ -367,23 +367,31 @@ impl Shared {
 /// Streams brick levels of a [`BrickStore`] on a background thread into a budgeted RAM cache, in
 /// the priority order of the latest [`BrickStreamer::request`] (policy in the
 /// [module docs](self)); a [`BrickSource`] whose [`BrickSource::brick_bytes`] never blocks.
-pub struct BrickStreamer {
-    shared: Arc<Shared>,
+pub struct BrickStreamer<B: BrickBackend = BrickStore> {
+    shared: Arc<Shared<B>>,
     thread: Option<JoinHandle<()>>,
 }
 
-impl std::fmt::Debug for BrickStreamer {
+impl<B: BrickBackend> std::fmt::Debug for BrickStreamer<B> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("BrickStreamer")
-            .field("store", &self.shared.store.path())
+            .field("backend", &self.shared.store.name())
             .field("stats", &self.stats())
             .finish()
     }
 }
 
-impl BrickStreamer {
-    /// Starts streaming from `store` with an empty wanted set.
-    pub fn new(store: BrickStore, config: StreamerConfig) -> Result<Self, StoreError> {
+impl BrickStreamer<BrickStore> {
+    /// Opens the store at `path` and starts streaming from it.
+    pub fn open(path: impl AsRef<Path>, config: StreamerConfig) -> Result<Self, StoreError> {
+        Self::new(BrickStore::open(path)?, config)
+    }
+}
+
+impl<B: BrickBackend> BrickStreamer<B> {
+    /// Starts streaming from `store` (a [`BrickStore`] or another [`BrickBackend`]) with an empty
+    /// wanted set.
+    pub fn new(store: B, config: StreamerConfig) -> Result<Self, StoreError> {
         let shared = Arc::new(Shared {
             store,
             state: Mutex::new(State::new(
@@ -404,13 +412,8 @@ impl BrickStreamer {
         })
     }
 
-    /// Opens the store at `path` and starts streaming from it.
-    pub fn open(path: impl AsRef<Path>, config: StreamerConfig) -> Result<Self, StoreError> {
-        Self::new(BrickStore::open(path)?, config)
-    }
-
-    /// The store streamed from.
-    pub fn store(&self) -> &BrickStore {
+    /// The backend streamed from (the store).
+    pub fn store(&self) -> &B {
         &self.shared.store
     }
 
@@ -418,7 +421,7 @@ impl BrickStreamer {
     /// first; see the [module docs](self)). `Level::Absent` entries are ignored. Never blocks on
     /// disk. Errors (and changes nothing) when a brick index is outside the grid.
     pub fn request(&self, wanted: &[(u32, Level, f32)]) -> Result<(), StoreError> {
-        let count = self.shared.store.brick_count();
+        let count = self.shared.store.grid().brick_count() as u32;
         if let Some(&(brick, ..)) = wanted.iter().find(|(b, ..)| *b >= count) {
             return Err(StoreError::BrickOutOfRange { brick, count });
         }
@@ -549,7 +552,7 @@ impl BrickStreamer {
     }
 }
 
-impl BrickSource for BrickStreamer {
+impl<B: BrickBackend> BrickSource for BrickStreamer<B> {
     fn grid(&self) -> BrickGrid {
         self.shared.store.grid()
     }
@@ -575,7 +578,7 @@ impl BrickSource for BrickStreamer {
     }
 
     fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>, SourceError> {
-        let count = self.shared.store.brick_count();
+        let count = self.shared.store.grid().brick_count() as u32;
         if brick >= count {
             return Err(SourceError::BrickOutOfRange { brick, count });
         }
@@ -614,7 +617,7 @@ impl BrickSource for BrickStreamer {
     }
 }
 
-impl Drop for BrickStreamer {
+impl<B: BrickBackend> Drop for BrickStreamer<B> {
     fn drop(&mut self) {
         self.shared.lock().shutdown = true;
         self.shared.work.notify_all();
@@ -626,7 +629,7 @@ impl Drop for BrickStreamer {
 }
 
 /// The loader thread: pick the next level under the lock, read it without the lock, insert it.
-fn load_loop(shared: &Shared) {
+fn load_loop<B: BrickBackend>(shared: &Shared<B>) {
     let store = &shared.store;
     let mut state = shared.lock();
     loop {
@@ -672,7 +675,7 @@ fn load_loop(shared: &Shared) {
             }
             Err(e) => {
                 state.used -= size;
-                log::warn!("brick store: {e}");
+                log::warn!("{}: {e}", store.name());
                 state.failed.insert(key, Arc::new(e));
             }
         }
@@ -681,7 +684,7 @@ fn load_loop(shared: &Shared) {
 }
 
 /// Reads one level into a freshly allocated shared buffer (one allocation, no copy).
-fn read_shared(store: &BrickStore, (brick, level): Key) -> Result<Arc<[u8]>, StoreError> {
+fn read_shared<B: BrickBackend>(store: &B, (brick, level): Key) -> Result<Arc<[u8]>, B::Error> {
     let mut bytes: Arc<[u8]> = std::iter::repeat_n(0u8, store.level_bytes(level)).collect();
     let buffer = Arc::get_mut(&mut bytes).expect("a fresh Arc is unique");
     store.read_brick_into(brick, level, buffer)?;

@@ -305,6 +305,23 @@ impl BrickKernel {
         Ok((origin, extent))
     }
 
+    /// The voxels `(origin, extent)` that packing only the hi-res (`hi`) and / or low-res (`lo`)
+    /// bricks of `bricks` reads (a sub-box of [`BrickKernel::window_for`]'s): what a streaming
+    /// source must fetch for one level. Errors as [`BrickKernel::window_for`].
+    pub fn window_for_outputs(
+        &self,
+        bricks: &BrickBox,
+        hi: bool,
+        lo: bool,
+    ) -> Result<(UVec3, UVec3), BrickError> {
+        self.check_box(bricks)?;
+        let needs = self.needs(bricks, hi, lo, false, false);
+        let read = needs.map(|a| a.read());
+        let origin = UVec3::from_array(read.clone().map(|r| r.start as u32));
+        let extent = UVec3::from_array(read.map(|r| (r.end - r.start) as u32));
+        Ok((origin, extent))
+    }
+
     /// Packs the box `bricks` from `window` into `out` (see [`PackOutputs`] and the
     /// [module documentation](self)).
     ///

@@ -71,8 +71,8 @@ pub use nii::{
 pub use nrrd::{load_nrrd, parse_nrrd_header, NrrdHeader};
 pub use sidecar::{load_sidecar, parse_sidecar, Sidecar};
 pub use zarr::{
-    load_zarr, load_zarr_at, load_zarr_level, parse_zarr_root, RemoteOptions, ZarrLocation,
-    ZarrRoot, ZarrVersion,
+    load_zarr, load_zarr_at, load_zarr_level, parse_zarr_root, RemoteOptions, ZarrChunk,
+    ZarrChunks, ZarrLocation, ZarrRoot, ZarrVersion,
 };
 
 use super::{ScalarType, Volume, VolumeError};

@@ -155,6 +155,89 @@ impl ZarrLevel {
         Ok(out)
     }
 
+    /// The chunk at volume chunk coordinates `c` (x, y, z), cropped to the array: its first voxel,
+    /// its extent (x, y, z), its values (x fastest, each stored value mapped by `map`; the fill
+    /// value for a missing chunk) and the stored bytes fetched (0 when missing).
+    pub(super) fn read_chunk_cropped<T: ElementOwned + Copy, U: Copy>(
+        &self,
+        c: [u64; 3],
+        map: impl Fn(T) -> U,
+    ) -> Result<(Vec<usize>, [usize; 3], Vec<U>, u64), VolumeError> {
+        let chunks_field = self.version.chunks_field();
+        let ndim = self.array.chunk_grid_shape().len();
+        let mut indices = vec![0u64; ndim];
+        indices[ndim - 1] = c[0];
+        indices[ndim - 2] = c[1];
+        indices[ndim - 3] = c[2];
+        let decoded_bytes = self.chunk_bytes(&indices, chunks_field)?;
+        let bounded = self
+            .array
+            .chunk_subset_bounded(&indices)
+            .map_err(|e| format_err(&self.array_doc, chunks_field, e.to_string()))?;
+        let start = bounded.start();
+        let shape = bounded.shape();
+        let origin = vec![
+            start[ndim - 1] as usize,
+            start[ndim - 2] as usize,
+            start[ndim - 3] as usize,
+        ];
+        let extent = [
+            shape[ndim - 1] as usize,
+            shape[ndim - 2] as usize,
+            shape[ndim - 3] as usize,
+        ];
+        let count = extent.iter().product::<usize>();
+        let Some(encoded) = self
+            .array
+            .retrieve_encoded_chunk(&indices)
+            .map_err(|e| self.chunk_err(&indices, ArrayError::StorageError(e)))?
+        else {
+            let fill = map(self.fill_value::<T>()?);
+            return Ok((origin, extent, vec![fill; count], 0));
+        };
+        let fetched = encoded.len() as u64;
+        let values =
+            self.decode_chunk::<T>(&indices, encoded, decoded_bytes, self.outer_codec())?;
+        let full: Vec<usize> = self
+            .array
+            .chunk_shape(&indices)
+            .map_err(|e| format_err(&self.array_doc, chunks_field, e.to_string()))?
+            .iter()
+            .map(|d| d.get() as usize)
+            .collect();
+        if values.len() != full.iter().product::<usize>() {
+            return Err(format_err(
+                &self.chunk_path(&indices),
+                chunks_field,
+                format!(
+                    "chunk {indices:?} decoded to {} values, expected {}",
+                    values.len(),
+                    full.iter().product::<usize>()
+                ),
+            ));
+        }
+        let (fy, fx) = (full[ndim - 2], full[ndim - 1]);
+        let [cx, cy, cz] = extent;
+        let mut out = Vec::with_capacity(count);
+        for z in 0..cz {
+            for y in 0..cy {
+                let src = fx * (y + fy * z);
+                out.extend(values[src..src + cx].iter().map(|&v| map(v)));
+            }
+        }
+        Ok((origin, extent, out, fetched))
+    }
+
+    /// The object name of the chunk at volume chunk coordinates `c` (x, y, z).
+    pub(super) fn chunk_name(&self, c: [u64; 3]) -> PathBuf {
+        let ndim = self.array.chunk_grid_shape().len();
+        let mut indices = vec![0u64; ndim];
+        indices[ndim - 1] = c[0];
+        indices[ndim - 2] = c[1];
+        indices[ndim - 3] = c[2];
+        self.chunk_path(&indices)
+    }
+
     /// The largest decoded chunk, in bytes (checked against [`MAX_CHUNK_BYTES`]).
     pub(super) fn max_chunk_bytes(&self) -> Result<u64, VolumeError> {
         let chunks_field = self.version.chunks_field();

@@ -66,6 +66,7 @@
 //! documents.
 
 mod array;
+mod chunks;
 mod declared;
 mod location;
 mod ome;
@@ -73,6 +74,7 @@ mod remote;
 mod slabs;
 mod source;
 
+pub use chunks::{ZarrChunk, ZarrChunks};
 pub use location::ZarrLocation;
 pub use ome::{parse_zarr_root, OmeAxis, OmeDataset, OmeMultiscale, ZarrRoot, ZarrVersion};
 pub use remote::RemoteOptions;

@@ -101,6 +101,9 @@ pub enum Error {
     /// The brick store could not be written, read or streamed.
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),
+    /// Streaming an OME-Zarr image failed (opening it, its configuration).
+    #[error(transparent)]
+    Stream(#[from] crate::stream::StreamError),
     /// An image could not be written.
     #[error("cannot write image {path}: {message}")]
     ImageWrite {

@@ -277,6 +277,12 @@ impl ImageSpec {
 
     /// Writes the image (group metadata, level `0`) into `root`; returns the chunk count.
     pub fn write(&self, root: &Path) -> usize {
+        self.write_with(root, value)
+    }
+
+    /// [`ImageSpec::write`] with the voxel values `f(x, y, z)` (what [`ImageSpec::expected`]
+    /// assumes is [`value`]).
+    pub fn write_with(&self, root: &Path, f: impl Fn(u64, u64, u64) -> u16) -> usize {
         let axes = json!([
             {"name": "z", "type": "space"}, {"name": "y", "type": "space"},
             {"name": "x", "type": "space"}
@@ -340,7 +346,7 @@ impl ImageSpec {
                                 // Padding outside the array: a value the reader must ignore.
                                 let inside =
                                     z < self.shape[0] && y < self.shape[1] && x < self.shape[2];
-                                let v = if inside { value(x, y, z) } else { 0xBEEF };
+                                let v = if inside { f(x, y, z) } else { 0xBEEF };
                                 bytes.extend_from_slice(&v.to_le_bytes());
                             }
                         }

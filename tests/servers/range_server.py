@@ -20,6 +20,9 @@ The first path segment of every request chooses how the objects below it are ser
 
 With MIXVOL_RANGE_SERVER_LOG set, every request is logged to stderr.
 
+``MODE@KEY`` applies the fault MODE to one object only: the one whose path ends with KEY, with
+``~`` for ``/`` (``500@0~c~1~0~2`` fails chunk ``0/c/1/0/2`` with 500 and serves the rest).
+
 ``GET /_count/MODE/REST`` answers the number of requests seen so far for ``/MODE/REST`` (any
 method), as text.
 """
@@ -74,11 +77,17 @@ class Handler(http.server.BaseHTTPRequestHandler):
             counts[path] = counts.get(path, 0) + 1
             seen = counts[path]
         parts = [p for p in path.split("/") if p]
-        if not parts or parts[0] not in MODES or any(p in (".", "..") for p in parts):
+        if not parts or parts[0].partition("@")[0] not in MODES or any(
+            p in (".", "..") for p in parts
+        ):
             self.plain(404, b"not found")
             return
         mode, rest = parts[0], parts[1:]
         is_meta = bool(rest) and rest[-1] in METADATA
+        if "@" in mode:
+            mode, _, target = mode.partition("@")
+            if not "/".join(rest).endswith(target.replace("~", "/")):
+                mode = "ok"
         if mode == "meta500" and is_meta or mode == "500" and not is_meta:
             self.plain(500, b"injected failure")
             return

@@ -263,6 +263,13 @@ pub struct RenderArgs {
     /// Resolution level of an OME-Zarr image (index into its multiscales datasets, 0 = finest).
     #[arg(long)]
     pub zarr_level: Option<usize>,
+    /// Stream the OME-Zarr image (a folder, s3:// or http(s)://) chunk by chunk through
+    /// camera-driven residency instead of loading it: only the chunks of the bricks the planner
+    /// asks for are fetched (half of --ram-budget-mb caches decoded chunks, half packed bricks;
+    /// MIXVOL_REMOTE_CONCURRENCY requests in flight, default 8). Needs --window for float
+    /// images.
+    #[arg(long)]
+    pub stream: bool,
     /// Transfer-function preset: grey, fire, bands, constant, ct, mri.
     #[arg(long, default_value = "fire", value_parser = parse_tf)]
     pub tf: TfPreset,

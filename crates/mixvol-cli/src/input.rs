@@ -131,6 +131,18 @@ pub enum Input {
     Volume(Arc<Volume>),
     /// A brick store (`mixvol convert` writes them), opened and validated.
     Store(Box<BrickStore>),
+    /// An OME-Zarr image streamed chunk by chunk (`--stream`): where it is, its level, and
+    /// what its metadata says (dimensions, scalar type).
+    Zarr {
+        /// Where the image is.
+        location: ZarrLocation,
+        /// The level streamed.
+        level: usize,
+        /// Its dimensions.
+        dims: glam::UVec3,
+        /// Its scalar type.
+        scalar: mixvol::volume::ScalarType,
+    },
 }
 
 /// True when `path` is a regular file that starts with the brick store's magic bytes.
@@ -156,6 +168,34 @@ pub fn open_input(args: &RenderArgs) -> Result<Input> {
 /// field or headerless raw data).
 pub fn open_input_with_meta(args: &RenderArgs) -> Result<(Input, Option<VolumeMeta>)> {
     let path = Path::new(&args.volume);
+    if args.stream {
+        let location = ZarrLocation::parse(&args.volume)?;
+        if let ZarrLocation::Local(p) = &location {
+            if FileFormat::detect(p) != Some(FileFormat::Zarr) {
+                return Err(Error::InvalidInput(format!(
+                    "--stream applies to OME-Zarr images (a .zarr folder, s3:// or \
+                     http(s)://); '{}' is not one",
+                    args.volume
+                )));
+            }
+        }
+        let level = args.zarr_level.unwrap_or(0);
+        let chunks = mixvol::volume::formats::ZarrChunks::open(
+            &location,
+            level,
+            &RemoteOptions::from_env()?,
+        )?;
+        let meta = chunks.meta().clone();
+        return Ok((
+            Input::Zarr {
+                location,
+                level,
+                dims: chunks.dims(),
+                scalar: chunks.scalar(),
+            },
+            Some(meta),
+        ));
+    }
     if !ZarrLocation::is_url(&args.volume) && is_brick_store(path) {
         if args.zarr_level.is_some() {
             return Err(Error::InvalidInput(format!(

@@ -19,6 +19,7 @@ mod render;
 mod reports;
 mod soak;
 mod stats;
+mod stream;
 
 use args::{BenchArgs, ConvertArgs, JunctionArgs, KrausArgs, RenderArgs, ReportArgs};
 use clap::{Parser, Subcommand};

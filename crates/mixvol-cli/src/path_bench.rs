@@ -102,7 +102,7 @@ pub fn bench_path(args: &BenchArgs) -> Result<()> {
             r,
             match &input {
                 crate::input::Input::Volume(v) => Some(&**v),
-                crate::input::Input::Store(_) => None,
+                crate::input::Input::Store(_) | crate::input::Input::Zarr { .. } => None,
             },
         )?,
         ..RenderSettings::default()

@@ -10,6 +10,7 @@ use crate::frame_log::{write_log, FrameRow};
 use crate::input::{open_input_with_meta, orientation_line, window_line, window_of, Input};
 use crate::levels::level_pattern;
 use crate::stats::{peak_rss_bytes, Summary};
+pub use crate::stream::Streaming;
 use mixvol::bricks::BrickGrid;
 use mixvol::gpu::{ContextDesc, GpuContext, MessageLog};
 use mixvol::optics::TransferFunction;
@@ -36,8 +37,8 @@ const STREAM_WAIT: Duration = Duration::from_secs(2);
 pub struct Scene {
     /// The in-memory volume (absent for a brick store).
     pub volume: Option<Arc<Volume>>,
-    /// The streamer of a brick store.
-    pub streamer: Option<Arc<BrickStreamer>>,
+    /// The streamer of a brick store or of a streamed OME-Zarr image.
+    pub streamer: Option<Arc<dyn Streaming>>,
     /// Whether the camera drives residency (else a plain texture or a fixed pattern).
     pub planned: bool,
     /// The brick-cache configuration, when one is used.
@@ -81,6 +82,47 @@ pub fn set_up_scene(
         ));
     }
     match input {
+        Input::Zarr {
+            location, level, ..
+        } => {
+            if args.mixed.levels.is_some() {
+                return Err(Error::InvalidInput(
+                    "--levels applies to in-memory volumes; a streamed image is drawn with \
+                     camera-driven residency (--gpu-budget-mb)"
+                        .into(),
+                ));
+            }
+            let (cache, upload) = r.budgets(r.gpu_budget_mb.unwrap_or(256.0))?;
+            let ram = r.ram_bytes()?;
+            let config = MixedConfig {
+                cache_budget_bytes: cache,
+                transition,
+                ..args.mixed.config()?
+            };
+            let streamer = crate::stream::open_streamed(
+                location,
+                *level,
+                &config,
+                ram,
+                window_of(args, None)?,
+            )?;
+            renderer.set_residency_config(ResidencyConfig {
+                upload_bytes_per_frame: upload,
+                ram_bytes: Some(ram / 2),
+                options,
+            });
+            renderer.set_source(VolumeSource::Bricks {
+                source: streamer.clone(),
+                config,
+            })?;
+            print_cache(renderer, &config, upload, Some(ram));
+            Ok(Scene {
+                volume: None,
+                streamer: Some(streamer),
+                planned: true,
+                config: Some(config),
+            })
+        }
         Input::Store(store) => {
             if args.mixed.levels.is_some() {
                 return Err(Error::InvalidInput(
@@ -279,7 +321,7 @@ pub fn render(args: &RenderArgs) -> Result<()> {
     // limits before it is generated.
     crate::input::check_plain_synthetic(args, &ctx)?;
     let (input, meta) = open_input_with_meta(args)?;
-    if args.compare && matches!(input, Input::Store(_)) {
+    if args.compare && matches!(input, Input::Store(_) | Input::Zarr { .. }) {
         return Err(Error::InvalidInput(
             "--compare needs the volume in memory for the CPU reference; render the source file \
              (with --gpu-budget-mb) instead of its brick store"
@@ -289,6 +331,7 @@ pub fn render(args: &RenderArgs) -> Result<()> {
     let (dims, scalar, volume_for_window) = match &input {
         Input::Volume(v) => (v.dims(), v.scalar_type(), Some(&**v)),
         Input::Store(s) => (s.grid().dims(), s.scalar(), None),
+        Input::Zarr { dims, scalar, .. } => (*dims, *scalar, None),
     };
     println!(
         "volume: {} {}x{}x{} {:?}{}",
@@ -297,7 +340,9 @@ pub fn render(args: &RenderArgs) -> Result<()> {
         dims.y,
         dims.z,
         scalar,
-        if volume_for_window.is_none() {
+        if matches!(input, Input::Zarr { .. }) {
+            " (streamed OME-Zarr)"
+        } else if volume_for_window.is_none() {
             " (brick store)"
         } else {
             ""
@@ -401,6 +446,9 @@ fn render_view(
             println!("residency converged after {frames} frames");
         } else {
             println!("residency still changing after {frames} frames (showing the last)");
+        }
+        if let Some(s) = &scene.streamer {
+            println!("{}", s.summary());
         }
     }
     // Warm-up: llvmpipe compiles shaders at the first draw.

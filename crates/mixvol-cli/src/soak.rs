@@ -295,7 +295,7 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
             r,
             match &input {
                 Input::Volume(v) => Some(&**v),
-                Input::Store(_) => None,
+                Input::Store(_) | Input::Zarr { .. } => None,
             },
         )?,
         ..RenderSettings::default()

@@ -161,3 +161,73 @@ fn a_stalled_server_times_out_and_a_bad_url_is_refused_by_name() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("MIXVOL_REMOTE_RETRIES"));
 }
+
+/// Mean absolute difference of two PNGs' RGBA8 channels, in 1/255 units.
+fn png_difference(a: &Path, b: &Path) -> f64 {
+    let a = image::open(a).unwrap().to_rgba8();
+    let b = image::open(b).unwrap().to_rgba8();
+    assert_eq!(a.dimensions(), b.dimensions());
+    let sum: u64 = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(&x, &y)| u64::from(x.abs_diff(y)))
+        .sum();
+    sum as f64 / a.as_raw().len() as f64
+}
+
+#[test]
+fn render_stream_over_http_draws_the_converted_store_and_fetches_only_chunks() {
+    let dir = TempDir::new("cli-stream");
+    let image = dir.0.join("img.zarr");
+    spec().write(&image);
+    let server = range_server(&dir.0);
+    let url = format!("{}/ok/img.zarr", server.base());
+    let store = dir.0.join("img.mvbs");
+    ok(&convert(image.to_str().unwrap(), &store, &[]));
+    let render = |volume: &str, png: &Path, stream: bool| {
+        let mut args = vec![
+            "render",
+            "--volume",
+            volume,
+            "--width",
+            "32",
+            "--height",
+            "32",
+            "--frames",
+            "1",
+            "--brick-size",
+            "8",
+            "--gpu-budget-mb",
+            "4",
+            "--ram-budget-mb",
+            "8",
+            "--output",
+            png.to_str().unwrap(),
+        ];
+        if stream {
+            args.push("--stream");
+        }
+        ok(&mixvol(&args, &[]))
+    };
+    let streamed = dir.0.join("streamed.png");
+    let text = render(&url, &streamed, true);
+    assert!(text.contains("(streamed OME-Zarr)"), "{text}");
+    assert!(text.contains("residency converged"), "{text}");
+    // Every chunk but the missing one, each fetched once: 3 x 3 x 3 - 1 chunks of 8^3 u16.
+    assert!(text.contains("fetched 26 chunks, 0.03 MB"), "{text}");
+    let stored = dir.0.join("store.png");
+    render(store.to_str().unwrap(), &stored, false);
+    let d = png_difference(&streamed, &stored);
+    assert!(
+        d < 0.5,
+        "streamed and stored images differ by {d} / 255 on average"
+    );
+    // A folder that is not an OME-Zarr image is refused by name.
+    let out = mixvol(
+        &["render", "--volume", store.to_str().unwrap(), "--stream"],
+        &[],
+    );
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--stream applies to OME-Zarr"));
+}

@@ -22,7 +22,7 @@ pub struct ChunkCacheStats {
     pub resident_chunks: usize,
     /// Chunk look-ups answered from the cache.
     pub hits: u64,
-    /// Chunks fetched.
+    /// Chunks read from the source (missing ones, the fill value, included).
     pub fetches: u64,
     /// Chunks evicted.
     pub evictions: u64,

@@ -17,6 +17,7 @@ The first path segment of every request chooses how the objects below it are ser
     truncate  chunk responses declare the full Content-Length, send half the body and close
     longlen   chunk responses declare 16 bytes more than the body, send it and close
     meta500   metadata requests answer 500 (chunks are served)
+    slow      chunk responses wait 20 ms before answering (an object store's latency)
 
 With MIXVOL_RANGE_SERVER_LOG set, every request is logged to stderr.
 
@@ -34,7 +35,7 @@ import threading
 import time
 
 METADATA = {"zarr.json", ".zarray", ".zattrs", ".zgroup"}
-MODES = {"ok", "500", "500once", "stall", "truncate", "longlen", "meta500"}
+MODES = {"ok", "500", "500once", "stall", "truncate", "longlen", "meta500", "slow"}
 
 counts = {}
 counts_lock = threading.Lock()
@@ -94,6 +95,8 @@ class Handler(http.server.BaseHTTPRequestHandler):
         if mode == "500once" and not is_meta and seen == 1:
             self.plain(500, b"injected failure (once)")
             return
+        if mode == "slow" and not is_meta:
+            time.sleep(0.02)
         file = os.path.join(self.root, *rest)
         if not os.path.isfile(file):
             self.plain(404, b"not found")

@@ -1,7 +1,8 @@
 //! Where a renderer gets packed brick bytes from, and how it copes with bricks not loaded yet.
 //!
 //! [`BrickSource`] is the supplier: the store's streamer
-//! ([`BrickStreamer`](crate::store::BrickStreamer), from disk) or the in-memory sources here
+//! ([`BrickStreamer`](crate::store::BrickStreamer), from disk, or over an OME-Zarr image, local
+//! or remote: [`crate::stream::ZarrBrickSource`]) or the in-memory sources here
 //! ([`VolumeBrickSource`], [`RgbaBrickSource`], packed on demand by the [kernel](super::kernel)).
 //! Its errors are [`SourceError`]s: a brick it does not have, or a load that failed in its
 //! backend (the streamer's [`crate::store::StoreError`] is kept as the source).

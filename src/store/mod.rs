@@ -19,6 +19,8 @@
 //!   RAM and reads one brick level with one positioned read ([`BrickStore::read_brick`]).
 //! - [`BrickStreamer`] loads the bricks a renderer asks for on a background thread, in priority
 //!   order, into an LRU RAM cache bounded by a byte budget; it never blocks the caller on disk.
+//!   It reads through a [`BrickBackend`]: a [`BrickStore`], or an OME-Zarr image packed from its
+//!   chunks ([`crate::stream::ZarrBricks`]).
 //! - The streamer is a [`BrickSource`](crate::bricks::BrickSource), what a renderer packs bricks
 //!   from (the in-memory sources live beside the bricks, in [`crate::bricks::source`]);
 //!   [`fallback_levels`](crate::bricks::fallback_levels) turns the levels the LOD selector wants

@@ -1,4 +1,5 @@
-//! Background streaming of brick levels from a [`BrickStore`] into a RAM cache with a byte budget.
+//! Background streaming of brick levels from a [`BrickStore`] (or any [`BrickBackend`], e.g. an
+//! OME-Zarr image: [`crate::stream::ZarrBricks`]) into a RAM cache with a byte budget.
 //!
 //! # Policy
 //!

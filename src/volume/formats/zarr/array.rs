@@ -131,6 +131,10 @@ pub(super) fn array_create_err(
     format_err(array_doc, field, e.to_string())
 }
 
+/// A chunk cropped to the array: its first voxel (x, y, z), its extent (x, y, z), its values (x
+/// fastest) and the stored bytes fetched.
+pub(super) type CroppedChunk<U> = (Vec<usize>, [usize; 3], Vec<U>, u64);
+
 impl ZarrLevel {
     /// The file (or remote object) of the chunk at `indices`.
     fn chunk_path(&self, indices: &[u64]) -> PathBuf {
@@ -162,7 +166,7 @@ impl ZarrLevel {
         &self,
         c: [u64; 3],
         map: impl Fn(T) -> U,
-    ) -> Result<(Vec<usize>, [usize; 3], Vec<U>, u64), VolumeError> {
+    ) -> Result<CroppedChunk<U>, VolumeError> {
         let chunks_field = self.version.chunks_field();
         let ndim = self.array.chunk_grid_shape().len();
         let mut indices = vec![0u64; ndim];

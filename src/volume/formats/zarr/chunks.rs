@@ -3,6 +3,7 @@
 //! array, by the loader's own chunk reader (so the values are the loader's), with the stored
 //! bytes fetched counted.
 
+use super::array::CroppedChunk;
 use super::{open_level, RemoteOptions, StoredType, ZarrLevel, ZarrLocation};
 use crate::volume::formats::VolumeMeta;
 use crate::volume::{ScalarType, VolumeError, VoxelData};
@@ -157,7 +158,12 @@ impl ZarrChunks {
         }
         let level = &self.level;
         let at = [u64::from(c.x), u64::from(c.y), u64::from(c.z)];
-        let (origin, extent, data, bytes) = match level.stored {
+        let Cropped {
+            origin,
+            extent,
+            data,
+            bytes,
+        } = match level.stored {
             StoredType::U8 => wrap(level.read_chunk_cropped::<u8, u8>(at, |v| v), VoxelData::U8)?,
             StoredType::I8 => wrap(
                 level.read_chunk_cropped::<i8, u8>(at, |v| (v as u8) ^ 0x80),
@@ -209,12 +215,23 @@ impl ZarrChunks {
     }
 }
 
-type Cropped<U> = (Vec<usize>, [usize; 3], Vec<U>, u64);
+/// A cropped chunk with its values in their [`VoxelData`] variant.
+struct Cropped {
+    origin: Vec<usize>,
+    extent: [usize; 3],
+    data: VoxelData,
+    bytes: u64,
+}
 
 /// Wraps the values of a cropped chunk in their [`VoxelData`] variant.
 fn wrap<U>(
-    read: Result<Cropped<U>, VolumeError>,
+    read: Result<CroppedChunk<U>, VolumeError>,
     variant: fn(Vec<U>) -> VoxelData,
-) -> Result<(Vec<usize>, [usize; 3], VoxelData, u64), VolumeError> {
-    read.map(|(o, e, v, b)| (o, e, variant(v), b))
+) -> Result<Cropped, VolumeError> {
+    read.map(|(origin, extent, values, bytes)| Cropped {
+        origin,
+        extent,
+        data: variant(values),
+        bytes,
+    })
 }

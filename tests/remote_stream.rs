@@ -18,6 +18,9 @@
 //!   renders (those bricks absent: a low-res brick derived from level 0 reads the same chunk)
 //!   and matches the reference for its residency, the chunk is tried at most twice (then
 //!   remembered), nothing hangs; a 500 on every chunk's first request is cured by the retry.
+//! - `a_corrupt_local_chunk_is_a_typed_error_naming_it_and_other_bricks_load`: a chunk file cut
+//!   short in a local image: both levels of a brick that reads it fail naming the chunk and its
+//!   file, the chunk is remembered as failed, other bricks pack as from memory.
 
 mod common;
 mod remote_util;
@@ -28,7 +31,7 @@ use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::{self, ReferenceCache};
 use mixvol::renderer::{Frame, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Transition};
-use mixvol::store::StreamerConfig;
+use mixvol::store::{BrickBackend, StreamerConfig};
 use mixvol::stream::{
     open_zarr_source, StreamError, ZarrBrickSource, ZarrBricks, ZarrStreamConfig,
 };
@@ -462,4 +465,47 @@ fn chunk_faults_are_typed_errors_naming_the_chunk_and_the_frame_still_renders() 
         drop(renderer);
     }
     common::finish(ctx);
+}
+
+#[test]
+fn a_corrupt_local_chunk_is_a_typed_error_naming_it_and_other_bricks_load() {
+    let dir = TempDir::new("stream-corrupt");
+    let (_, volume) = write_image(&dir.0, FAR);
+    // Chunk (x, y, z) = (1, 0, 0) cut to half its bytes: it does not decode.
+    let file = dir.0.join("img.zarr/0/c/0/0/1");
+    let bytes = std::fs::read(&file).unwrap();
+    std::fs::write(&file, &bytes[..bytes.len() / 2]).unwrap();
+    let zarr = ZarrBricks::open(
+        &ZarrLocation::Local(dir.0.join("img.zarr")),
+        0,
+        &RemoteOptions::default(),
+        stream_config(2),
+    )
+    .unwrap();
+    let grid = zarr.grid();
+    let fed = grid.linear_index(UVec3::new(2, 0, 0)) as u32;
+    for level in [Level::Hi, Level::Lo] {
+        match zarr.read_brick(fed, level) {
+            Err(StreamError::Brick { brick, source, .. }) => {
+                assert_eq!(brick, fed);
+                match *source {
+                    StreamError::Chunk { chunk, object, .. } => {
+                        assert_eq!(chunk, [1, 0, 0]);
+                        assert_eq!(Path::new(&object), file);
+                    }
+                    other => panic!("expected a chunk error, got {other}"),
+                }
+            }
+            other => panic!("expected a brick error, got {other:?}"),
+        }
+    }
+    // Remembered: the corrupt chunk is read once, not once per brick level.
+    assert_eq!(zarr.cache_stats().failed_chunks, 1);
+    // A brick that does not read it is packed as from memory.
+    let memory = VolumeBrickSource::new(Arc::new(volume), N, DownsampleFilter::Mean2).unwrap();
+    let clean = grid.linear_index(UVec3::new(7, 7, 7)) as u32;
+    assert_eq!(
+        &zarr.read_brick(clean, Level::Hi).unwrap()[..],
+        &memory.brick_bytes(clean, Level::Hi).unwrap().unwrap()[..]
+    );
 }

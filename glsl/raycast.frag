@@ -349,8 +349,9 @@ vec4 cast_ray(Ray ray) {
 // every loop, taken or not; docs/performance.md):
 // - a general run: consecutive samples that need the general path, each looked up on its own (it
 //   may cross from one brick into the next): samples in the half-voxel band of a hi-res brick next
-//   to a low-res brick, blended; with gradients also the samples whose gradient taps (x +- h on
-//   every axis) leave their brick's plain region. It ends at the first sample inside a brick's run region;
+//   to a low-res brick, blended; with gradients also the samples whose gradient taps (x +- h
+//   on every axis) leave their brick's plain region. It ends at the first sample inside a
+//   brick's run region;
 // - then that brick's run up to where the ray leaves the run region (one ray/box intersection;
 //   layout entry, neighbour bits and band bounds were read once for it): plain fetches, and
 //   gradients read through the brick's own entry; or the jump over an absent brick.

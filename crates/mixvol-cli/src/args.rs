@@ -238,8 +238,9 @@ pub enum ProjectionArg {
 #[derive(Args, Debug)]
 pub struct RenderArgs {
     /// Volume to render: a synthetic field (`ml` = Marschner-Lobb, `sphere`, `wall`), a file with
-    /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), an
-    /// OME-Zarr folder or remote image (s3://BUCKET/PATH.zarr with the AWS_* environment
+    /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), a TIFF
+    /// stack (.tif, .tiff, .btf; OME-TIFF; a folder of .tif slices), an OME-Zarr folder or
+    /// remote image (s3://BUCKET/PATH.zarr with the AWS_* environment
     /// variables, http(s)://HOST/PATH.zarr; MIXVOL_REMOTE_TIMEOUT_MS / _RETRIES bound each
     /// fetch), a brick store (streamed from disk under --ram-budget-mb), or a headerless raw
     /// file (then --dims, --scalar, --spacing describe it).
@@ -263,6 +264,9 @@ pub struct RenderArgs {
     /// Resolution level of an OME-Zarr image (index into its multiscales datasets, 0 = finest).
     #[arg(long)]
     pub zarr_level: Option<usize>,
+    /// Image, channel and time point of an OME-TIFF (default 0 each).
+    #[command(flatten)]
+    pub ome: OmeTiffArgs,
     /// Transfer-function preset: grey, fire, bands, constant, ct, mri.
     #[arg(long, default_value = "fire", value_parser = parse_tf)]
     pub tf: TfPreset,
@@ -463,11 +467,41 @@ impl MixedArgs {
     }
 }
 
+/// Which planes of an OME-TIFF make the volume: its z planes at one image, channel and time
+/// point.
+#[derive(Args, Debug, Clone, Copy, Default)]
+pub struct OmeTiffArgs {
+    /// OME-TIFF image (series) to read, 0 = the first.
+    #[arg(long)]
+    pub ome_image: Option<usize>,
+    /// OME-TIFF channel to read (0..SizeC; default 0).
+    #[arg(long)]
+    pub ome_channel: Option<u64>,
+    /// OME-TIFF time point to read (0..SizeT; default 0).
+    #[arg(long)]
+    pub ome_time: Option<u64>,
+}
+
+impl OmeTiffArgs {
+    /// The selection, when any flag was given.
+    pub fn options(&self) -> Option<mixvol::volume::formats::TiffOptions> {
+        if self.ome_image.is_none() && self.ome_channel.is_none() && self.ome_time.is_none() {
+            return None;
+        }
+        Some(mixvol::volume::formats::TiffOptions {
+            image: self.ome_image.unwrap_or(0),
+            channel: self.ome_channel.unwrap_or(0),
+            time: self.ome_time.unwrap_or(0),
+        })
+    }
+}
+
 /// `mixvol convert`: a volume into a brick store, read in slabs under a RAM budget.
 #[derive(Args, Debug)]
 pub struct ConvertArgs {
     /// The volume to convert: a file with a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON
-    /// sidecar or .raw with one), an OME-Zarr folder or remote image (s3://BUCKET/PATH.zarr
+    /// sidecar or .raw with one), a TIFF stack (.tif, .tiff, .btf; OME-TIFF; a folder of .tif
+    /// slices; streamed page by page), an OME-Zarr folder or remote image (s3://BUCKET/PATH.zarr
     /// with the AWS_* environment variables, http(s)://HOST/PATH.zarr; MIXVOL_REMOTE_TIMEOUT_MS
     /// / _RETRIES bound each fetch), a headerless raw file (described by
     /// --dims, --scalar, --spacing, --header-bytes, --big-endian), or a synthetic field (ml,
@@ -502,6 +536,9 @@ pub struct ConvertArgs {
     /// Level of an OME-Zarr image to convert (index into its multiscales datasets; 0 = finest).
     #[arg(long)]
     pub level: Option<usize>,
+    /// Image, channel and time point of an OME-TIFF (default 0 each).
+    #[command(flatten)]
+    pub ome: OmeTiffArgs,
     /// Replace an existing STORE (atomically, once the new store is complete).
     #[arg(long)]
     pub force: bool,

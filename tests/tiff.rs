@@ -354,3 +354,72 @@ fn the_mni_template_as_ome_tiff_matches_its_nifti_load_voxel_for_voxel() {
     assert!(tiled.info().tiled);
     assert_eq!(tiled.info().compression, 8, "Deflate");
 }
+
+#[test]
+fn hostile_ome_xml_gives_typed_errors() {
+    let path = Path::new("hostile.ome.tif");
+    let pixels = |attrs: &str, body: &str| {
+        format!(
+            r#"<?xml version="1.0"?><OME xmlns="http://www.openmicroscopy.org/Schemas/OME/2016-06"><Image ID="Image:0"><Pixels {attrs}>{body}</Pixels></Image></OME>"#
+        )
+    };
+    let sizes = r#"SizeX="5" SizeY="4" SizeZ="3" SizeC="1" SizeT="1" Type="uint8""#;
+    let cases: Vec<(String, &str)> = vec![
+        ("<OME".into(), "OME-XML"),
+        ("\u{feff}<notxml".into(), "OME-XML"),
+        (
+            r#"<!DOCTYPE OME [<!ENTITY a "aaaa">]><OME>&a;</OME>"#.into(),
+            "OME-XML",
+        ),
+        (r#"<OME></OME>"#.into(), "Image"),
+        (pixels(r#"SizeX="5" SizeY="4" SizeC="1" SizeT="1""#, ""), "SizeZ"),
+        (
+            pixels(
+                r#"SizeX="5" SizeY="4" SizeZ="18446744073709551616" SizeC="1" SizeT="1""#,
+                "",
+            ),
+            "SizeZ",
+        ),
+        (
+            pixels(&format!(r#"{sizes} DimensionOrder="XYZZT""#), ""),
+            "DimensionOrder",
+        ),
+        (
+            pixels(&format!(r#"{sizes} PhysicalSizeX="-1""#), ""),
+            "PhysicalSizeX",
+        ),
+        (
+            pixels(&format!(r#"{sizes} PhysicalSizeX="1e300" PhysicalSizeXUnit="km""#), ""),
+            "PhysicalSizeX",
+        ),
+        (
+            pixels(&format!(r#"{sizes} PhysicalSizeZ="1" PhysicalSizeZUnit="pixel""#), ""),
+            "PhysicalSizeZUnit",
+        ),
+        (pixels(sizes, r#"<TiffData IFD="x"/>"#), "TiffData"),
+    ];
+    for (xml, field) in cases {
+        match parse_ome_xml(path, xml.as_bytes()) {
+            Err(VolumeError::Format { field: got, .. }) => assert_eq!(got, field, "{xml}"),
+            other => panic!("{xml}: expected a Format error on {field}, got {other:?}"),
+        }
+    }
+    // Huge sizes parse (they are only numbers) and plane look-ups overflow into typed errors or
+    // land in another file's planes, never a panic.
+    let xml = pixels(
+        r#"SizeX="1" SizeY="1" SizeZ="18446744073709551615" SizeC="18446744073709551615" SizeT="2" DimensionOrder="XYZCT""#,
+        r#"<TiffData IFD="18446744073709551615" PlaneCount="18446744073709551615"/><TiffData FirstZ="3"><UUID FileName="other.ome.tif">urn:uuid:1</UUID></TiffData>"#,
+    );
+    let ome = parse_ome_xml(path, xml.as_bytes()).unwrap();
+    let px = &ome.images[0];
+    assert!(matches!(
+        px.ifd_of(path, [0, 0, 1]),
+        Err(VolumeError::Format { .. })
+    ));
+    assert!(matches!(
+        px.ifd_of(path, [5, 0, 0]),
+        Err(VolumeError::Format { ref field, .. }) if field == "TiffData"
+    ));
+    assert!(px.ifd_of(path, [1, 0, 0]).is_err(), "IFD + 1 overflows");
+    assert_eq!(px.ifd_of(path, [0, 0, 0]).unwrap(), Some(u64::MAX));
+}

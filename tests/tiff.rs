@@ -12,8 +12,8 @@ mod python_env;
 use glam::{UVec3, Vec3};
 use mixvol::volume::formats::{load_tiff_with, parse_ome_xml, TiffOptions, TiffSlabs};
 use mixvol::volume::{
-    load_volume, load_volume_with_meta, open_slabs, FileFormat, LoadedVolume, SlabMut,
-    StoredType, Volume, VolumeError, VoxelData,
+    load_volume, load_volume_with_meta, open_slabs, FileFormat, LoadedVolume, SlabMut, StoredType,
+    Volume, VolumeError, VoxelData,
 };
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -262,10 +262,16 @@ fn page_error(name: &str) -> (PathBuf, u64, String, String) {
 fn wrong_inputs_give_typed_errors_naming_the_page_and_field() {
     let (_, page, field, message) = page_error("sizes.tif");
     assert_eq!((page, field.as_str()), (2, "ImageWidth"), "{message}");
-    assert!(message.contains("6x4") && message.contains("page 0"), "{message}");
+    assert!(
+        message.contains("6x4") && message.contains("page 0"),
+        "{message}"
+    );
     let (_, page, field, message) = page_error("types.tif");
     assert_eq!((page, field.as_str()), (1, "SampleFormat"), "{message}");
-    assert!(message.contains("u16") && message.contains("u8"), "{message}");
+    assert!(
+        message.contains("u16") && message.contains("u8"),
+        "{message}"
+    );
     let (_, page, field, message) = page_error("rgb.tif");
     assert_eq!(
         (page, field.as_str()),
@@ -307,8 +313,8 @@ fn slabs_stream_pages_in_any_order_and_match_the_load() {
         // Backwards, one plane at a time, then two planes at once.
         let mut got = whole.data().clone();
         for z in (0..d.z).rev() {
-            let out = SlabMut::of_range(&mut got, z as usize * plane..(z as usize + 1) * plane)
-                .unwrap();
+            let out =
+                SlabMut::of_range(&mut got, z as usize * plane..(z as usize + 1) * plane).unwrap();
             reader.read_slab(z..z + 1, out).unwrap();
         }
         assert_eq!(&got, whole.data(), "{name}");
@@ -372,7 +378,10 @@ fn hostile_ome_xml_gives_typed_errors() {
             "OME-XML",
         ),
         (r#"<OME></OME>"#.into(), "Image"),
-        (pixels(r#"SizeX="5" SizeY="4" SizeC="1" SizeT="1""#, ""), "SizeZ"),
+        (
+            pixels(r#"SizeX="5" SizeY="4" SizeC="1" SizeT="1""#, ""),
+            "SizeZ",
+        ),
         (
             pixels(
                 r#"SizeX="5" SizeY="4" SizeZ="18446744073709551616" SizeC="1" SizeT="1""#,
@@ -389,11 +398,17 @@ fn hostile_ome_xml_gives_typed_errors() {
             "PhysicalSizeX",
         ),
         (
-            pixels(&format!(r#"{sizes} PhysicalSizeX="1e300" PhysicalSizeXUnit="km""#), ""),
+            pixels(
+                &format!(r#"{sizes} PhysicalSizeX="1e300" PhysicalSizeXUnit="km""#),
+                "",
+            ),
             "PhysicalSizeX",
         ),
         (
-            pixels(&format!(r#"{sizes} PhysicalSizeZ="1" PhysicalSizeZUnit="pixel""#), ""),
+            pixels(
+                &format!(r#"{sizes} PhysicalSizeZ="1" PhysicalSizeZUnit="pixel""#),
+                "",
+            ),
             "PhysicalSizeZUnit",
         ),
         (pixels(sizes, r#"<TiffData IFD="x"/>"#), "TiffData"),

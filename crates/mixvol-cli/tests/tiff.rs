@@ -90,7 +90,10 @@ fn a_tiff_stack_renders_the_same_image_as_its_nifti_file() {
     assert!(lit > 48 * 48 / 10, "only {lit} lit pixels");
     for name in ["mni.tif", "mni.ome.tif"] {
         let got = render(&fixtures().join(name), name, &[]);
-        assert!(got == reference, "{name}: the render differs from the NIfTI one");
+        assert!(
+            got == reference,
+            "{name}: the render differs from the NIfTI one"
+        );
     }
 }
 
@@ -112,7 +115,11 @@ fn convert_streams_a_tiff_stack_into_the_store_of_the_same_volume() {
         "8",
     ]);
     assert!(out.status.success(), "{}", text(&out));
-    assert!(String::from_utf8_lossy(&out.stdout).contains("Tiff"), "{}", text(&out));
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("Tiff"),
+        "{}",
+        text(&out)
+    );
     let volume = load_volume(&mni_nifti()).unwrap();
     write_store_from_volume(&theirs, &volume, 16, DownsampleFilter::Mean2).unwrap();
     assert!(
@@ -128,7 +135,11 @@ fn ome_channel_flags_pick_a_channel_or_are_refused_by_name() {
     let c0 = render(&ome, "c0", &window);
     let c2 = render(&ome, "c2", &[&window[..], &["--ome-channel", "2"]].concat());
     assert!(c0 != c2, "channel 2 renders as channel 0");
-    let c0_again = render(&ome, "c0-flag", &[&window[..], &["--ome-channel", "0"]].concat());
+    let c0_again = render(
+        &ome,
+        "c0-flag",
+        &[&window[..], &["--ome-channel", "0"]].concat(),
+    );
     assert!(c0 == c0_again);
     let out = mixvol(&[
         "render",

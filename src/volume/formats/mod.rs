@@ -6,9 +6,10 @@
 //! `tiff` crate; see [`tiff`]).
 //!
 //! [`load_volume`] picks the format from the file name; the per-format loaders
-//! ([`load_nifti`], [`load_nrrd`], [`load_sidecar`], [`load_den`]) return the volume together
+//! ([`load_nifti`], [`load_nrrd`], [`load_sidecar`], [`load_den`], [`load_tiff`]) return the volume together
 //! with [`VolumeMeta`] (stored type, value offset, orientation), and the header parsers
-//! ([`parse_nifti_header`], [`parse_nrrd_header`], [`parse_sidecar`], [`parse_den_header`]) work
+//! ([`parse_nifti_header`], [`parse_nrrd_header`], [`parse_sidecar`], [`parse_den_header`],
+//! [`parse_ome_xml`]) work
 //! on bytes, without touching the file system (they are the fuzz targets' entry points).
 //!
 //! # Safety against hostile files
@@ -50,7 +51,8 @@
 //! [`VolumeMeta::reorientation`]); an oblique residual rotation is not applied. Other formats keep
 //! voxels in file order (first axis fastest), never resampled or flipped. Spacing is the
 //! size of a voxel step along each index axis: NIfTI `|pixdim[1..=3]|`, NRRD the norms of the
-//! `space directions` vectors (else `|spacings|`, else 1), the sidecar's `spacing`, 1 for `.den`.
+//! `space directions` vectors (else `|spacings|`, else 1), the sidecar's `spacing`, 1 for `.den`,
+//! OME-TIFF `PhysicalSizeX/Y/Z` in micrometres (1 for plain TIFF; see [`tiff`]).
 //! So anisotropic voxels render with the right aspect. The direction of each index axis in the
 //! file's world frame (NIfTI: sform, else qform, else identity; NRRD: `space directions`) is
 //! reported as unit vectors in [`VolumeMeta::directions`], with [`VolumeMeta::origin`]; for NRRD

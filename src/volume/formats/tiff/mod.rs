@@ -45,8 +45,8 @@ mod stack;
 
 pub use ome::{is_ome_xml, parse_ome_xml, DimensionOrder, OmePixels, OmeXml, TiffData};
 pub use slabs::TiffSlabs;
-pub use stack::TiffInfo;
 pub(in crate::volume::formats) use stack::has_tiff_extension;
+pub use stack::TiffInfo;
 
 use super::LoadedVolume;
 use crate::volume::VolumeError;

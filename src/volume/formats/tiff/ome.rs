@@ -110,18 +110,18 @@ impl OmePixels {
     pub fn ifd_of(&self, path: &Path, zct: [u64; 3]) -> Result<Option<u64>, VolumeError> {
         let sizes = [self.size[2], self.size[3], self.size[4]];
         let order = self.dimension_order;
-        let index = order.plane_index(zct, sizes).ok_or_else(|| {
-            format_err(path, "SizeZ", "plane index overflows (sizes too large)")
-        })?;
+        let index = order
+            .plane_index(zct, sizes)
+            .ok_or_else(|| format_err(path, "SizeZ", "plane index overflows (sizes too large)"))?;
         if self.tiff_data.is_empty() {
             return Ok(Some(index));
         }
         // Later elements override earlier ones, as in Bio-Formats.
         let mut found = None;
         for d in &self.tiff_data {
-            let start = order.plane_index(d.first, sizes).ok_or_else(|| {
-                format_err(path, "TiffData", "FirstZ / FirstC / FirstT overflow")
-            })?;
+            let start = order
+                .plane_index(d.first, sizes)
+                .ok_or_else(|| format_err(path, "TiffData", "FirstZ / FirstC / FirstT overflow"))?;
             let count = d
                 .plane_count
                 .unwrap_or(if d.ifd_given { 1 } else { u64::MAX });
@@ -140,9 +140,10 @@ impl OmePixels {
                         ));
                     }
                 }
-                found = Some(d.ifd.checked_add(index - start).ok_or_else(|| {
-                    format_err(path, "TiffData", "IFD + plane offset overflows")
-                })?);
+                found =
+                    Some(d.ifd.checked_add(index - start).ok_or_else(|| {
+                        format_err(path, "TiffData", "IFD + plane offset overflows")
+                    })?);
             }
         }
         Ok(found)
@@ -296,9 +297,7 @@ fn parse_pixels(
                         format_err(
                             path,
                             "TiffData",
-                            format!(
-                                "Image {image}: TiffData {name} = {t:?}, expected an integer"
-                            ),
+                            format!("Image {image}: TiffData {name} = {t:?}, expected an integer"),
                         )
                     })
                 })

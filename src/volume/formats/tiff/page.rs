@@ -149,7 +149,7 @@ impl PageInfo {
                 4 => "TransparencyMask",
                 5 => "CMYK",
                 6 => "YCbCr",
-                8 | 9 | 10 => "CIELab",
+                8..=10 => "CIELab",
                 _ => "unknown",
             };
             return Err(refuse(

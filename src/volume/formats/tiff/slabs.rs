@@ -180,7 +180,11 @@ impl TiffSlabs {
             (_, out) => {
                 return Err(VolumeError::SlabRequest {
                     path,
-                    message: format!("a slab of {:?} for {} pages", out.scalar_type(), stored.name()),
+                    message: format!(
+                        "a slab of {:?} for {} pages",
+                        out.scalar_type(),
+                        stored.name()
+                    ),
                 })
             }
         }

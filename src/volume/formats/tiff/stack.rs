@@ -109,7 +109,10 @@ pub(super) fn describe(path: &Path, options: &TiffOptions) -> Result<Stack, Volu
                     ),
                 ));
             };
-            (ome_planes(path, &pixels, options, pages.len() as u64)?, Some(pixels))
+            (
+                ome_planes(path, &pixels, options, pages.len() as u64)?,
+                Some(pixels),
+            )
         }
         None => {
             check_plain_options(path, options)?;
@@ -358,7 +361,9 @@ fn describe_folder(dir: &Path, options: &TiffOptions) -> Result<Stack, VolumeErr
     };
     Ok(Stack {
         path: dir.to_path_buf(),
-        planes: (0..files.len()).map(|file| Plane { file, ifd: 0 }).collect(),
+        planes: (0..files.len())
+            .map(|file| Plane { file, ifd: 0 })
+            .collect(),
         files,
         layout,
         spacing: Vec3::ONE,

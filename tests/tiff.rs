@@ -438,3 +438,33 @@ fn hostile_ome_xml_gives_typed_errors() {
     assert!(px.ifd_of(path, [1, 0, 0]).is_err(), "IFD + 1 overflows");
     assert_eq!(px.ifd_of(path, [0, 0, 0]).unwrap(), Some(u64::MAX));
 }
+
+#[test]
+fn imagej_hyperstacks_pick_channel_and_frame_with_their_voxel_size() {
+    let path = fixtures().join("imagej.tif");
+    let l = load("imagej.tif");
+    assert_eq!(l.volume.spacing(), Vec3::new(0.5, 0.25, 2.0));
+    check_voxels("imagej c0 t0", &l.volume, DIMS, |x, y, z| f(x, y, z) as f64);
+    let slabs = TiffSlabs::open(&path, &TiffOptions::default()).unwrap();
+    let ij = slabs.info().imagej.as_ref().expect("ImageJ description");
+    assert_eq!((ij.channels, ij.slices, ij.frames), (2, 3, 2));
+    for (c, t) in [(1, 0), (0, 1), (1, 1)] {
+        let options = TiffOptions {
+            channel: c,
+            time: t,
+            ..TiffOptions::default()
+        };
+        let l = load_tiff_with(&path, &options).unwrap();
+        check_voxels(&format!("imagej c{c} t{t}"), &l.volume, DIMS, |x, y, z| {
+            (f(x, y, z) + 1000 * c as i64 + 5000 * t as i64) as f64
+        });
+    }
+    let options = TiffOptions {
+        channel: 2,
+        ..TiffOptions::default()
+    };
+    match load_tiff_with(&path, &options) {
+        Err(VolumeError::Format { field, .. }) => assert_eq!(field, "channels"),
+        other => panic!("expected a channels error, got {other:?}"),
+    }
+}

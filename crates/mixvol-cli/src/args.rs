@@ -264,9 +264,9 @@ pub struct RenderArgs {
     /// Resolution level of an OME-Zarr image (index into its multiscales datasets, 0 = finest).
     #[arg(long)]
     pub zarr_level: Option<usize>,
-    /// Image, channel and time point of an OME-TIFF (default 0 each).
+    /// Image, channel and time point of an OME-TIFF or ImageJ hyperstack (default 0 each).
     #[command(flatten)]
-    pub ome: OmeTiffArgs,
+    pub tiff: TiffSelectArgs,
     /// Transfer-function preset: grey, fire, bands, constant, ct, mri.
     #[arg(long, default_value = "fire", value_parser = parse_tf)]
     pub tf: TfPreset,
@@ -467,31 +467,31 @@ impl MixedArgs {
     }
 }
 
-/// Which planes of an OME-TIFF make the volume: its z planes at one image, channel and time
-/// point.
+/// Which planes of an OME-TIFF or ImageJ hyperstack make the volume: its z planes at one
+/// image, channel and time point.
 #[derive(Args, Debug, Clone, Copy, Default)]
-pub struct OmeTiffArgs {
+pub struct TiffSelectArgs {
     /// OME-TIFF image (series) to read, 0 = the first.
     #[arg(long)]
-    pub ome_image: Option<usize>,
-    /// OME-TIFF channel to read (0..SizeC; default 0).
+    pub tiff_image: Option<usize>,
+    /// Channel of an OME-TIFF (0..SizeC) or ImageJ hyperstack (0..channels) to read; default 0.
     #[arg(long)]
-    pub ome_channel: Option<u64>,
-    /// OME-TIFF time point to read (0..SizeT; default 0).
+    pub tiff_channel: Option<u64>,
+    /// Time point of an OME-TIFF (0..SizeT) or ImageJ hyperstack (0..frames) to read; default 0.
     #[arg(long)]
-    pub ome_time: Option<u64>,
+    pub tiff_time: Option<u64>,
 }
 
-impl OmeTiffArgs {
+impl TiffSelectArgs {
     /// The selection, when any flag was given.
     pub fn options(&self) -> Option<mixvol::volume::formats::TiffOptions> {
-        if self.ome_image.is_none() && self.ome_channel.is_none() && self.ome_time.is_none() {
+        if self.tiff_image.is_none() && self.tiff_channel.is_none() && self.tiff_time.is_none() {
             return None;
         }
         Some(mixvol::volume::formats::TiffOptions {
-            image: self.ome_image.unwrap_or(0),
-            channel: self.ome_channel.unwrap_or(0),
-            time: self.ome_time.unwrap_or(0),
+            image: self.tiff_image.unwrap_or(0),
+            channel: self.tiff_channel.unwrap_or(0),
+            time: self.tiff_time.unwrap_or(0),
         })
     }
 }
@@ -536,9 +536,9 @@ pub struct ConvertArgs {
     /// Level of an OME-Zarr image to convert (index into its multiscales datasets; 0 = finest).
     #[arg(long)]
     pub level: Option<usize>,
-    /// Image, channel and time point of an OME-TIFF (default 0 each).
+    /// Image, channel and time point of an OME-TIFF or ImageJ hyperstack (default 0 each).
     #[command(flatten)]
-    pub ome: OmeTiffArgs,
+    pub tiff: TiffSelectArgs,
     /// Replace an existing STORE (atomically, once the new store is complete).
     #[arg(long)]
     pub force: bool,

@@ -133,10 +133,10 @@ fn open_input(args: &ConvertArgs) -> Result<Box<dyn SlabReader + Send>> {
         Path::new(&args.input)
     };
     let format = FileFormat::detect(path);
-    if let Some(options) = args.ome.options() {
+    if let Some(options) = args.tiff.options() {
         if format != Some(FileFormat::Tiff) {
             return Err(Error::InvalidInput(format!(
-                "--ome-image / --ome-channel / --ome-time apply to OME-TIFF files, not '{}'",
+                "--tiff-image / --tiff-channel / --tiff-time apply to TIFF stacks (OME-TIFF, ImageJ hyperstacks), not '{}'",
                 args.input
             )));
         }

@@ -51,10 +51,10 @@ pub fn load_volume_with_meta(args: &RenderArgs) -> Result<(Volume, Option<Volume
         let loaded = load_zarr_level(path, level)?;
         return Ok((loaded.volume, Some(loaded.meta)));
     }
-    if let Some(options) = args.ome.options() {
+    if let Some(options) = args.tiff.options() {
         if format != Some(FileFormat::Tiff) {
             return Err(Error::InvalidInput(format!(
-                "--ome-image / --ome-channel / --ome-time apply to OME-TIFF files, not '{}'",
+                "--tiff-image / --tiff-channel / --tiff-time apply to TIFF stacks (OME-TIFF, ImageJ hyperstacks), not '{}'",
                 args.volume
             )));
         }

@@ -2,7 +2,7 @@
 //! tests/fixtures/write_tiff_fixtures.py, run in the venv of scripts/python-env.sh): the MNI152
 //! template as a multi-page LZW TIFF and as a tiled Deflate OME-TIFF renders the same image as
 //! its NIfTI file (lavapipe, validation on), converts page by page into the same brick store as
-//! the NIfTI volume, and `--ome-channel` picks an OME-TIFF's channel (or is refused by name).
+//! the NIfTI volume, and `--tiff-channel` picks an OME-TIFF's channel (or is refused by name).
 
 #[path = "../../../tests/python_env/mod.rs"]
 mod python_env;
@@ -129,23 +129,27 @@ fn convert_streams_a_tiff_stack_into_the_store_of_the_same_volume() {
 }
 
 #[test]
-fn ome_channel_flags_pick_a_channel_or_are_refused_by_name() {
+fn tiff_channel_flags_pick_a_channel_or_are_refused_by_name() {
     let ome = fixtures().join("tczyx.ome.tif");
     let window = ["--window", "0,0.2"];
     let c0 = render(&ome, "c0", &window);
-    let c2 = render(&ome, "c2", &[&window[..], &["--ome-channel", "2"]].concat());
+    let c2 = render(
+        &ome,
+        "c2",
+        &[&window[..], &["--tiff-channel", "2"]].concat(),
+    );
     assert!(c0 != c2, "channel 2 renders as channel 0");
     let c0_again = render(
         &ome,
         "c0-flag",
-        &[&window[..], &["--ome-channel", "0"]].concat(),
+        &[&window[..], &["--tiff-channel", "0"]].concat(),
     );
     assert!(c0 == c0_again);
     let out = mixvol(&[
         "render",
         "--volume",
         ome.to_str().unwrap(),
-        "--ome-channel",
+        "--tiff-channel",
         "3",
         "--output",
         "/dev/null",
@@ -157,12 +161,12 @@ fn ome_channel_flags_pick_a_channel_or_are_refused_by_name() {
         "render",
         "--volume",
         mni_nifti().to_str().unwrap(),
-        "--ome-time",
+        "--tiff-time",
         "1",
     ]);
     assert!(!out.status.success());
     assert!(
-        String::from_utf8_lossy(&out.stderr).contains("OME-TIFF"),
+        String::from_utf8_lossy(&out.stderr).contains("TIFF stacks"),
         "{}",
         text(&out)
     );

@@ -24,6 +24,11 @@
 //!   field; planes in another file (multi-file OME-TIFF, `TiffData/UUID`) are refused on
 //!   `TiffData`. Spacing is `PhysicalSizeX/Y/Z` in micrometres (converted from their units);
 //!   an absent physical size counts as 1 µm.
+//! - **ImageJ / Fiji hyperstacks** (an `ImageJ=` description, without OME-XML; see
+//!   [`ImageJ`]): the z planes are `slices` at [`TiffOptions::channel`] and
+//!   [`TiffOptions::time`] (the `channels` and `frames`, CZT page order); spacing is
+//!   1 / `XResolution`, 1 / `YResolution` and `spacing`, in micrometres when `unit` is a known
+//!   length (`micron`, `nm`, `mm`, ...), else in the file's unit.
 //! - **Folder stacks**: a folder of single-page `.tif` / `.tiff` files, in natural name order
 //!   (`slice9` before `slice10`); every file must hold one page.
 //!
@@ -38,11 +43,13 @@
 //! time, decoding straight into the caller's slab, so `mixvol convert stack.tif store` streams
 //! the pages in bounded RAM.
 
+mod imagej;
 mod ome;
 mod page;
 mod slabs;
 mod stack;
 
+pub use imagej::ImageJ;
 pub use ome::{is_ome_xml, parse_ome_xml, DimensionOrder, OmePixels, OmeXml, TiffData};
 pub use slabs::TiffSlabs;
 pub(in crate::volume::formats) use stack::has_tiff_extension;
@@ -52,8 +59,8 @@ use super::LoadedVolume;
 use crate::volume::VolumeError;
 use std::path::Path;
 
-/// Which image, channel and time point of an OME-TIFF to read (all 0 by default; plain TIFF
-/// stacks accept only 0).
+/// Which image, channel and time point of an OME-TIFF (or channel and frame of an ImageJ
+/// hyperstack) to read (all 0 by default; plain TIFF stacks accept only 0).
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]
 pub struct TiffOptions {
     /// The OME `Image` (series) index.

@@ -333,7 +333,7 @@ fn parse_pixels(
 
 /// Micrometres in one `unit` (OME's `UnitsLength` symbols); `None` for units that are not
 /// lengths (`pixel`, `reference frame`) or not known.
-fn micrometres_per(unit: &str) -> Option<f64> {
+pub(super) fn micrometres_per(unit: &str) -> Option<f64> {
     Some(match unit.trim() {
         "km" => 1e9,
         "m" => 1e6,

@@ -3,6 +3,7 @@
 //! here (size, type, photometric, compression), so a bad page fails before the volume is
 //! allocated.
 
+use super::imagej::ImageJ;
 use super::ome::{is_ome_xml, parse_ome_xml, OmePixels};
 use super::page::{open_decoder, tiff_err, PageInfo};
 use super::TiffOptions;
@@ -41,6 +42,8 @@ pub struct TiffInfo {
     pub tiled: bool,
     /// The OME-XML `Pixels` of the image read, for an OME-TIFF.
     pub ome: Option<OmePixels>,
+    /// The ImageJ hyperstack description, for an ImageJ / Fiji TIFF (without OME-XML).
+    pub imagej: Option<ImageJ>,
     /// The channel and time point read (0 for a plain stack).
     pub channel_time: [u64; 2],
 }
@@ -64,9 +67,19 @@ pub(super) struct Stack {
     pub info: TiffInfo,
 }
 
+/// What the first page says besides its pixels.
+struct FirstPage {
+    /// `ImageDescription`.
+    description: Option<String>,
+    /// `XResolution`, `YResolution` (pixels per unit), where present.
+    resolution: [Option<f64>; 2],
+    /// The file is big-endian.
+    big_endian: bool,
+}
+
 /// Reads the tags of every page of `path` (the main IFD chain, in order) and the first page's
-/// `ImageDescription`.
-fn read_pages(path: &Path) -> Result<(Vec<PageInfo>, Option<String>, bool), VolumeError> {
+/// `ImageDescription` and resolution.
+fn read_pages(path: &Path) -> Result<(Vec<PageInfo>, FirstPage), VolumeError> {
     let mut dec = open_decoder(path)?;
     let big_endian = dec.byte_order() == ByteOrder::BigEndian;
     let description = match dec.find_tag(Tag::ImageDescription) {
@@ -74,6 +87,17 @@ fn read_pages(path: &Path) -> Result<(Vec<PageInfo>, Option<String>, bool), Volu
         Ok(None) => None,
         Err(e) => return Err(tiff_err(path, 0, "ImageDescription", e)),
     };
+    let mut resolution = [None; 2];
+    for (slot, (tag, field)) in resolution.iter_mut().zip([
+        (Tag::XResolution, "XResolution"),
+        (Tag::YResolution, "YResolution"),
+    ]) {
+        *slot = match dec.find_tag(tag) {
+            Ok(Some(v)) => rational(v).filter(|r| r.is_finite() && *r > 0.0),
+            Ok(None) => None,
+            Err(e) => return Err(tiff_err(path, 0, field, e)),
+        };
+    }
     let mut pages = vec![PageInfo::read(&mut dec, path, 0)?];
     while dec.more_images() {
         let page = pages.len() as u64;
@@ -81,7 +105,23 @@ fn read_pages(path: &Path) -> Result<(Vec<PageInfo>, Option<String>, bool), Volu
             .map_err(|e| tiff_err(path, page, "IFD", e))?;
         pages.push(PageInfo::read(&mut dec, path, page)?);
     }
-    Ok((pages, description, big_endian))
+    let first = FirstPage {
+        description,
+        resolution,
+        big_endian,
+    };
+    Ok((pages, first))
+}
+
+/// A RATIONAL (or float) tag value as a number.
+fn rational(v: tiff::decoder::ifd::Value) -> Option<f64> {
+    use tiff::decoder::ifd::Value;
+    match v {
+        Value::Rational(n, d) if d != 0 => Some(f64::from(n) / f64::from(d)),
+        Value::Float(f) => Some(f64::from(f)),
+        Value::Double(f) => Some(f),
+        _ => None,
+    }
 }
 
 /// Describes the stack at `path`: a multi-page TIFF (plain or OME-TIFF), or a folder of
@@ -90,9 +130,14 @@ pub(super) fn describe(path: &Path, options: &TiffOptions) -> Result<Stack, Volu
     if path.is_dir() {
         return describe_folder(path, options);
     }
-    let (pages, description, big_endian) = read_pages(path)?;
-    let ome = match description.as_deref() {
+    let (pages, first_page) = read_pages(path)?;
+    let big_endian = first_page.big_endian;
+    let ome = match first_page.description.as_deref() {
         Some(d) if is_ome_xml(d) => Some(parse_ome_xml(path, d.as_bytes())?),
+        _ => None,
+    };
+    let imagej = match (&ome, first_page.description.as_deref()) {
+        (None, Some(d)) => ImageJ::parse(d),
         _ => None,
     };
     let mut reduced_skipped = 0;
@@ -113,6 +158,10 @@ pub(super) fn describe(path: &Path, options: &TiffOptions) -> Result<Stack, Volu
                 ome_planes(path, &pixels, options, pages.len() as u64)?,
                 Some(pixels),
             )
+        }
+        None if imagej.is_some() => {
+            let ij = imagej.as_ref().expect("matched");
+            (imagej_planes(path, ij, options, pages.len() as u64)?, None)
         }
         None => {
             check_plain_options(path, options)?;
@@ -138,6 +187,16 @@ pub(super) fn describe(path: &Path, options: &TiffOptions) -> Result<Stack, Volu
             }
         }
     }
+    if let Some(ij) = &imagej {
+        let to_um = ij.micrometres_per_unit().unwrap_or(1.0);
+        let [x, y] = first_page.resolution.map(|r| r.map(|r| 1.0 / r));
+        for (axis, size) in [x, y, ij.spacing].into_iter().enumerate() {
+            let value = (size.unwrap_or(1.0) * to_um) as f32;
+            if value.is_normal() && value > 0.0 {
+                spacing[axis] = value;
+            }
+        }
+    }
     let layout = layout(
         path,
         "ImageWidth",
@@ -155,6 +214,7 @@ pub(super) fn describe(path: &Path, options: &TiffOptions) -> Result<Stack, Volu
         compression: first.compression,
         tiled: first.tiled,
         ome: pixels,
+        imagej,
         channel_time: [options.channel, options.time],
     };
     Ok(Stack {
@@ -180,8 +240,9 @@ fn check_plain_options(path: &Path, options: &TiffOptions) -> Result<(), VolumeE
                 path,
                 field,
                 format!(
-                    "{field} selection {value} asked for, but this is not an OME-TIFF (no \
-                     OME-XML in the first page's ImageDescription): its pages are the z planes"
+                    "{field} selection {value} asked for, but this is neither an OME-TIFF nor \
+                     an ImageJ hyperstack (no OME-XML or ImageJ= ImageDescription): its pages \
+                     are the z planes"
                 ),
             ));
         }
@@ -246,6 +307,52 @@ fn ome_planes(
         planes.push(Plane { file: 0, ifd });
     }
     Ok(planes)
+}
+
+/// The pages holding planes (z, `options.channel`, `options.time`) of an ImageJ hyperstack
+/// (CZT order: channel fastest).
+fn imagej_planes(
+    path: &Path,
+    ij: &ImageJ,
+    options: &TiffOptions,
+    pages: u64,
+) -> Result<Vec<Plane>, VolumeError> {
+    for (value, size, field, what) in [
+        (options.image as u64, 1, "Image", "image"),
+        (options.channel, ij.channels, "channels", "channel"),
+        (options.time, ij.frames, "frames", "time point (frame)"),
+    ] {
+        if value >= size {
+            return Err(format_err(
+                path,
+                field,
+                format!(
+                    "{what} {value} asked for; the ImageJ hyperstack has {field}={size} (0..{size})"
+                ),
+            ));
+        }
+    }
+    if ij.slices > pages {
+        return Err(format_err(
+            path,
+            "slices",
+            format!("slices={} but the file holds only {pages} pages", ij.slices),
+        ));
+    }
+    (0..ij.slices)
+        .map(|z| match ij.page_of(z, options.channel, options.time) {
+            Some(ifd) if ifd < pages => Ok(Plane { file: 0, ifd }),
+            _ => Err(format_err(
+                path,
+                "images",
+                format!(
+                    "plane (z={z}, c={}, t={}) of {}x{}x{} (channels x slices x frames) is past \
+                     the file's {pages} pages",
+                    options.channel, options.time, ij.channels, ij.slices, ij.frames
+                ),
+            )),
+        })
+        .collect()
 }
 
 /// Checks the OME `Pixels` against the first plane's page: `SizeX` / `SizeY` and `Type`.
@@ -357,6 +464,7 @@ fn describe_folder(dir: &Path, options: &TiffOptions) -> Result<Stack, VolumeErr
         compression: first.compression,
         tiled: first.tiled,
         ome: None,
+        imagej: None,
         channel_time: [0, 0],
     };
     Ok(Stack {

@@ -260,6 +260,21 @@ pub enum VolumeError {
         /// What is wrong and what was expected.
         message: String,
     },
+    /// A page of a TIFF stack (a page of a multi-page file, or one file of a folder stack) is
+    /// unsupported, disagrees with the stack's first page, or cannot be decoded.
+    #[error("{path}: page {page}: field `{field}`: {message}")]
+    TiffPage {
+        /// The TIFF file holding the page.
+        path: PathBuf,
+        /// The page: its IFD index in the file (for a folder stack, the file's position in the
+        /// stack).
+        page: u64,
+        /// The TIFF tag at fault (`ImageWidth`, `BitsPerSample`, `SampleFormat`,
+        /// `PhotometricInterpretation`, `Compression`, ...; `data` for the page's pixel data).
+        field: String,
+        /// What is wrong.
+        message: String,
+    },
     /// A volume file's header (or the data it describes) is invalid or unsupported.
     #[error("{path}: field `{field}`: {message}")]
     Format {

@@ -238,8 +238,9 @@ pub enum ProjectionArg {
 #[derive(Args, Debug)]
 pub struct RenderArgs {
     /// Volume to render: a synthetic field (`ml` = Marschner-Lobb, `sphere`, `wall`), a file with
-    /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), an
-    /// OME-Zarr folder or remote image (s3://BUCKET/PATH.zarr with the AWS_* environment
+    /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), a TIFF
+    /// stack (.tif, .tiff, .btf; OME-TIFF; a folder of .tif slices), an OME-Zarr folder or
+    /// remote image (s3://BUCKET/PATH.zarr with the AWS_* environment
     /// variables, http(s)://HOST/PATH.zarr; MIXVOL_REMOTE_TIMEOUT_MS / _RETRIES bound each
     /// fetch), a brick store (streamed from disk under --ram-budget-mb), or a headerless raw
     /// file (then --dims, --scalar, --spacing describe it).
@@ -270,6 +271,9 @@ pub struct RenderArgs {
     /// images.
     #[arg(long)]
     pub stream: bool,
+    /// Image, channel and time point of an OME-TIFF or ImageJ hyperstack (default 0 each).
+    #[command(flatten)]
+    pub tiff: TiffSelectArgs,
     /// Transfer-function preset: grey, fire, bands, constant, ct, mri.
     #[arg(long, default_value = "fire", value_parser = parse_tf)]
     pub tf: TfPreset,
@@ -470,11 +474,41 @@ impl MixedArgs {
     }
 }
 
+/// Which planes of an OME-TIFF or ImageJ hyperstack make the volume: its z planes at one
+/// image, channel and time point.
+#[derive(Args, Debug, Clone, Copy, Default)]
+pub struct TiffSelectArgs {
+    /// OME-TIFF image (series) to read, 0 = the first.
+    #[arg(long)]
+    pub tiff_image: Option<usize>,
+    /// Channel of an OME-TIFF (0..SizeC) or ImageJ hyperstack (0..channels) to read; default 0.
+    #[arg(long)]
+    pub tiff_channel: Option<u64>,
+    /// Time point of an OME-TIFF (0..SizeT) or ImageJ hyperstack (0..frames) to read; default 0.
+    #[arg(long)]
+    pub tiff_time: Option<u64>,
+}
+
+impl TiffSelectArgs {
+    /// The selection, when any flag was given.
+    pub fn options(&self) -> Option<mixvol::volume::formats::TiffOptions> {
+        if self.tiff_image.is_none() && self.tiff_channel.is_none() && self.tiff_time.is_none() {
+            return None;
+        }
+        Some(mixvol::volume::formats::TiffOptions {
+            image: self.tiff_image.unwrap_or(0),
+            channel: self.tiff_channel.unwrap_or(0),
+            time: self.tiff_time.unwrap_or(0),
+        })
+    }
+}
+
 /// `mixvol convert`: a volume into a brick store, read in slabs under a RAM budget.
 #[derive(Args, Debug)]
 pub struct ConvertArgs {
     /// The volume to convert: a file with a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON
-    /// sidecar or .raw with one), an OME-Zarr folder or remote image (s3://BUCKET/PATH.zarr
+    /// sidecar or .raw with one), a TIFF stack (.tif, .tiff, .btf; OME-TIFF; a folder of .tif
+    /// slices; streamed page by page), an OME-Zarr folder or remote image (s3://BUCKET/PATH.zarr
     /// with the AWS_* environment variables, http(s)://HOST/PATH.zarr; MIXVOL_REMOTE_TIMEOUT_MS
     /// / _RETRIES bound each fetch), a headerless raw file (described by
     /// --dims, --scalar, --spacing, --header-bytes, --big-endian), or a synthetic field (ml,
@@ -509,6 +543,9 @@ pub struct ConvertArgs {
     /// Level of an OME-Zarr image to convert (index into its multiscales datasets; 0 = finest).
     #[arg(long)]
     pub level: Option<usize>,
+    /// Image, channel and time point of an OME-TIFF or ImageJ hyperstack (default 0 each).
+    #[command(flatten)]
+    pub tiff: TiffSelectArgs,
     /// Replace an existing STORE (atomically, once the new store is complete).
     #[arg(long)]
     pub force: bool,

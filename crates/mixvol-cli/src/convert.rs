@@ -16,7 +16,7 @@ use mixvol::store::{
     write_store_from_volume_with_progress, SlabPlan, StoreDesc, WriteSummary,
 };
 use mixvol::volume::formats::zarr::ZarrSlabs;
-use mixvol::volume::formats::{FileFormat, RemoteOptions, ZarrLocation};
+use mixvol::volume::formats::{FileFormat, RemoteOptions, TiffSlabs, ZarrLocation};
 use mixvol::volume::{open_raw_slabs, open_slabs, RawDescriptor, SlabReader, SyntheticField};
 use mixvol::{Error, Result};
 use serde_json::json;
@@ -133,6 +133,15 @@ fn open_input(args: &ConvertArgs) -> Result<Box<dyn SlabReader + Send>> {
         Path::new(&args.input)
     };
     let format = FileFormat::detect(path);
+    if let Some(options) = args.tiff.options() {
+        if format != Some(FileFormat::Tiff) {
+            return Err(Error::InvalidInput(format!(
+                "--tiff-image / --tiff-channel / --tiff-time apply to TIFF stacks (OME-TIFF, ImageJ hyperstacks), not '{}'",
+                args.input
+            )));
+        }
+        return Ok(Box::new(TiffSlabs::open(path, &options)?));
+    }
     if format.is_some() {
         if format != Some(FileFormat::Zarr) && args.level.is_some() {
             return Err(Error::InvalidInput(format!(
@@ -151,7 +160,7 @@ fn open_input(args: &ConvertArgs) -> Result<Box<dyn SlabReader + Send>> {
     let Some(dims) = args.dims else {
         return Err(Error::InvalidInput(format!(
             "INPUT {}: no known header (.nii, .nii.gz, .nrrd, .nhdr, .json, .raw with a sidecar, \
-             .den, .zarr); headerless raw data needs --dims x,y,z (and --scalar, --spacing, \
+             .den, .tif / .tiff / .btf, .zarr); headerless raw data needs --dims x,y,z (and --scalar, --spacing, \
              --header-bytes, --big-endian as they apply)",
             path.display()
         )));

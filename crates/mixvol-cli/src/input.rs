@@ -6,7 +6,7 @@ use crate::parse::parse_floats;
 use mixvol::gpu::GpuContext;
 use mixvol::store::{BrickStore, MAGIC};
 use mixvol::volume::formats::{
-    load_zarr_at, load_zarr_level, FileFormat, RemoteOptions, ZarrLocation,
+    load_tiff_with, load_zarr_at, load_zarr_level, FileFormat, RemoteOptions, ZarrLocation,
 };
 use mixvol::volume::memory::check_host_bytes;
 use mixvol::volume::{load_raw, RawDescriptor, SyntheticField, Volume, VolumeError, VolumeMeta};
@@ -51,6 +51,16 @@ pub fn load_volume_with_meta(args: &RenderArgs) -> Result<(Volume, Option<Volume
         let loaded = load_zarr_level(path, level)?;
         return Ok((loaded.volume, Some(loaded.meta)));
     }
+    if let Some(options) = args.tiff.options() {
+        if format != Some(FileFormat::Tiff) {
+            return Err(Error::InvalidInput(format!(
+                "--tiff-image / --tiff-channel / --tiff-time apply to TIFF stacks (OME-TIFF, ImageJ hyperstacks), not '{}'",
+                args.volume
+            )));
+        }
+        let loaded = load_tiff_with(path, &options)?;
+        return Ok((loaded.volume, Some(loaded.meta)));
+    }
     if let Some(field) = SyntheticField::parse(&args.volume) {
         return Ok((field.generate(args.dims, args.scalar)?, None));
     }
@@ -60,8 +70,9 @@ pub fn load_volume_with_meta(args: &RenderArgs) -> Result<(Volume, Option<Volume
     }
     if path.is_dir() {
         return Err(Error::InvalidInput(format!(
-            "'{}' is a folder without Zarr metadata (zarr.json, .zattrs or .zarray): give an \
-             OME-Zarr image or Zarr array folder, a volume file or a brick store",
+            "'{}' is a folder without Zarr metadata (zarr.json, .zattrs or .zarray) or .tif \
+             slices: give an OME-Zarr image or Zarr array folder, a folder of TIFF slices, a \
+             volume file or a brick store",
             args.volume
         )));
     }
@@ -123,7 +134,8 @@ pub fn check_plain_synthetic(args: &RenderArgs, ctx: &GpuContext) -> Result<()> 
 
 /// The file names `FileFormat::detect` recognises, for messages.
 const KNOWN_FORMATS: &str =
-    ".nii, .nii.gz, .nrrd, .nhdr, .den, .json sidecar or .raw beside one, .zarr folder";
+    ".nii, .nii.gz, .nrrd, .nhdr, .den, .json sidecar or .raw beside one, .tif / .tiff / .btf \
+     (TIFF stack, OME-TIFF), .zarr folder, folder of .tif slices";
 
 /// What `--volume` names: a volume loaded into RAM, or a brick store streamed from disk.
 pub enum Input {

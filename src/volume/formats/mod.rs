@@ -1,12 +1,15 @@
 //! Volume file formats: NIfTI-1 and NIfTI-2 (`.nii`, `.nii.gz`), NRRD (`.nrrd`, detached `.nhdr`; raw or gzip
 //! encoding), raw data described by a JSON sidecar (`.json`, or `.raw` beside one) and VolPack /
-//! Levoy density files (`.den`), and OME-Zarr images (`.zarr` folders, Zarr v2 and v3, through
-//! the `zarrs` crate; see [`zarr`]).
+//! Levoy density files (`.den`), OME-Zarr images (`.zarr` folders, Zarr v2 and v3, through
+//! the `zarrs` crate; see [`zarr`]), and TIFF stacks (multi-page TIFF and BigTIFF, OME-TIFF
+//! with physical sizes, folders of single-page TIFFs; `.tif`, `.tiff`, `.btf`, through the
+//! `tiff` crate; see [`tiff`]).
 //!
 //! [`load_volume`] picks the format from the file name; the per-format loaders
-//! ([`load_nifti`], [`load_nrrd`], [`load_sidecar`], [`load_den`]) return the volume together
+//! ([`load_nifti`], [`load_nrrd`], [`load_sidecar`], [`load_den`], [`load_tiff`]) return the volume together
 //! with [`VolumeMeta`] (stored type, value offset, orientation), and the header parsers
-//! ([`parse_nifti_header`], [`parse_nrrd_header`], [`parse_sidecar`], [`parse_den_header`]) work
+//! ([`parse_nifti_header`], [`parse_nrrd_header`], [`parse_sidecar`], [`parse_den_header`],
+//! [`parse_ome_xml`]) work
 //! on bytes, without touching the file system (they are the fuzz targets' entry points).
 //!
 //! # Safety against hostile files
@@ -48,7 +51,8 @@
 //! [`VolumeMeta::reorientation`]); an oblique residual rotation is not applied. Other formats keep
 //! voxels in file order (first axis fastest), never resampled or flipped. Spacing is the
 //! size of a voxel step along each index axis: NIfTI `|pixdim[1..=3]|`, NRRD the norms of the
-//! `space directions` vectors (else `|spacings|`, else 1), the sidecar's `spacing`, 1 for `.den`.
+//! `space directions` vectors (else `|spacings|`, else 1), the sidecar's `spacing`, 1 for `.den`,
+//! OME-TIFF `PhysicalSizeX/Y/Z` in micrometres (1 for plain TIFF; see [`tiff`]).
 //! So anisotropic voxels render with the right aspect. The direction of each index axis in the
 //! file's world frame (NIfTI: sform, else qform, else identity; NRRD: `space directions`) is
 //! reported as unit vectors in [`VolumeMeta::directions`], with [`VolumeMeta::origin`]; for NRRD
@@ -61,6 +65,7 @@ mod nrrd;
 mod read;
 mod sidecar;
 pub(crate) mod slab_readers;
+pub mod tiff;
 pub mod zarr;
 
 pub use den::{load_den, parse_den_header, DenHeader, DEN_HEADER_BYTES};
@@ -70,6 +75,7 @@ pub use nii::{
 };
 pub use nrrd::{load_nrrd, parse_nrrd_header, NrrdHeader};
 pub use sidecar::{load_sidecar, parse_sidecar, Sidecar};
+pub use tiff::{load_tiff, load_tiff_with, parse_ome_xml, TiffOptions, TiffSlabs};
 pub use zarr::{
     load_zarr, load_zarr_at, load_zarr_level, parse_zarr_root, RemoteOptions, ZarrChunk,
     ZarrChunks, ZarrLocation, ZarrRoot, ZarrVersion,
@@ -197,6 +203,9 @@ pub enum FileFormat {
     Den,
     /// OME-Zarr image or plain Zarr array (v2 or v3): a folder, usually `.zarr` / `.ome.zarr`.
     Zarr,
+    /// TIFF stack: `.tif` / `.tiff` / `.btf` / `.tf8` (plain, BigTIFF or OME-TIFF), or a folder
+    /// of single-page TIFFs.
+    Tiff,
 }
 
 impl FileFormat {
@@ -215,6 +224,8 @@ impl FileFormat {
             Some(FileFormat::Den)
         } else if ends(".zarr") {
             Some(FileFormat::Zarr)
+        } else if tiff::has_tiff_extension(&name) {
+            Some(FileFormat::Tiff)
         } else {
             None
         }
@@ -224,7 +235,9 @@ impl FileFormat {
     /// name: [`FileFormat::from_path`], except that a `.raw` file counts only when its JSON
     /// sidecar exists (`NAME.raw.json` or `NAME.json`; a bare `.raw` is headerless data that the
     /// caller must describe), and a folder holding Zarr metadata (`zarr.json`, `.zattrs`,
-    /// `.zarray`) is [`FileFormat::Zarr`] whatever its name. `None`: no format with a header.
+    /// `.zarray`) is [`FileFormat::Zarr`] whatever its name, and another folder holding `.tif`
+    /// / `.tiff` files is [`FileFormat::Tiff`] (a folder stack). `None`: no format with a
+    /// header.
     pub fn detect(path: &Path) -> Option<Self> {
         let lower = path
             .file_name()
@@ -237,6 +250,7 @@ impl FileFormat {
                 .then_some(FileFormat::Sidecar),
             Some(format) => Some(format),
             None if is_zarr_folder(path) => Some(FileFormat::Zarr),
+            None if tiff::is_tiff_folder(path) => Some(FileFormat::Tiff),
             None => None,
         }
     }
@@ -350,7 +364,8 @@ pub struct LoadedVolume {
 /// Loads a volume file, choosing the format from its name: `.nii` / `.nii.gz` (NIfTI-1),
 /// `.nrrd` / `.nhdr` (NRRD), `.json` (raw data + JSON sidecar), `.raw` (with a sibling
 /// `NAME.raw.json` or `NAME.json` sidecar), `.den` (VolPack), `.zarr` (OME-Zarr folder; any
-/// folder holding `zarr.json`, `.zattrs` or `.zarray` too). Other names give a
+/// folder holding `zarr.json`, `.zattrs` or `.zarray` too), `.tif` / `.tiff` / `.btf` (TIFF
+/// stack, OME-TIFF at channel 0 and time 0; a folder of TIFFs too). Other names give a
 /// [`VolumeError::Format`] error on the field `extension`. See the module docs for the value
 /// mapping and the orientation policy.
 pub fn load_volume(path: &Path) -> Result<Volume, VolumeError> {
@@ -368,9 +383,11 @@ pub fn load_volume_with_meta(path: &Path) -> Result<LoadedVolume, VolumeError> {
         Some(FileFormat::Nrrd) => load_nrrd(path),
         Some(FileFormat::Den) => load_den(path),
         Some(FileFormat::Zarr) => load_zarr(path),
+        Some(FileFormat::Tiff) => load_tiff(path),
         Some(FileFormat::Sidecar) if lower.ends_with(".json") => load_sidecar(path),
         Some(FileFormat::Sidecar) => slab_readers::describe_raw_with_sidecar(path)?.load(),
         None if is_zarr_folder(path) => load_zarr(path),
+        None if tiff::is_tiff_folder(path) => load_tiff(path),
         None => Err(unknown_extension(path)),
     }
 }
@@ -381,7 +398,8 @@ fn unknown_extension(path: &Path) -> VolumeError {
         path,
         "extension",
         "unknown volume file type; expected .nii, .nii.gz, .nrrd, .nhdr, .json, \
-         .raw (with a .json sidecar), .den or a .zarr folder",
+         .raw (with a .json sidecar), .den, .tif / .tiff / .btf, a .zarr folder or a folder \
+         of .tif files",
     )
 }
 

@@ -30,6 +30,12 @@ pub(crate) fn open(path: &Path, level: usize) -> Result<Box<dyn SlabReader + Sen
         Some(FileFormat::Nrrd) => nrrd::describe_nrrd(path)?,
         Some(FileFormat::Den) => den::describe_den(path)?,
         Some(FileFormat::Zarr) => return Ok(Box::new(super::zarr::ZarrSlabs::open(path, level)?)),
+        Some(FileFormat::Tiff) => {
+            return Ok(Box::new(super::tiff::TiffSlabs::open(
+                path,
+                &super::tiff::TiffOptions::default(),
+            )?))
+        }
         Some(FileFormat::Sidecar) if lower.ends_with(".json") => {
             let parsed = sidecar::read_sidecar(path)?;
             sidecar::describe_parsed(path, &parsed)?
@@ -37,6 +43,12 @@ pub(crate) fn open(path: &Path, level: usize) -> Result<Box<dyn SlabReader + Sen
         Some(FileFormat::Sidecar) => describe_raw_with_sidecar(path)?,
         None if super::is_zarr_folder(path) => {
             return Ok(Box::new(super::zarr::ZarrSlabs::open(path, level)?))
+        }
+        None if super::tiff::is_tiff_folder(path) => {
+            return Ok(Box::new(super::tiff::TiffSlabs::open(
+                path,
+                &super::tiff::TiffOptions::default(),
+            )?))
         }
         None => return Err(super::unknown_extension(path)),
     };

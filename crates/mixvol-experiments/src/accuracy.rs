@@ -257,10 +257,7 @@ pub const FAMILIES: [&str; 18] = [
 /// shaded panels.
 pub fn family_colour(family: &str) -> [u8; 3] {
     let base = family.strip_suffix(", shaded").unwrap_or(family);
-    let index = FAMILIES[..12]
-        .iter()
-        .position(|f| *f == base)
-        .unwrap_or(0);
+    let index = FAMILIES[..12].iter().position(|f| *f == base).unwrap_or(0);
     // Families 9 and 10 are shaded ones; 11 (tricubic) takes the colour slot 9 leaves free.
     crate::plot::PALETTE[if index == 11 { 9 } else { index }]
 }
@@ -504,7 +501,9 @@ pub fn accuracy_report(
                 early_termination: 1.0,
                 ..lit
             };
-            Ok(single.render(&options.camera, &settings, size, size)?.pixels)
+            Ok(single
+                .render(&options.camera, &settings, size, size)?
+                .pixels)
         };
         let [plain, lit] = plain_and_lit();
         [render(plain)?, render(lit)?]

@@ -178,10 +178,10 @@ pub fn summarise(name: &str, reports: &[Report]) -> SceneSummary {
 fn summarise_rows(all: &[&ReportRow]) -> OrbitRow {
     let n = all.len() as f64;
     let mean = |f: &dyn Fn(&ReportRow) -> f64| all.iter().map(|r| f(r)).sum::<f64>() / n;
-    let max = |f: &dyn Fn(&ReportRow) -> f64| {
-        all.iter().map(|r| f(r)).fold(f64::NEG_INFINITY, f64::max)
-    };
-    let min = |f: &dyn Fn(&ReportRow) -> f64| all.iter().map(|r| f(r)).fold(f64::INFINITY, f64::min);
+    let max =
+        |f: &dyn Fn(&ReportRow) -> f64| all.iter().map(|r| f(r)).fold(f64::NEG_INFINITY, f64::max);
+    let min =
+        |f: &dyn Fn(&ReportRow) -> f64| all.iter().map(|r| f(r)).fold(f64::INFINITY, f64::min);
     OrbitRow {
         family: all[0].family,
         label: all[0].label.clone(),
@@ -309,7 +309,10 @@ pub fn chart(s: &SceneSummary) -> Chart {
         log_y: true,
     };
     Chart {
-        title: format!("{}: mean error vs frame time over {} views", s.name, s.views),
+        title: format!(
+            "{}: mean error vs frame time over {} views",
+            s.name, s.views
+        ),
         panels: vec![
             panel("Unshaded rows", false),
             panel("Shaded rows (Blinn-Phong)", true),

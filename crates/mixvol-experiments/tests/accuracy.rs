@@ -12,13 +12,6 @@ use mixvol_experiments::accuracy::{
 };
 use std::sync::Arc;
 
-fn spv_row<'a>(
-    report: &'a mixvol_experiments::accuracy::Report,
-    spv: &str,
-) -> &'a mixvol_experiments::accuracy::ReportRow {
-    report.row(FAMILIES[0], spv).expect("samples-per-voxel row")
-}
-
 #[test]
 fn quick_report_rows_trade_accuracy_for_time_consistently() {
     let ctx = common::validated_context();
@@ -219,7 +212,10 @@ fn quick_report_rows_trade_accuracy_for_time_consistently() {
         let mean_lit = filter_lit("Mean2");
         assert!(filter_lit("LaMarSubsample").rmse > 1.2 * mean_lit.rmse);
         for r in ["Box4", "BSpline4"] {
-            assert!((filter_lit(r).rmse / mean_lit.rmse - 1.0).abs() < 0.06, "{r}");
+            assert!(
+                (filter_lit(r).rmse / mean_lit.rmse - 1.0).abs() < 0.06,
+                "{r}"
+            );
         }
         for p in ["50%", "0%"] {
             let c = row(FAMILIES[17], p);

@@ -94,7 +94,9 @@ fn orbit_summary_is_mean_and_worst_of_the_views() {
 /// The transition rows on a junction cut into a given 8-bit volume (the path the real scenes
 /// take, [`JunctionScene::in_volume`]): a brain-like texture of sines through the MRI transfer
 /// function. Smooth transitions leave a far smaller seam than discontinuous ones at the same
-/// residency, unshaded and shaded.
+/// residency, unshaded and shaded. Measured (lavapipe, 2026-12-02): seam max / mean, smooth
+/// against discontinuous, 0.0073 / 0.0013 against 0.060 / 0.039 unshaded (8x / 29x) and
+/// 0.0104 / 0.0017 against 0.105 / 0.053 shaded (10x / 32x), on 1008 samples along 20 faces.
 #[test]
 fn transitions_on_a_given_volume_leave_far_smaller_seams_when_smooth() {
     let ctx = common::validated_context();
@@ -113,24 +115,19 @@ fn transitions_on_a_given_volume_leave_far_smaller_seams_when_smooth() {
             }
         }
         let volume = Arc::new(
-            mixvol::volume::Volume::new(
-                dims,
-                glam::Vec3::ONE,
-                mixvol::volume::VoxelData::U8(data),
-            )
-            .unwrap(),
+            mixvol::volume::Volume::new(dims, glam::Vec3::ONE, mixvol::volume::VoxelData::U8(data))
+                .unwrap(),
         );
         let scene = JunctionScene {
             size: 64,
             width_voxels: 4.0,
             ..JunctionScene::in_volume(volume, 8)
         };
-        let rows = transition_rows(&ctx, &TransferFunction::preset(TfPreset::Mri), &scene, 1)
-            .unwrap();
+        let rows =
+            transition_rows(&ctx, &TransferFunction::preset(TfPreset::Mri), &scene, 1).unwrap();
         assert_eq!(rows.len(), 4);
         for pair in rows.chunks(2) {
             let (s, d) = (&pair[0], &pair[1]);
-            eprintln!("{} smooth {:?}\ndiscontinuous {:?}", s.family, s.seam, d.seam);
             assert_eq!(s.family, d.family);
             assert!(s.setting.starts_with("Smooth") && d.setting.starts_with("Discontinuous"));
             assert_eq!(
@@ -139,16 +136,16 @@ fn transitions_on_a_given_volume_leave_far_smaller_seams_when_smooth() {
             );
             assert_eq!(s.seam.samples, d.seam.samples);
             assert!(s.seam.faces > 0 && s.seam.samples > 100, "{s:?}");
-            assert!(d.seam.max_excess > 0.01, "{d:?}");
+            assert!(d.seam.max_excess > 0.03, "{d:?}");
             assert!(
-                s.seam.max_excess * 3.0 < d.seam.max_excess,
+                s.seam.max_excess * 4.0 < d.seam.max_excess,
                 "{}: smooth {:?}\ndiscontinuous {:?}",
                 s.family,
                 s.seam,
                 d.seam
             );
             assert!(
-                s.seam.mean_excess * 5.0 < d.seam.mean_excess,
+                s.seam.mean_excess * 15.0 < d.seam.mean_excess,
                 "{}: smooth {:?}\ndiscontinuous {:?}",
                 s.family,
                 s.seam,

@@ -196,9 +196,9 @@ impl Report {
             y_label: y_label.into(),
             y_range: None,
             series: self.series(y, seams, shaded),
-                legend_left: false,
-                log_y: true,
-            };
+            legend_left: false,
+            log_y: true,
+        };
         [
             (
                 "accuracy-vs-time",

@@ -346,4 +346,31 @@ mod tests {
             svg.contains("<svg") && svg.contains("frame time (ms)") && svg.contains("\nsteps\n")
         );
     }
+
+    #[test]
+    fn log_axis_leaves_out_zeros_and_labels_decades() {
+        let mut c = chart();
+        let panel = &mut c.panels[0];
+        panel.log_y = true;
+        panel.series[0].points = vec![(1.0, 0.0), (2.0, 0.01), (3.0, 0.001)];
+        panel.series[0].labels = vec!["zero".into(), "a".into(), "b".into()];
+        // Two labels at the same place: only the first is drawn.
+        panel.series.push(Series {
+            name: "twin".into(),
+            colour: PALETTE[1],
+            dashed: false,
+            points: vec![(2.0, 0.01)],
+            labels: vec!["twin".into()],
+        });
+        let svg = c.to_svg().unwrap();
+        // Ticks are powers of ten written as such; the zero point has no place (its label is
+        // not drawn), nor has the overlapping twin label.
+        assert!(svg.contains("e-2") || svg.contains("e-3"), "{svg}");
+        assert_eq!(svg.matches("\nzero\n").count(), 0);
+        assert_eq!(svg.matches("\na\n").count(), 1);
+        assert_eq!(svg.matches("\nb\n").count(), 1);
+        // "twin" once: its legend entry.
+        assert_eq!(svg.matches("\ntwin\n").count(), 1);
+        c.to_png_image().unwrap();
+    }
 }

@@ -316,7 +316,7 @@ vec4 cast_ray(Ray ray) {
                 // Absent brick: jump to just before its exit.
                 float t_exit = intersect_box(voxel_ray, vec3(b) * n, vec3(b + 1) * n).y;
                 i = max(i, first_sample_after(t_exit, t0, step_len) - 2);
-                break_ray(s);
+                break_ray(s, ray.dir);
                 continue;
             }
 #endif
@@ -457,7 +457,7 @@ vec4 cast_ray(Ray ray) {
 #ifdef ABSENT_BRICKS
         if (entry.w == 0.0) {
             i = clamp(first_sample_after(t_leave, t0, step_len), i + 1, steps);
-            break_ray(s);
+            break_ray(s, ray.dir);
             continue;
         }
 #endif

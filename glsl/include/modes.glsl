@@ -15,6 +15,8 @@ struct RayState {
     vec4 acc;         // premultiplied colour and opacity so far
     float max_pos;    // MIP, MIDA: largest TF position so far (-1: none yet)
     float prev_value; // ISO, PREINTEGRATED: the previous sample's value
+    float prev_len;   // PREINTEGRATED: the length the previous sample stands for
+    vec3 prev_g;      // PREINTEGRATED with gradients: the previous sample's gradient
     vec3 prev_x;      // ISO: the previous sample's position (voxels)
     bool has_prev;    // whether prev_* hold a sample (false after a gap)
     bool hit;         // ISO: the ray crossed the iso value between prev_x and hit_x
@@ -27,6 +29,8 @@ RayState begin_ray() {
     s.acc = vec4(0.0);
     s.max_pos = -1.0;
     s.prev_value = 0.0;
+    s.prev_len = 0.0;
+    s.prev_g = vec3(0.0);
     s.prev_x = vec3(0.0);
     s.has_prev = false;
     s.hit = false;
@@ -35,10 +39,6 @@ RayState begin_ray() {
     return s;
 }
 
-// A gap in the samples (an absent brick): iso crossings and pre-integrated segments never bridge it.
-void break_ray(inout RayState s) {
-    s.has_prev = false;
-}
 
 // The four gradient taps: the corners of a tetrahedron inscribed in the cube [-1, 1]^3 (an even
 // number of minus signs). They sum to zero and sum(v v^T) = 4 I, so for a linear field
@@ -106,16 +106,50 @@ vec3 refine_iso(vec3 a, float fa, vec3 b, float fb) {
     return a * (1.0 - t) + b * t;
 }
 
+// PREINTEGRATED (DVR, MIDA): composites the half step behind a run's last sample at its constant
+// classification (samples lie at the middles of their steps; a run is a constant half step in
+// front of its first sample, the segments between samples, and this). No-op otherwise.
+void close_run(inout RayState s, vec3 view_dir) {
+#if defined(PREINTEGRATED) && (defined(MODE_DVR) || defined(MODE_MIDA))
+    if (!s.has_prev) {
+        return;
+    }
+    float pos = tf_position(params.tf_window, s.prev_value);
+    vec4 seg = texture(preint_tex, (vec2(pos, pos) * float(TF_SIZE - 1) + 0.5) / float(TF_SIZE));
+    vec3 rgb = sample_colour(seg);
+    float alpha = correct_opacity(seg.a, 0.5 * s.prev_len / params.box_min.w);
+#ifdef GRADIENT_OPACITY
+    alpha *= gradient_opacity(s.prev_g);
+#endif
+#ifdef SHADING
+    rgb = shade(rgb, s.prev_g, view_dir);
+#endif
+    // MIDA: the maximum already holds this position (beta = 1), so its blend is "over".
+    s.acc = composite(s.acc, rgb, alpha);
+    s.prev_len = 0.0;
+#endif
+}
+
+// A gap in the samples (an absent brick): closes a pre-integrated run; iso crossings and
+// pre-integrated segments never bridge it.
+void break_ray(inout RayState s, vec3 view_dir) {
+    close_run(s, view_dir);
+    s.has_prev = false;
+}
+
 // The colour and opacity of one sample (before gradient effects): pre-integrated over the
-// segment from the previous sample, or classified at the sample.
+// segment from the previous sample (half of each one's length; from the run's start half a
+// step in front, constant), or classified at the sample.
 vec4 classify_sample(inout RayState s, float value, float len) {
     float pos = tf_position(params.tf_window, value);
 #ifdef PREINTEGRATED
     float front = s.has_prev ? tf_position(params.tf_window, s.prev_value) : pos;
+    float seg_len = s.has_prev ? 0.5 * (s.prev_len + len) : 0.5 * len;
     s.prev_value = value;
+    s.prev_len = len;
     s.has_prev = true;
     vec4 seg = texture(preint_tex, (vec2(front, pos) * float(TF_SIZE - 1) + 0.5) / float(TF_SIZE));
-    return vec4(sample_colour(seg), correct_opacity(seg.a, len / params.box_min.w));
+    return vec4(sample_colour(seg), correct_opacity(seg.a, seg_len / params.box_min.w));
 #else
     vec4 w = lookup_tf(tf_tex, pos);
     return vec4(sample_colour(w), sample_opacity(w.a, len / params.box_max.w));
@@ -155,6 +189,9 @@ bool integrate_sample(inout RayState s, float value, float len, vec3 x, vec3 vie
     float alpha = sample_rgba.a;
 #if defined(SHADING) || defined(GRADIENT_OPACITY)
     vec3 g = sample_gradient(x, value, deep, entry);
+#ifdef PREINTEGRATED
+    s.prev_g = g;
+#endif
 #endif
 #ifdef GRADIENT_OPACITY
     alpha *= gradient_opacity(g);
@@ -187,8 +224,9 @@ bool integrate_weighted(inout RayState s, vec4 weighted, float len) {
     return s.acc.a >= params.tf_window.z;
 }
 
-// The ray's result once its samples are done.
+// The ray's result once its samples are done (a pre-integrated run closed first).
 vec4 finish_ray(RayState s, vec3 view_dir) {
+    close_run(s, view_dir);
 #if defined(MODE_ISO)
     if (!s.hit) {
         return vec4(0.0);

@@ -204,7 +204,7 @@ pub fn cast_ray_mixed_program(
             );
         }
         let Some(value) = sample_mixed(mv, x, transition) else {
-            program.break_ray(&mut s);
+            program.break_ray(&mut s, ray.dir);
             continue;
         };
         let value = if program.features.tricubic {
@@ -343,7 +343,7 @@ pub fn cast_ray_rgba_mixed(
             }
         }
         if !present {
-            program.break_ray(&mut s);
+            program.break_ray(&mut s, ray.dir);
             continue;
         }
         if program.integrate_weighted(&mut s, weighted, len) {

@@ -34,6 +34,11 @@ pub struct RayState {
     pub max_pos: f32,
     /// ISO, pre-integration: the previous sample's value.
     pub prev_value: f32,
+    /// Pre-integration: the length the previous sample stands for (world units); half of it
+    /// lies behind the sample, the closing segment of a run ([`RayProgram::break_ray`]).
+    pub prev_len: f32,
+    /// Pre-integration with shading or gradient opacity: the previous sample's gradient.
+    pub prev_gradient: Vec3,
     /// ISO: the previous sample's position (voxels).
     pub prev_x: Vec3,
     /// Whether `prev_*` hold a sample (false after a gap).
@@ -52,6 +57,8 @@ impl Default for RayState {
             acc: Vec4::ZERO,
             max_pos: -1.0,
             prev_value: 0.0,
+            prev_len: 0.0,
+            prev_gradient: Vec3::ZERO,
             prev_x: Vec3::ZERO,
             has_prev: false,
             hit: false,
@@ -94,9 +101,41 @@ impl RayProgram<'_> {
         }
     }
 
-    /// A gap in the samples (an absent brick). Mirrors `break_ray`.
-    pub fn break_ray(&self, s: &mut RayState) {
+    /// A gap in the samples (an absent brick): closes the pre-integrated run
+    /// ([`Self::close_run`]) and forgets the previous sample. Mirrors `break_ray`.
+    pub fn break_ray(&self, s: &mut RayState, view_dir: Vec3) {
+        self.close_run(s, view_dir);
         s.has_prev = false;
+    }
+
+    /// Pre-integration (DVR, MIDA): composites the part of the run behind its last sample, half
+    /// the length that sample stands for, at the sample's constant classification. Samples lie
+    /// at the middles of their steps and pre-integrated segments join neighbouring samples, so
+    /// a run of samples is covered by a half step in front of its first sample (a constant
+    /// segment, [`Self::integrate_sample`]), the segments between samples and this half step
+    /// behind its last. No-op otherwise. Mirrors `close_run`.
+    pub fn close_run(&self, s: &mut RayState, view_dir: Vec3) {
+        let f = self.features;
+        if !(f.preintegrated && matches!(f.mode, ModeKind::Dvr | ModeKind::Mida) && s.has_prev) {
+            return;
+        }
+        let p = self.params;
+        let pos = tf_position(p.tf_window.x, p.tf_window.y, s.prev_value);
+        let seg = self
+            .preintegration
+            .expect("a pre-integrated program carries its table")
+            .lookup(pos, pos);
+        let mut rgb = sample_colour(seg);
+        let mut alpha = correct_opacity(seg.w, 0.5 * s.prev_len / p.box_min.w);
+        if f.gradient_opacity {
+            alpha *= self.gradient_opacity(s.prev_gradient);
+        }
+        if f.shading {
+            rgb = self.shade(rgb, s.prev_gradient, view_dir);
+        }
+        // MIDA: the maximum already holds this position (beta = 1), so its blend is "over".
+        s.acc = composite(s.acc, rgb, alpha);
+        s.prev_len = 0.0;
     }
 
     /// World-space gradient at voxel position `x` (field value `value` there) from the
@@ -171,18 +210,24 @@ impl RayProgram<'_> {
         let p = self.params;
         let pos = tf_position(p.tf_window.x, p.tf_window.y, value);
         if self.features.preintegrated {
-            let front = if s.has_prev {
-                tf_position(p.tf_window.x, p.tf_window.y, s.prev_value)
+            // The segment from the previous sample (half of each one's length), or from the
+            // run's start half a step in front (constant).
+            let (front, seg_len) = if s.has_prev {
+                (
+                    tf_position(p.tf_window.x, p.tf_window.y, s.prev_value),
+                    0.5 * (s.prev_len + len),
+                )
             } else {
-                pos
+                (pos, 0.5 * len)
             };
             s.prev_value = value;
+            s.prev_len = len;
             s.has_prev = true;
             let seg = self
                 .preintegration
                 .expect("a pre-integrated program carries its table")
                 .lookup(front, pos);
-            sample_colour(seg).extend(correct_opacity(seg.w, len / p.box_min.w))
+            sample_colour(seg).extend(correct_opacity(seg.w, seg_len / p.box_min.w))
         } else {
             let w = self.table.lookup(pos);
             sample_colour(w).extend(self.table.sample_opacity(w.w, len / p.box_max.w))
@@ -227,6 +272,9 @@ impl RayProgram<'_> {
                 let mut alpha = sample.w;
                 if f.shading || f.gradient_opacity {
                     let g = self.field_gradient(x, value);
+                    if f.preintegrated {
+                        s.prev_gradient = g;
+                    }
                     if f.gradient_opacity {
                         alpha *= self.gradient_opacity(g);
                     }
@@ -261,8 +309,12 @@ impl RayProgram<'_> {
         s.acc.w >= p.tf_window.z
     }
 
-    /// The ray's result. Mirrors `finish_ray`.
+    /// The ray's result (after closing a pre-integrated run, [`Self::close_run`]). Mirrors
+    /// `finish_ray`.
     pub fn finish_ray(&self, s: &RayState, view_dir: Vec3) -> Vec4 {
+        let mut closed = *s;
+        self.close_run(&mut closed, view_dir);
+        let s = &closed;
         match self.features.mode {
             ModeKind::Iso => {
                 if !s.hit {

@@ -109,6 +109,7 @@ fn orbit(
         description: "Marschner-Lobb".into(),
         volume,
         tf: TransferFunction::preset(TfPreset::Fire),
+        junction: Some(JunctionScene::full()),
     }];
     for (file, name, description) in REAL_SCENES {
         let path = args.data_dir.join(file);
@@ -118,10 +119,12 @@ fn orbit(
                 path.display()
             )));
         }
+        let volume = Arc::new(mixvol::volume::load_volume(&path)?);
         scenes.push(OrbitScene {
             name: name.into(),
             description: description.into(),
-            volume: Arc::new(mixvol::volume::load_volume(&path)?),
+            junction: Some(JunctionScene::in_volume(volume.clone(), args.brick_size)),
+            volume,
             tf: TransferFunction::preset(TfPreset::Mri),
         });
     }

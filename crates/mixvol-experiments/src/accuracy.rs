@@ -15,12 +15,15 @@
 //! termination, pre-integration and extinction-based sampling (single resolution, against the
 //! same step without them), the downsampling filter of the low-res level (mean, LaMar's
 //! subsampling, Kraus' 4-tap box and 13/19/19/13, at one residency) and LaMar's coarse steps
-//! through low-res bricks. Written as Markdown, CSV and JSON, with two charts (PNG and SVG):
-//! error against frame time, and the seam measure against frame time, one line per knob.
-//! Not measured yet: tricubic reconstruction (its reference would have to be tricubic too),
-//! shaded rows of the knobs other than the transition, and real-data scenes over an orbit.
+//! through low-res bricks, tricubic B-spline reconstruction (against the tricubic field at 8
+//! samples/voxel), and every knob again shaded (fewer settings each). Written as Markdown, CSV
+//! and JSON, with two charts (PNG and SVG): error against frame time (unshaded and shaded rows),
+//! and the seam measure against frame time, one line per knob. Real-data scenes over an orbit:
+//! [`crate::scenes`].
 
 mod output;
+
+pub use output::KNOB_NOTES;
 
 use crate::junction::JunctionScene;
 use crate::metrics::gradient::gradient_rmse;
@@ -41,7 +44,7 @@ use mixvol::lod::{
 use mixvol::optics::SamplingModel;
 use mixvol::optics::TransferFunction;
 use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
-use mixvol::scene::{Camera, ClipPlanes, RenderSettings, Shading, Transition};
+use mixvol::scene::{Camera, ClipPlanes, Reconstruction, RenderSettings, Shading, Transition};
 use mixvol::volume::Volume;
 use std::sync::Arc;
 use thiserror::Error;
@@ -228,8 +231,8 @@ pub fn levels_for_fraction(
     )?)
 }
 
-/// The families of the report in chart order, with their colours.
-pub const FAMILIES: [&str; 11] = [
+/// The families of the report in chart order (colours: [`family_colour`]).
+pub const FAMILIES: [&str; 18] = [
     "samples per voxel",
     "transition",
     "transition, shaded",
@@ -241,7 +244,23 @@ pub const FAMILIES: [&str; 11] = [
     "coarse low-res steps",
     "samples per voxel, shaded",
     "LOD budget, shaded",
+    "tricubic",
+    "early termination, shaded",
+    "pre-integration, shaded",
+    "extinction sampling, shaded",
+    "tricubic, shaded",
+    "downsampling filter, shaded",
+    "coarse low-res steps, shaded",
 ];
+
+/// The chart colour of a family: that of its unshaded knob, so a knob keeps its colour in the
+/// shaded panels.
+pub fn family_colour(family: &str) -> [u8; 3] {
+    let base = family.strip_suffix(", shaded").unwrap_or(family);
+    let index = FAMILIES[..12].iter().position(|f| *f == base).unwrap_or(0);
+    // Families 9 and 10 are shaded ones; 11 (tricubic) takes the colour slot 9 leaves free.
+    crate::plot::PALETTE[if index == 11 { 9 } else { index }]
+}
 
 /// The image metrics of one frame.
 struct Metrics {
@@ -417,6 +436,41 @@ impl MixedScene {
     }
 }
 
+/// The transition rows of the junction close-up `j` seen through `tf`: smooth against
+/// discontinuous at the same residency, unshaded and shaded, `frames` timed frames each.
+pub fn transition_rows(
+    ctx: &GpuContext,
+    tf: &TransferFunction,
+    j: &JunctionScene,
+    frames: u32,
+) -> Result<Vec<ReportRow>> {
+    let junction = MixedScene::new(ctx, tf, j.volume()?, j.brick_size, j.camera(), j.size)?;
+    let mut rows = Vec::new();
+    for (family, shaded) in [(FAMILIES[1], false), (FAMILIES[2], true)] {
+        for transition in [Transition::Smooth, Transition::Discontinuous] {
+            rows.push(junction.row(
+                ctx,
+                tf,
+                frames,
+                MixedSetting {
+                    family,
+                    label: format!("{transition:?}").to_lowercase(),
+                    setting: format!(
+                        "{transition:?}, junction close-up (x < middle low-res), 1 sample/voxel{}",
+                        if shaded { ", shaded" } else { "" }
+                    ),
+                    levels: JunctionScene::levels(&junction.grid),
+                    transition,
+                    filter: DownsampleFilter::Mean2,
+                    coarse_low_res_steps: false,
+                    shaded,
+                },
+            )?);
+        }
+    }
+    Ok(rows)
+}
+
 /// Renders the report for `volume` seen through `tf` (the transition rows on their own scene,
 /// [`ReportOptions::junction`], through the same `tf`).
 pub fn accuracy_report(
@@ -437,6 +491,23 @@ pub fn accuracy_report(
     let mut single = Renderer::new(ctx, TargetFormat::Rgba32Float)?;
     single.set_transfer_function(tf)?;
     single.set_source(VolumeSource::Volume(&volume))?;
+    // The tricubic rows' references: the B-spline field at 8 samples/voxel (the reconstruction
+    // changes the field itself; its own converged image is what a step can approach).
+    let tricubic_reference = {
+        let mut render = |lit: RenderSettings| -> Result<Vec<Vec4>> {
+            let settings = RenderSettings {
+                reconstruction: Reconstruction::TricubicBSpline,
+                samples_per_voxel: 8.0,
+                early_termination: 1.0,
+                ..lit
+            };
+            Ok(single
+                .render(&options.camera, &settings, size, size)?
+                .pixels)
+        };
+        let [plain, lit] = plain_and_lit();
+        [render(plain)?, render(lit)?]
+    };
     let volume_bytes = volume.data().as_bytes().len() as u64;
     let mut rows = Vec::new();
     let mut single_row = |family: &'static str,
@@ -452,7 +523,11 @@ pub fn accuracy_report(
             &settings,
         )?;
         let shaded = settings.shading.is_some();
-        let reference = &overview.reference[usize::from(shaded)];
+        let reference = if settings.reconstruction == Reconstruction::TricubicBSpline {
+            &tricubic_reference[usize::from(shaded)]
+        } else {
+            &overview.reference[usize::from(shaded)]
+        };
         let m = metrics(size, &pixels, reference, None)?;
         Ok(ReportRow {
             family,
@@ -514,37 +589,19 @@ pub fn accuracy_report(
             },
         )?);
     }
+    for spv in [0.5f32, 1.0, 2.0] {
+        rows.push(single_row(
+            FAMILIES[11],
+            format!("{spv}"),
+            format!("{spv} samples/voxel, tricubic B-spline (against the tricubic reference)"),
+            RenderSettings {
+                reconstruction: Reconstruction::TricubicBSpline,
+                ..at(spv)
+            },
+        )?);
+    }
     if let Some(j) = &options.junction {
-        let junction = MixedScene::new(
-            ctx,
-            tf,
-            Arc::new(j.volume()?),
-            j.brick_size,
-            j.camera(),
-            j.size,
-        )?;
-        for (family, shaded) in [(FAMILIES[1], false), (FAMILIES[2], true)] {
-            for transition in [Transition::Smooth, Transition::Discontinuous] {
-                rows.push(junction.row(
-                    ctx,
-                    tf,
-                    options.frames,
-                    MixedSetting {
-                        family,
-                        label: format!("{transition:?}").to_lowercase(),
-                        setting: format!(
-                            "{transition:?}, junction close-up (x < middle low-res), 1 sample/voxel{}",
-                            if shaded { ", shaded" } else { "" }
-                        ),
-                        levels: JunctionScene::levels(&junction.grid),
-                        transition,
-                        filter: DownsampleFilter::Mean2,
-                        coarse_low_res_steps: false,
-                        shaded,
-                    },
-                )?);
-            }
-        }
+        rows.extend(transition_rows(ctx, tf, j, options.frames)?);
     }
     let overview_row = |family: &'static str,
                         label: String,
@@ -644,7 +701,85 @@ pub fn accuracy_report(
             true,
         )?);
     }
+    // The other knobs shaded, fewer settings each (shaded frames cost 2-4x), against the shaded
+    // reference and the shaded rows without the knob.
+    let lit = |settings: RenderSettings| RenderSettings {
+        shading: Some(Shading::default()),
+        ..settings
+    };
+    for threshold in [0.8f32, 1.0] {
+        rows.push(single_row(
+            FAMILIES[12],
+            format!("{threshold}"),
+            format!("early termination at opacity {threshold}, 1 sample/voxel, shaded"),
+            lit(RenderSettings {
+                early_termination: threshold,
+                ..at(1.0)
+            }),
+        )?);
+    }
+    for spv in [0.5f32, 1.0] {
+        rows.push(single_row(
+            FAMILIES[13],
+            format!("{spv}"),
+            format!("{spv} samples/voxel, pre-integrated, shaded"),
+            lit(RenderSettings {
+                preintegrated: true,
+                ..at(spv)
+            }),
+        )?);
+    }
+    rows.push(single_row(
+        FAMILIES[14],
+        "1".into(),
+        "1 samples/voxel, extinction-based, shaded".into(),
+        lit(RenderSettings {
+            sampling_model: SamplingModel::Extinction,
+            ..at(1.0)
+        }),
+    )?);
+    rows.push(single_row(
+        FAMILIES[15],
+        "1".into(),
+        "1 samples/voxel, tricubic B-spline (against the tricubic reference), shaded".into(),
+        lit(RenderSettings {
+            reconstruction: Reconstruction::TricubicBSpline,
+            ..at(1.0)
+        }),
+    )?);
     drop(single);
+    for (label, filter) in [
+        ("mean", DownsampleFilter::Mean2),
+        ("LaMar", DownsampleFilter::LaMarSubsample),
+        ("box4", DownsampleFilter::Box4),
+        ("13/19", DownsampleFilter::BSpline4),
+    ] {
+        rows.push(overview_row(
+            FAMILIES[16],
+            label.into(),
+            format!(
+                "{filter:?} low-res level, 25% of bricks hi-res, smooth, 1 sample/voxel, shaded"
+            ),
+            0.25,
+            filter,
+            false,
+            true,
+        )?);
+    }
+    for fraction in [0.5, 0.0] {
+        rows.push(overview_row(
+            FAMILIES[17],
+            percent(fraction),
+            format!(
+                "{} of bricks hi-res, LaMar's coarse low-res steps, smooth, 1 sample/voxel, shaded",
+                percent(fraction)
+            ),
+            fraction,
+            DownsampleFilter::Mean2,
+            true,
+            true,
+        )?);
+    }
     let info = ctx.info();
     let d = volume.dims();
     Ok(Report {
@@ -682,22 +817,25 @@ impl Report {
     }
 
     /// The row a knob's row is compared with: the same settings without the knob (the
-    /// samples-per-voxel row of its rate for early termination, pre-integration and extinction,
-    /// the mean filter for the downsampling filters, the LOD row of its residency for coarse
-    /// low-res steps); `None` for the other families.
+    /// samples-per-voxel row of its rate, unshaded or shaded, for early termination,
+    /// pre-integration, extinction and tricubic; the mean filter for the downsampling filters;
+    /// the LOD row of its residency for coarse low-res steps); `None` for the other families.
     pub fn baseline(&self, r: &ReportRow) -> Option<&ReportRow> {
-        let spv = |s: &str| self.row(FAMILIES[0], &format!("{s} samples/voxel"));
+        let f = FAMILIES;
+        let spv = |family: &str, s: &str| self.row(family, &format!("{s} samples/voxel"));
+        let same_label = |family: &str, label: &str| {
+            self.rows
+                .iter()
+                .find(|b| b.family == family && b.label == label)
+        };
         match r.family {
-            f if f == FAMILIES[4] => spv("1"),
-            f if f == FAMILIES[5] || f == FAMILIES[6] => spv(&r.label),
-            f if f == FAMILIES[7] && r.label != "mean" => self
-                .rows
-                .iter()
-                .find(|b| b.family == f && b.label == "mean"),
-            f if f == FAMILIES[8] => self
-                .rows
-                .iter()
-                .find(|b| b.family == FAMILIES[3] && b.label == r.label),
+            x if x == f[4] => spv(f[0], "1"),
+            x if x == f[12] => spv(f[9], "1"),
+            x if x == f[5] || x == f[6] || x == f[11] => spv(f[0], &r.label),
+            x if x == f[13] || x == f[14] || x == f[15] => spv(f[9], &r.label),
+            x if (x == f[7] || x == f[16]) && r.label != "mean" => same_label(x, "mean"),
+            x if x == f[8] => same_label(f[3], &r.label),
+            x if x == f[17] => same_label(f[10], &r.label),
             _ => None,
         }
     }

@@ -36,6 +36,9 @@ pub struct JunctionScene {
     pub size: u32,
     /// Voxels across the image (`size / width_voxels` pixels per voxel).
     pub width_voxels: f32,
+    /// The volume the junction is cut into; `None`: Marschner-Lobb of `volume_size` (f32). A
+    /// real volume ([`Self::in_volume`]) keeps its own dims and type.
+    pub given: Option<Arc<Volume>>,
 }
 
 impl JunctionScene {
@@ -49,6 +52,19 @@ impl JunctionScene {
             brick_size: 8,
             size: 64,
             width_voxels: 4.0,
+            given: None,
+        }
+    }
+
+    /// The close-up of the full report on the junction cut into `volume` (a real scene): the
+    /// bricks below the middle brick column in x low-res, seen edge-on as in [`Self::full`],
+    /// bricks of `brick_size`.
+    pub fn in_volume(volume: Arc<Volume>, brick_size: u32) -> Self {
+        Self {
+            volume_size: volume.dims().max_element(),
+            brick_size,
+            given: Some(volume),
+            ..Self::full()
         }
     }
 
@@ -62,11 +78,16 @@ impl JunctionScene {
         }
     }
 
-    /// The volume: Marschner-Lobb, f32.
-    pub fn volume(&self) -> Result<Volume> {
-        Ok(SyntheticField::MarschnerLobb
-            .generate(UVec3::splat(self.volume_size), ScalarType::F32)
-            .map_err(mixvol::Error::from)?)
+    /// The volume: the given one, or Marschner-Lobb, f32.
+    pub fn volume(&self) -> Result<Arc<Volume>> {
+        if let Some(v) = &self.given {
+            return Ok(v.clone());
+        }
+        Ok(Arc::new(
+            SyntheticField::MarschnerLobb
+                .generate(UVec3::splat(self.volume_size), ScalarType::F32)
+                .map_err(mixvol::Error::from)?,
+        ))
     }
 
     /// The levels: bricks below the middle in x low-res, the others hi-res (identical for both
@@ -84,14 +105,24 @@ impl JunctionScene {
             .collect()
     }
 
-    /// The camera: orthographic, looking down -z at the junction plane `x = 0` from outside the
-    /// volume, `width_voxels` voxels tall, centred at `y = 0.1` (off the field's axis, where the
-    /// Marschner-Lobb rings cross the plane).
+    /// The camera: orthographic, looking down -z at the junction plane (the face below which
+    /// [`Self::levels`] makes bricks low-res: world `x = 0` for Marschner-Lobb) from outside
+    /// the volume, `width_voxels` voxels tall, centred at `y = 0.1` (off the field's axis, where
+    /// the Marschner-Lobb rings cross the plane; inside the head for the real scenes).
     pub fn camera(&self) -> Camera {
+        let (x, voxel) = match &self.given {
+            Some(v) => {
+                let (lo, hi) = mixvol::scene::volume_box(v.dims(), v.spacing());
+                let d = v.dims().x as f32;
+                let plane = (v.dims().x.div_ceil(self.brick_size) / 2 * self.brick_size) as f32;
+                (lo.x + (hi.x - lo.x) * plane / d, (hi.x - lo.x) / d)
+            }
+            None => (0.0, 1.0 / self.volume_size as f32),
+        };
         Camera::orthographic(
-            Vec3::new(0.0, 0.1, 2.0),
-            Vec3::new(0.0, 0.1, 0.0),
-            self.width_voxels / self.volume_size as f32,
+            Vec3::new(x, 0.1, 2.0),
+            Vec3::new(x, 0.1, 0.0),
+            self.width_voxels * voxel,
         )
     }
 }
@@ -110,7 +141,7 @@ pub fn figure(
     tf: &TransferFunction,
     scene: &JunctionScene,
 ) -> Result<image::RgbaImage> {
-    let volume = Arc::new(scene.volume()?);
+    let volume = scene.volume()?;
     let grid = BrickGrid::new(volume.dims(), scene.brick_size)?;
     let levels = JunctionScene::levels(&grid);
     let camera = scene.camera();

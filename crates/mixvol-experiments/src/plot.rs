@@ -60,6 +60,9 @@ pub struct Panel {
     pub series: Vec<Series>,
     /// Legend in the upper left corner instead of the upper right.
     pub legend_left: bool,
+    /// Logarithmic y axis (for errors spanning decades); points with y <= 0 are left out (a
+    /// zero error has no place on it).
+    pub log_y: bool,
 }
 
 /// Panels side by side under a title.
@@ -138,11 +141,35 @@ impl Chart {
         let root = root.titled(&self.title, (FONT, 20)).map_err(draw_err)?;
         let areas = root.split_evenly((1, self.panels.len().max(1)));
         for (panel, area) in self.panels.iter().zip(areas) {
-            let points = || panel.series.iter().flat_map(|s| s.points.iter());
+            // On a log axis the chart runs over log10(y) with labels at 10^v.
+            let to_axis = |y: f64| {
+                if !panel.log_y {
+                    y
+                } else if y > 0.0 {
+                    y.log10()
+                } else {
+                    f64::NAN
+                }
+            };
+            let points = || {
+                panel
+                    .series
+                    .iter()
+                    .flat_map(|s| s.points.iter().map(|p| (p.0, to_axis(p.1))))
+            };
             let (x0, x1) = padded(points().map(|p| p.0));
             let (y0, y1) = panel
                 .y_range
+                .map(|(a, b)| (to_axis(a), to_axis(b)))
                 .unwrap_or_else(|| padded(points().map(|p| p.1)));
+            let log_y = panel.log_y;
+            let y_format = move |v: &f64| {
+                if log_y {
+                    format!("{:.1e}", 10f64.powf(*v))
+                } else {
+                    format!("{v:.3}")
+                }
+            };
             let mut chart = ChartBuilder::on(&area)
                 .caption(&panel.title, (FONT, 16))
                 .margin(12)
@@ -154,11 +181,14 @@ impl Chart {
                 .configure_mesh()
                 .x_desc(&panel.x_label)
                 .y_desc(&panel.y_label)
+                .y_label_formatter(&y_format)
                 .label_style((FONT, 12))
                 .axis_desc_style((FONT, 14))
                 .light_line_style(RGBColor(235, 235, 235))
                 .draw()
                 .map_err(draw_err)?;
+            // Label anchors already drawn (pixels): a label that would overlap one is left out.
+            let mut placed: Vec<(i32, i32)> = Vec::new();
             for s in &panel.series {
                 let colour = RGBColor(s.colour[0], s.colour[1], s.colour[2]);
                 let style = colour.stroke_width(2);
@@ -166,8 +196,33 @@ impl Chart {
                     .points
                     .iter()
                     .copied()
+                    .map(|(x, y)| (x, to_axis(y)))
                     .filter(|p| p.0.is_finite() && p.1.is_finite())
                     .map(|(x, y)| (x, y.clamp(y0, y1)))
+                    .collect();
+                let labels: Vec<(&(f64, f64), &String)> = inside
+                    .iter()
+                    .zip(
+                        s.points
+                            .iter()
+                            .zip(&s.labels)
+                            .filter(|(p, _)| p.0.is_finite() && to_axis(p.1).is_finite())
+                            .map(|(_, l)| l),
+                    )
+                    .filter(|(p, l)| {
+                        if l.is_empty() {
+                            return false;
+                        }
+                        let (px, py) = chart.backend_coord(p);
+                        let w = 7 * l.chars().count() as i32 + 6;
+                        let free = placed
+                            .iter()
+                            .all(|&(qx, qy)| (px - qx).abs() > w || (py - qy).abs() > 12);
+                        if free {
+                            placed.push((px, py));
+                        }
+                        free
+                    })
                     .collect();
                 let legend = move |(x, y): (i32, i32)| {
                     PathElement::new(vec![(x, y), (x + 24, y)], colour.stroke_width(2))
@@ -194,15 +249,9 @@ impl Chart {
                     .map_err(draw_err)?;
                 let font = (FONT, 11).into_font().color(&colour);
                 chart
-                    .draw_series(
-                        inside
-                            .iter()
-                            .zip(&s.labels)
-                            .filter(|(_, l)| !l.is_empty())
-                            .map(|(&p, l)| {
-                                EmptyElement::at(p) + Text::new(l.clone(), (5, -14), font.clone())
-                            }),
-                    )
+                    .draw_series(labels.into_iter().map(|(&p, l)| {
+                        EmptyElement::at(p) + Text::new(l.clone(), (5, -14), font.clone())
+                    }))
                     .map_err(draw_err)?;
             }
             chart
@@ -273,6 +322,7 @@ mod tests {
                     labels: vec!["0.5".into(), "1".into(), String::new()],
                 }],
                 legend_left: false,
+                log_y: false,
             }],
             panel_size: (320, 240),
         }
@@ -295,5 +345,32 @@ mod tests {
         assert!(
             svg.contains("<svg") && svg.contains("frame time (ms)") && svg.contains("\nsteps\n")
         );
+    }
+
+    #[test]
+    fn log_axis_leaves_out_zeros_and_labels_decades() {
+        let mut c = chart();
+        let panel = &mut c.panels[0];
+        panel.log_y = true;
+        panel.series[0].points = vec![(1.0, 0.0), (2.0, 0.01), (3.0, 0.001)];
+        panel.series[0].labels = vec!["zero".into(), "a".into(), "b".into()];
+        // Two labels at the same place: only the first is drawn.
+        panel.series.push(Series {
+            name: "twin".into(),
+            colour: PALETTE[1],
+            dashed: false,
+            points: vec![(2.0, 0.01)],
+            labels: vec!["twin".into()],
+        });
+        let svg = c.to_svg().unwrap();
+        // Ticks are powers of ten written as such; the zero point has no place (its label is
+        // not drawn), nor has the overlapping twin label.
+        assert!(svg.contains("e-2") || svg.contains("e-3"), "{svg}");
+        assert_eq!(svg.matches("\nzero\n").count(), 0);
+        assert_eq!(svg.matches("\na\n").count(), 1);
+        assert_eq!(svg.matches("\nb\n").count(), 1);
+        // "twin" once: its legend entry.
+        assert_eq!(svg.matches("\ntwin\n").count(), 1);
+        c.to_png_image().unwrap();
     }
 }

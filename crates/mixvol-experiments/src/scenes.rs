@@ -1,14 +1,18 @@
 //! The accuracy report over several scenes, each seen from an orbit of views: the rows of
 //! [`crate::accuracy`] (without the transition rows, which need their edge-on close-up and are
 //! measured once there) per view, summarised per setting as the mean and the worst over the
-//! views. Written as `scenes.md`, `scenes.csv`, `scenes.json` and per scene a chart
-//! `scene-NAME.{png,svg}` of the mean RMSE (left) and the worst RMSE (right) against the mean
-//! frame time, one line per knob.
+//! views, and the transition rows once per scene on a close-up of a junction cut into the
+//! scene's own volume ([`JunctionScene::in_volume`]; one view, so mean = worst). Written as
+//! `scenes.md`, `scenes.csv`, `scenes.json` and per scene a chart `scene-NAME.{png,svg}` of the
+//! mean RMSE over the views against the mean frame time, unshaded rows (left) and shaded rows
+//! (right), log scale, one line per knob.
 
 use crate::accuracy::{
-    accuracy_report, report_camera, Report, ReportError, ReportOptions, Result, FAMILIES,
+    accuracy_report, family_colour, report_camera, transition_rows, Report, ReportError,
+    ReportOptions, ReportRow, Result, FAMILIES,
 };
-use crate::plot::{Chart, Panel, Series, PALETTE};
+use crate::junction::JunctionScene;
+use crate::plot::{Chart, Panel, Series};
 use glam::{Quat, Vec3};
 use mixvol::gpu::GpuContext;
 use mixvol::optics::TransferFunction;
@@ -28,6 +32,8 @@ pub struct OrbitScene {
     pub volume: Arc<Volume>,
     /// Its transfer function.
     pub tf: TransferFunction,
+    /// The close-up of the transition rows; `None` leaves them out.
+    pub junction: Option<JunctionScene>,
 }
 
 /// `views` cameras around the volume: the report's camera turned about the vertical axis in
@@ -66,6 +72,8 @@ pub struct OrbitRow {
     pub ssim: (f64, f64),
     /// Mean and largest seam max over the views.
     pub seam_max: (f64, f64),
+    /// Mean and largest seam mean over the views.
+    pub seam_mean: (f64, f64),
 }
 
 /// The orbit report of one scene.
@@ -93,7 +101,18 @@ pub fn orbit_report(
         .iter()
         .map(|scene| {
             let reports = view_reports(ctx, scene, options, views)?;
-            Ok(summarise(&scene.name, &reports))
+            let mut summary = summarise(&scene.name, &reports);
+            if let Some(j) = &scene.junction {
+                let rows = transition_rows(ctx, &scene.tf, j, options.frames)?;
+                summary.rows.extend(rows.iter().map(|r| summarise_rows(&[r])));
+                summary.description.push_str(&format!(
+                    "; transition rows (one view): orthographic close-up of the face between brick columns {} and {} in x seen edge-on, bricks {}^3 below it low-res, {}x{} image over {} voxels",
+                    j.volume()?.dims().x.div_ceil(j.brick_size) / 2 - 1,
+                    j.volume()?.dims().x.div_ceil(j.brick_size) / 2,
+                    j.brick_size, j.size, j.size, j.width_voxels
+                ));
+            }
+            Ok(summary)
         })
         .collect()
 }
@@ -144,26 +163,7 @@ pub fn summarise(name: &str, reports: &[Report]) -> SceneSummary {
                         .find(|x| x.family == row.family && x.setting == row.setting)
                 })
                 .collect();
-            let n = all.len() as f64;
-            let mean = |f: &dyn Fn(&crate::accuracy::ReportRow) -> f64| {
-                all.iter().map(|r| f(r)).sum::<f64>() / n
-            };
-            let max = |f: &dyn Fn(&crate::accuracy::ReportRow) -> f64| {
-                all.iter().map(|r| f(r)).fold(f64::NEG_INFINITY, f64::max)
-            };
-            let min = |f: &dyn Fn(&crate::accuracy::ReportRow) -> f64| {
-                all.iter().map(|r| f(r)).fold(f64::INFINITY, f64::min)
-            };
-            OrbitRow {
-                family: all[0].family,
-                label: all[0].label.clone(),
-                setting: all[0].setting.clone(),
-                frame_ms_mean: mean(&|r| r.frame_ms),
-                rmse: (mean(&|r| r.rmse), max(&|r| r.rmse)),
-                gradient_rmse: (mean(&|r| r.gradient_rmse), max(&|r| r.gradient_rmse)),
-                ssim: (mean(&|r| r.ssim), min(&|r| r.ssim)),
-                seam_max: (mean(&|r| r.seam.max_excess), max(&|r| r.seam.max_excess)),
-            }
+            summarise_rows(&all)
         })
         .collect();
     SceneSummary {
@@ -174,6 +174,27 @@ pub fn summarise(name: &str, reports: &[Report]) -> SceneSummary {
     }
 }
 
+/// One setting's rows (one per view, at least one) as their mean and worst.
+fn summarise_rows(all: &[&ReportRow]) -> OrbitRow {
+    let n = all.len() as f64;
+    let mean = |f: &dyn Fn(&ReportRow) -> f64| all.iter().map(|r| f(r)).sum::<f64>() / n;
+    let max =
+        |f: &dyn Fn(&ReportRow) -> f64| all.iter().map(|r| f(r)).fold(f64::NEG_INFINITY, f64::max);
+    let min =
+        |f: &dyn Fn(&ReportRow) -> f64| all.iter().map(|r| f(r)).fold(f64::INFINITY, f64::min);
+    OrbitRow {
+        family: all[0].family,
+        label: all[0].label.clone(),
+        setting: all[0].setting.clone(),
+        frame_ms_mean: mean(&|r| r.frame_ms),
+        rmse: (mean(&|r| r.rmse), max(&|r| r.rmse)),
+        gradient_rmse: (mean(&|r| r.gradient_rmse), max(&|r| r.gradient_rmse)),
+        ssim: (mean(&|r| r.ssim), min(&|r| r.ssim)),
+        seam_max: (mean(&|r| r.seam.max_excess), max(&|r| r.seam.max_excess)),
+        seam_mean: (mean(&|r| r.seam.mean_excess), max(&|r| r.seam.mean_excess)),
+    }
+}
+
 /// The files [`write()`] writes besides one chart per scene.
 pub const SCENE_FILES: [&str; 3] = ["scenes.md", "scenes.csv", "scenes.json"];
 
@@ -181,18 +202,20 @@ pub const SCENE_FILES: [&str; 3] = ["scenes.md", "scenes.csv", "scenes.json"];
 pub fn to_markdown(summaries: &[SceneSummary], when: &str, command: &str) -> String {
     let mut out = String::from("# Accuracy versus time over scenes and views\n\n");
     out.push_str(&format!(
-        "- Measured: {when}\n- Regenerate: `{command}`\n- Every scene is rendered from an orbit of views (the report's camera turned about the vertical axis in equal steps); each cell is the mean over the views and, after the slash, the worst (largest error, smallest SSIM). Metrics and rows as in `accuracy-vs-time.md`; the transition rows are measured there, on their edge-on close-up. Frame time is CPU time on lavapipe: compare rows, not absolute numbers.\n"
+        "- Measured: {when}\n- Regenerate: `{command}`\n- Every scene is rendered from an orbit of views (the report's camera turned about the vertical axis in equal steps); each cell is the mean over the views and, after the slash, the worst (largest error, smallest SSIM); the transition rows are measured once per scene on a close-up of a junction in the scene's own volume (below). Metrics and rows as in `accuracy-vs-time.md`. Frame time is CPU time on lavapipe: compare rows, not absolute numbers.\n"
     ));
+    out.push_str(crate::accuracy::KNOB_NOTES);
     for s in summaries {
         out.push_str(&format!(
-            "\n## {}\n\n- {} views; {}\n- Chart: `scene-{}.png` / `.svg`\n\n| knob | setting | frame ms (mean) | RMSE mean / worst | grad RMSE mean / worst | SSIM mean / worst | seam max mean / worst |\n|---|---|---|---|---|---|---|\n",
+            "\n## {}\n\n- {} views; {}\n- Chart: `scene-{}.png` / `.svg`\n\n| knob | setting | frame ms (mean) | RMSE mean / worst | grad RMSE mean / worst | SSIM mean / worst | seam max mean / worst | seam mean mean / worst |\n|---|---|---|---|---|---|---|---|\n",
             s.name, s.views, s.description, s.name
         ));
         for r in &s.rows {
             out.push_str(&format!(
-                "| {} | {} | {:.2} | {:.5} / {:.5} | {:.5} / {:.5} | {:.4} / {:.4} | {:.4} / {:.4} |\n",
+                "| {} | {} | {:.2} | {:.5} / {:.5} | {:.5} / {:.5} | {:.4} / {:.4} | {:.4} / {:.4} | {:.5} / {:.5} |\n",
                 r.family, r.setting, r.frame_ms_mean, r.rmse.0, r.rmse.1, r.gradient_rmse.0,
-                r.gradient_rmse.1, r.ssim.0, r.ssim.1, r.seam_max.0, r.seam_max.1
+                r.gradient_rmse.1, r.ssim.0, r.ssim.1, r.seam_max.0, r.seam_max.1,
+                r.seam_mean.0, r.seam_mean.1
             ));
         }
     }
@@ -201,11 +224,11 @@ pub fn to_markdown(summaries: &[SceneSummary], when: &str, command: &str) -> Str
 
 /// The summaries as CSV with a header line.
 pub fn to_csv(summaries: &[SceneSummary]) -> String {
-    let mut out = String::from("scene,views,family,setting,frame_ms_mean,rmse_mean,rmse_worst,gradient_rmse_mean,gradient_rmse_worst,ssim_mean,ssim_worst,seam_max_mean,seam_max_worst\n");
+    let mut out = String::from("scene,views,family,setting,frame_ms_mean,rmse_mean,rmse_worst,gradient_rmse_mean,gradient_rmse_worst,ssim_mean,ssim_worst,seam_max_mean,seam_max_worst,seam_mean_mean,seam_mean_worst\n");
     for s in summaries {
         for r in &s.rows {
             out.push_str(&format!(
-                "{},{},\"{}\",\"{}\",{:.4},{:.6},{:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{:.5}\n",
+                "{},{},\"{}\",\"{}\",{:.4},{:.6},{:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{:.5},{:.6},{:.6}\n",
                 s.name,
                 s.views,
                 r.family,
@@ -218,7 +241,9 @@ pub fn to_csv(summaries: &[SceneSummary]) -> String {
                 r.ssim.0,
                 r.ssim.1,
                 r.seam_max.0,
-                r.seam_max.1
+                r.seam_max.1,
+                r.seam_mean.0,
+                r.seam_mean.1
             ));
         }
     }
@@ -245,6 +270,7 @@ pub fn to_json(summaries: &[SceneSummary]) -> serde_json::Value {
                         "gradient_rmse": pair(r.gradient_rmse),
                         "ssim": pair(r.ssim),
                         "seam_max": pair(r.seam_max),
+                        "seam_mean": pair(r.seam_mean),
                     })).collect::<Vec<_>>(),
                 })
             })
@@ -252,40 +278,46 @@ pub fn to_json(summaries: &[SceneSummary]) -> serde_json::Value {
     )
 }
 
-/// The chart of one scene: mean RMSE (left) and worst RMSE (right) against mean frame time.
+/// The chart of one scene: mean RMSE over the views against mean frame time, unshaded rows
+/// (left) and shaded rows (right), log scale (the transition rows, one view, are left out:
+/// their seams are in the table).
 pub fn chart(s: &SceneSummary) -> Chart {
-    let series = |y: &dyn Fn(&OrbitRow) -> f64| -> Vec<Series> {
+    let series = |shaded: bool| -> Vec<Series> {
         FAMILIES
             .iter()
-            .zip(PALETTE)
-            .map(|(family, colour)| {
+            .filter(|f| f.ends_with("shaded") == shaded && **f != FAMILIES[1] && **f != FAMILIES[2])
+            .map(|family| {
                 let rows: Vec<&OrbitRow> = s.rows.iter().filter(|r| r.family == *family).collect();
                 Series {
                     name: (*family).to_string(),
-                    colour,
-                    dashed: false,
-                    points: rows.iter().map(|r| (r.frame_ms_mean, y(r))).collect(),
+                    colour: family_colour(family),
+                    dashed: shaded,
+                    points: rows.iter().map(|r| (r.frame_ms_mean, r.rmse.0)).collect(),
                     labels: rows.iter().map(|r| r.label.clone()).collect(),
                 }
             })
             .filter(|series| !series.points.is_empty())
             .collect()
     };
-    let panel = |title: &str, y: &dyn Fn(&OrbitRow) -> f64| Panel {
+    let panel = |title: &str, shaded: bool| Panel {
         title: title.into(),
         x_label: "frame time (ms, mean over views)".into(),
-        y_label: "RMSE of premultiplied RGBA (0-1)".into(),
+        y_label: "RMSE of premultiplied RGBA (0-1, log scale)".into(),
         y_range: None,
-        series: series(y),
+        series: series(shaded),
         legend_left: false,
+        log_y: true,
     };
     Chart {
-        title: format!("{}: error vs frame time over {} views", s.name, s.views),
+        title: format!(
+            "{}: mean error vs frame time over {} views",
+            s.name, s.views
+        ),
         panels: vec![
-            panel("Mean over views", &|r| r.rmse.0),
-            panel("Worst view", &|r| r.rmse.1),
+            panel("Unshaded rows", false),
+            panel("Shaded rows (Blinn-Phong)", true),
         ],
-        panel_size: (560, 420),
+        panel_size: (560, 460),
     }
 }
 

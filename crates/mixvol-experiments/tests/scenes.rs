@@ -7,7 +7,8 @@ mod common;
 use glam::UVec3;
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::volume::{ScalarType, SyntheticField};
-use mixvol_experiments::accuracy::{report_camera, ReportOptions, FAMILIES};
+use mixvol_experiments::accuracy::{report_camera, transition_rows, ReportOptions, FAMILIES};
+use mixvol_experiments::junction::JunctionScene;
 use mixvol_experiments::scenes::{
     orbit_cameras, summarise, view_reports, write, OrbitScene, SCENE_FILES,
 };
@@ -49,6 +50,7 @@ fn orbit_summary_is_mean_and_worst_of_the_views() {
             description: "Marschner-Lobb".into(),
             volume,
             tf,
+            junction: None,
         };
         // The per-view reports, and their summary (what orbit_report writes per scene).
         let per_view = view_reports(&ctx, &scene, &options, 2).unwrap();
@@ -57,7 +59,7 @@ fn orbit_summary_is_mean_and_worst_of_the_views() {
         let s = &summaries[0];
         assert_eq!(s.views, 2);
         // Every row of the report but the transition rows (measured on their close-up).
-        assert_eq!(s.rows.len(), 35 - 4);
+        assert_eq!(s.rows.len(), 50 - 4);
         assert!(s
             .rows
             .iter()
@@ -80,11 +82,77 @@ fn orbit_summary_is_mean_and_worst_of_the_views() {
             assert!(len > 200, "{name}: {len} bytes");
         }
         let csv = std::fs::read_to_string(dir.join("scenes.csv")).unwrap();
-        assert_eq!(csv.lines().count(), 1 + 31);
+        assert_eq!(csv.lines().count(), 1 + 46);
         let chart = image::open(dir.join("scene-ml.png")).unwrap();
         assert!(chart.width() > 1000, "{}", chart.width());
         assert!(dir.join("scene-ml.svg").exists());
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+    common::finish(ctx);
+}
+
+/// The transition rows on a junction cut into a given 8-bit volume (the path the real scenes
+/// take, [`JunctionScene::in_volume`]): a brain-like texture of sines through the MRI transfer
+/// function. Smooth transitions leave a far smaller seam than discontinuous ones at the same
+/// residency, unshaded and shaded. Measured (lavapipe, 2026-12-02): seam max / mean, smooth
+/// against discontinuous, 0.0073 / 0.0013 against 0.060 / 0.039 unshaded (8x / 29x) and
+/// 0.0104 / 0.0017 against 0.105 / 0.053 shaded (10x / 32x), on 1008 samples along 20 faces.
+#[test]
+fn transitions_on_a_given_volume_leave_far_smaller_seams_when_smooth() {
+    let ctx = common::validated_context();
+    {
+        let dims = UVec3::new(40, 36, 32);
+        let mut data = Vec::with_capacity((dims.x * dims.y * dims.z) as usize);
+        for z in 0..dims.z {
+            for y in 0..dims.y {
+                for x in 0..dims.x {
+                    let (x, y, z) = (x as f32, y as f32, z as f32);
+                    let v = 0.55
+                        + 0.25 * (0.9 * x + 0.3 * y).sin() * (0.7 * y).cos()
+                        + 0.15 * (1.3 * z + 0.2 * x).sin();
+                    data.push((v.clamp(0.0, 1.0) * 255.0).round() as u8);
+                }
+            }
+        }
+        let volume = Arc::new(
+            mixvol::volume::Volume::new(dims, glam::Vec3::ONE, mixvol::volume::VoxelData::U8(data))
+                .unwrap(),
+        );
+        let scene = JunctionScene {
+            size: 64,
+            width_voxels: 4.0,
+            ..JunctionScene::in_volume(volume, 8)
+        };
+        let rows =
+            transition_rows(&ctx, &TransferFunction::preset(TfPreset::Mri), &scene, 1).unwrap();
+        assert_eq!(rows.len(), 4);
+        for pair in rows.chunks(2) {
+            let (s, d) = (&pair[0], &pair[1]);
+            assert_eq!(s.family, d.family);
+            assert!(s.setting.starts_with("Smooth") && d.setting.starts_with("Discontinuous"));
+            assert_eq!(
+                (s.resident_bytes, s.hi_fraction),
+                (d.resident_bytes, d.hi_fraction)
+            );
+            assert_eq!(s.seam.samples, d.seam.samples);
+            assert!(s.seam.faces > 0 && s.seam.samples > 100, "{s:?}");
+            assert!(d.seam.max_excess > 0.03, "{d:?}");
+            assert!(
+                s.seam.max_excess * 4.0 < d.seam.max_excess,
+                "{}: smooth {:?}\ndiscontinuous {:?}",
+                s.family,
+                s.seam,
+                d.seam
+            );
+            assert!(
+                s.seam.mean_excess * 15.0 < d.seam.mean_excess,
+                "{}: smooth {:?}\ndiscontinuous {:?}",
+                s.family,
+                s.seam,
+                d.seam
+            );
+        }
+        assert!(rows[2].shaded && !rows[0].shaded);
     }
     common::finish(ctx);
 }

@@ -1,8 +1,12 @@
 //! The accuracy report's outputs: Markdown, CSV, JSON and the two charts.
 
-use super::{Report, ReportError, ReportRow, Result, FAMILIES, REPORT_FILES};
-use crate::plot::{Chart, Panel, Series, PALETTE};
+use super::{family_colour, Report, ReportError, ReportRow, Result, FAMILIES, REPORT_FILES};
+use crate::plot::{Chart, Panel, Series};
 use std::path::Path;
+
+/// What the knob rows show and why, for both reports' Markdown (`accuracy-vs-time.md`,
+/// `scenes.md`).
+pub const KNOB_NOTES: &str = "- *Pre-integration* (Engel et al.) integrates the transfer function exactly between two samples, taking the field as linear between them; point sampling classifies the field at the sample. Samples lie in the middle of their steps, so a run of samples is a half step in front of its first sample, the segments between samples and a half step behind its last (until 2026-12-02 the first sample stood for a whole step and the last half step was lost: a half-step shift that cost every ray entering or leaving non-empty data, so that on 128^3 Marschner-Lobb, whose field is not empty at the box faces, pre-integration scored 1.1-1.5x the point-sampled RMSE; measured on the CPU reference, 64^3, 64x64, 1 sample/voxel: 0.0271 before the fix, 0.0172 after, point sampling 0.0277). Where it should help, a transfer function with features narrower than the field's change per step (Fire on Marschner-Lobb), it now beats point sampling at every step. On the MRI heads with the smooth MRI transfer function it does not: the transfer function is nearly linear over a step there, and what is left is the field's curvature between samples (the trilinear field along a ray is piecewise cubic, voxel-scale detail in MRI data), which the linear-between-samples assumption gets wrong by more than the midpoint rule of point sampling does (trapezoid against midpoint: both errors fall as the step squared, 3.5x and 4.2x from 1 to 2 samples/voxel here); measured on the CPU reference, VolPack head, 1 sample/voxel: 0.0024 pre-integrated against 0.0007 point sampled, and the pre-integrated image converges to the same reference (0.00004 at 8 samples/voxel). An honest property of the method, not a bug. Shaded, on 128^3 Marschner-Lobb it is ahead at 0.5 samples/voxel but behind at 1 (0.95x / 1.19x the point-sampled RMSE; ahead at both in the quick mode's 32^3): the shading takes the gradient at a segment's back sample, half a step off the middle of the segment it shades, where point sampling shades at the middle; shading with the mean of the front and back gradients (both in the ray state) would centre it (a likely cause, not verified; not done yet).\n- *Tricubic* (cubic B-spline) changes the field itself (it smooths: an approximating filter), so its rows are measured against the tricubic field at 8 samples/voxel: the smoother field is approached faster by a coarse step than the trilinear one by the same step, at about 2-4x the cost per sample (lavapipe).\n- *Extinction-based sampling* (Kraus et al.) is per sample exactly the opacity model (`1 - (1 - a)^d = 1 - exp(-tau d)` with `tau = -ln(1 - a)`); the two differ only between the transfer function's table entries and in pre-integration, so their rows agree to 4-5 digits.\n- *Early termination* at opacity t drops what lies behind opacity t: lower thresholds lose more (the baseline, the samples-per-voxel row, runs at the default threshold).\n";
 
 impl Report {
     /// The rows as CSV with a header line.
@@ -81,6 +85,7 @@ impl Report {
         ));
         out.push_str("- Frame time is the median GPU ray-cast time (timestamps). On a CPU device (lavapipe) it is CPU time: compare rows, not absolute numbers.\n");
         out.push_str("- Metrics (`crates/mixvol-experiments/src/metrics/`): RMSE and PSNR of premultiplied RGBA; *grad RMSE*: RMS error of the image's horizontal and vertical finite differences against the reference's; *SSIM*: mean SSIM over 8x8 windows (`image-compare`), 1 = identical; *seam max / mean*: along the projected edges of every face between a hi-res and a low-res brick (every half pixel), each side extrapolated linearly to the line from bilinear samples 0.5 and 1.5 pixels from it, `J` the largest RGBA difference of the two extrapolations (a step of height h scores h, a continuous kink 0), and the seam the excess `max(0, J - J_ref)` over `J_ref` of the full-resolution frame of the same settings (single resolution, 1 sample/voxel, shaded for shaded rows: so what both share is not counted as a seam); *jump max*: the largest `J` of this frame / of the full-resolution frame there. Rows without a level change have no seam lines (0).\n");
+        out.push_str(KNOB_NOTES);
         out.push_str("- Transition rows: a close-up of a junction seen edge-on (its own scene, above). A face crossed by the rays at an angle integrates into a continuous image whether or not the field jumps on it, and at about a voxel per pixel the smooth transition's half-voxel ramp is sub-pixel: on the overview the two transitions' seam measures agreed to 0.4% (measured 2026-12-01). Here the rays run along the face, the image's middle column is the seam, and the ramp spans 8 pixels. `mixvol report` draws the close-up as `junction.png`: unshaded (top) and shaded (bottom), smooth, discontinuous and their difference (x4); the low-res half is on the left.\n\n");
         out.push_str("| knob | setting | frame ms | RMSE | PSNR dB | grad RMSE | SSIM | seam max | seam mean | jump max (frame / ref) | resident MB | hi-res fraction |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n");
         for r in &self.rows {
@@ -138,16 +143,23 @@ impl Report {
                 r.frame_ms / b.frame_ms
             ));
         }
-        out.push_str("\nCharts (PNG and SVG): `accuracy-vs-time`: RMSE (left) and gradient RMSE (right) against frame time; `seams-vs-time`: the seam measure's max (left) and mean (right) against frame time, for the knobs with a level change. One line per knob joining its settings, each point labelled with its setting.\n");
+        out.push_str("\nCharts (PNG and SVG): `accuracy-vs-time`: RMSE against frame time, unshaded rows (left) and shaded rows (right), log scale (gradient RMSE and SSIM are in the table); `seams-vs-time`: the seam measure's max (left) and mean (right) against frame time, for the knobs with a level change. One line per knob joining its settings, each point labelled with its setting.\n");
         out
     }
 
     /// One series per family; with `seams_only`, only the families with seam lines (a level
-    /// change somewhere), the others being 0 on the seam chart.
-    fn series(&self, y: impl Fn(&ReportRow) -> f64, seams_only: bool) -> Vec<Series> {
+    /// change somewhere), the others being 0 on the seam chart; with `shaded`, only the shaded
+    /// (`Some(true)`) or unshaded families.
+    fn series(
+        &self,
+        y: impl Fn(&ReportRow) -> f64,
+        seams_only: bool,
+        shaded: Option<bool>,
+    ) -> Vec<Series> {
         FAMILIES
             .iter()
-            .zip(PALETTE)
+            .map(|family| (family, family_colour(family)))
+            .filter(|(family, _)| shaded.is_none_or(|lit| family.ends_with("shaded") == lit))
             .filter(|(family, _)| {
                 !seams_only
                     || self
@@ -174,15 +186,19 @@ impl Report {
     /// `seams-vs-time` (the seam measure against frame time), one line per knob.
     pub fn charts(&self) -> [(&'static str, Chart); 2] {
         let x = "frame time (ms, median)".to_string();
-        let panel =
-            |title: &str, y_label: &str, y: &dyn Fn(&ReportRow) -> f64, seams: bool| Panel {
-                title: title.into(),
-                x_label: x.clone(),
-                y_label: y_label.into(),
-                y_range: None,
-                series: self.series(y, seams),
-                legend_left: false,
-            };
+        let panel = |title: &str,
+                     y_label: &str,
+                     y: &dyn Fn(&ReportRow) -> f64,
+                     seams: bool,
+                     shaded: Option<bool>| Panel {
+            title: title.into(),
+            x_label: x.clone(),
+            y_label: y_label.into(),
+            y_range: None,
+            series: self.series(y, seams, shaded),
+            legend_left: false,
+            log_y: true,
+        };
         [
             (
                 "accuracy-vs-time",
@@ -190,16 +206,18 @@ impl Report {
                     title: "Error against the 8 samples/voxel reference vs frame time".into(),
                     panels: vec![
                         panel(
-                            "Image error",
-                            "RMSE of premultiplied RGBA (0-1)",
+                            "Unshaded rows",
+                            "RMSE of premultiplied RGBA (0-1, log scale)",
                             &|r| r.rmse,
                             false,
+                            Some(false),
                         ),
                         panel(
-                            "Gradient error",
-                            "RMSE of image finite differences (0-1)",
-                            &|r| r.gradient_rmse,
+                            "Shaded rows (Blinn-Phong)",
+                            "RMSE of premultiplied RGBA (0-1, log scale)",
+                            &|r| r.rmse,
                             false,
+                            Some(true),
                         ),
                     ],
                     panel_size: (560, 420),
@@ -212,15 +230,17 @@ impl Report {
                     panels: vec![
                         panel(
                             "Largest excess jump",
-                            "max(0, J - J_ref), max along seam lines (0-1)",
+                            "max(0, J - J_ref), max along seam lines (0-1, log)",
                             &|r| r.seam.max_excess,
                             true,
+                            None,
                         ),
                         panel(
                             "Mean excess jump",
-                            "max(0, J - J_ref), mean along seam lines (0-1)",
+                            "max(0, J - J_ref), mean along seam lines (0-1, log)",
                             &|r| r.seam.mean_excess,
                             true,
+                            None,
                         ),
                     ],
                     panel_size: (560, 420),

@@ -264,6 +264,7 @@ impl KrausReport {
                 })
                 .collect(),
             legend_left: true,
+            log_y: false,
         };
         Chart {
             title: "Kraus Figure 1: deviation from the exact integral vs sampling distance".into(),

@@ -567,7 +567,7 @@ fn clip_planes_with_mixed_levels_match_the_reference() {
     {
         let volume = anisotropic_volume();
         let grid = BrickGrid::new(volume.dims(), N).unwrap();
-        let geometry = mixvol::lod::BrickGeometry::new(grid.clone(), volume.spacing()).unwrap();
+        let geometry = mixvol::lod::BrickGeometry::new(grid, volume.spacing()).unwrap();
         let mut rng = Rng(0xc11f);
         let mut levels = random_levels(&mut rng, grid.brick_count(), true);
         let clip = aniso_clip_planes();

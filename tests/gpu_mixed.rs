@@ -7,12 +7,12 @@ mod common;
 use common::Rng;
 
 use glam::{UVec3, Vec3};
-use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
+use mixvol::bricks::{BrickGrid, DownsampleFilter, Level, VolumeBrickSource};
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::{self, sample_mixed, ReferenceCache};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::Transition;
-use mixvol::scene::{Camera, RenderSettings};
+use mixvol::scene::{Camera, ClipPlane, ClipPlanes, RenderSettings, Shading};
 use mixvol::volume::{ScalarType, SyntheticField, Volume, VoxelData};
 use std::sync::Arc;
 
@@ -449,6 +449,231 @@ fn a_hundred_residency_changes_stay_validation_clean() {
             "few resident points: {compared_points}"
         );
         assert_eq!(compared_frames, 20);
+    }
+    common::finish(ctx);
+}
+
+/// Half the world-space box of [`anisotropic_volume`]: spacing 0.5, 1, 2 (x, y, z).
+const ANISO_HALF: Vec3 = Vec3::new(0.125, 0.25, 0.5);
+
+/// Marschner-Lobb on 32^3 voxels with spacing 0.5 x 1 x 2 (index and world space differ).
+fn anisotropic_volume() -> Arc<Volume> {
+    let ml = SyntheticField::MarschnerLobb
+        .generate(UVec3::splat(4 * N), ScalarType::F32)
+        .unwrap();
+    Arc::new(Volume::new(ml.dims(), Vec3::new(0.5, 1.0, 2.0), ml.data().clone()).unwrap())
+}
+
+/// Two world-space clip planes on [`anisotropic_volume`]: an oblique one through the bricks
+/// (keeps x + 0.3 y >= -0.02; culls the bricks of the lowest x slab with y <= 0) and one that
+/// keeps z <= 0.2 (cuts the third z slab of bricks, culls the fourth).
+fn aniso_clip_planes() -> ClipPlanes {
+    ClipPlanes::new(&[
+        ClipPlane::new(Vec3::new(1.0, 0.3, 0.0), 0.02),
+        ClipPlane::new(Vec3::new(0.0, 0.0, -1.0), 0.2),
+    ])
+    .unwrap()
+}
+
+/// The clipped scenes: plain DVR and shaded DVR (gradients next to the cut).
+fn clipped_scenes() -> [(&'static str, RenderSettings); 2] {
+    let base = RenderSettings {
+        samples_per_voxel: 1.5,
+        clip_planes: aniso_clip_planes(),
+        ..RenderSettings::default()
+    };
+    [
+        ("clip", base),
+        (
+            "clip-shaded",
+            RenderSettings {
+                shading: Some(Shading {
+                    ambient: 0.2,
+                    diffuse: 0.6,
+                    specular: 0.4,
+                    shininess: 12.0,
+                }),
+                ..base
+            },
+        ),
+    ]
+}
+
+/// `frame` against the reference of `renderer`'s residency drawn with every feature of
+/// `settings` (clip planes included), with the standard GPU-vs-reference tolerances.
+fn check_clipped(
+    name: &str,
+    renderer: &Renderer,
+    volume: &Volume,
+    transition: Transition,
+    camera: &Camera,
+    settings: &RenderSettings,
+    frame: &mixvol::renderer::Frame,
+) {
+    const SIZE: u32 = 48;
+    let tf = TransferFunction::preset(TfPreset::Bands);
+    let cache = ReferenceCache::build(
+        volume,
+        DownsampleFilter::Mean2,
+        renderer.brick_cache().unwrap(),
+        volume.scalar_type(),
+        transition,
+    )
+    .unwrap();
+    let params = renderer.params(camera, settings, SIZE, SIZE).unwrap();
+    let expected =
+        reference::render_mixed_scene(&cache.view(), transition, &tf, settings, &params).unwrap();
+    let d = common::diff(&frame.pixels, &expected, 1.0 / 255.0);
+    let c = common::coverage(&frame.pixels, &expected, 1.0 / 255.0, 1.0 / 255.0);
+    eprintln!("{name}: {d:?} {c:?}");
+    if !(d.mean <= 1e-3 && d.large_fraction <= 0.005 && d.max <= 6.0 / 255.0) {
+        let dir = common::write_failure_images(name, SIZE, SIZE, &frame.pixels, &expected);
+        panic!(
+            "{name}: GPU differs from the CPU reference: {d:?} (images in {})",
+            dir.display()
+        );
+    }
+    assert!(
+        c.expected_visible >= 0.1,
+        "{name}: image mostly empty: {c:?}"
+    );
+    if settings.shading.is_none() {
+        // The default program (`render_mixed`, no settings) cuts the rays by the planes the
+        // params hold, as the GPU does: the same image as the program of the settings.
+        let default = reference::render_mixed(&cache.view(), transition, &tf, &params);
+        let e = common::diff(&default, &expected, 1.0 / 255.0);
+        assert!(e.max <= 1e-6, "{name}: default program vs settings: {e:?}");
+        // The planes matter: without them the reference draws another image.
+        let mut unclipped_params = params;
+        unclipped_params.iso_colour.w = 0.0;
+        let unclipped = reference::render_mixed(&cache.view(), transition, &tf, &unclipped_params);
+        let u = common::diff(&frame.pixels, &unclipped, 1.0 / 255.0);
+        eprintln!("{name}: against the reference without the planes: {u:?}");
+        assert!(
+            u.max > 0.1 && u.mean > 1e-3,
+            "{name}: the planes change nothing: {u:?}"
+        );
+    }
+}
+
+/// Clip planes with the brick cache on anisotropic voxels, mixed levels (hi, lo and absent),
+/// both transitions: one plane cuts through bricks, the bricks it and the other plane remove
+/// entirely are absent (as the planner's culling makes them), and the GPU image equals the CPU
+/// reference drawn with the same planes.
+#[test]
+fn clip_planes_with_mixed_levels_match_the_reference() {
+    const SIZE: u32 = 48;
+    let ctx = common::validated_context();
+    {
+        let volume = anisotropic_volume();
+        let grid = BrickGrid::new(volume.dims(), N).unwrap();
+        let geometry = mixvol::lod::BrickGeometry::new(grid, volume.spacing()).unwrap();
+        let mut rng = Rng(0xc11f);
+        let mut levels = random_levels(&mut rng, grid.brick_count(), true);
+        let clip = aniso_clip_planes();
+        let mut culled = 0;
+        let per_axis = grid.bricks_per_axis();
+        for z in 0..per_axis.z {
+            for y in 0..per_axis.y {
+                for x in 0..per_axis.x {
+                    let brick = UVec3::new(x, y, z);
+                    let (min, max) = geometry.brick_box(brick);
+                    if clip.box_clipped(min, max) {
+                        levels[grid.linear_index(brick)] = Level::Absent;
+                        culled += 1;
+                    }
+                }
+            }
+        }
+        assert!(culled >= 8, "{culled} bricks culled");
+        let camera = Camera::perspective(Vec3::new(0.9, 0.7, 1.4), Vec3::ZERO, 40.0);
+        let tf = TransferFunction::preset(TfPreset::Bands);
+        for transition in [Transition::Smooth, Transition::Discontinuous] {
+            let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
+            renderer.set_transfer_function(&tf).unwrap();
+            renderer
+                .set_source(VolumeSource::Mixed {
+                    volume: volume.clone(),
+                    config: config(transition),
+                })
+                .unwrap();
+            renderer.set_levels(&levels).unwrap();
+            for (name, settings) in clipped_scenes() {
+                let frame = renderer.render(&camera, &settings, SIZE, SIZE).unwrap();
+                assert!(frame.variant.features.clip_planes && frame.variant.absent_bricks);
+                check_clipped(
+                    &format!("{name}-{transition:?}"),
+                    &renderer,
+                    &volume,
+                    transition,
+                    &camera,
+                    &settings,
+                    &frame,
+                );
+            }
+        }
+    }
+    common::finish(ctx);
+}
+
+/// The same through the planner (camera-driven levels, bricks culled by the clip planes) over an
+/// in-memory [`VolumeBrickSource`]: every frame until it settles equals the CPU reference of its
+/// residency drawn with the planes, and the planes cull bricks.
+#[test]
+fn clip_planes_through_the_planner_match_the_reference() {
+    const SIZE: u32 = 48;
+    let ctx = common::validated_context();
+    {
+        let volume = anisotropic_volume();
+        let tf = TransferFunction::preset(TfPreset::Bands);
+        let camera = Camera::perspective(Vec3::new(0.7, 0.8, 1.4), 0.3 * ANISO_HALF, 30.0);
+        for (name, settings) in clipped_scenes() {
+            let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
+            renderer.set_transfer_function(&tf).unwrap();
+            renderer
+                .set_source(VolumeSource::Bricks {
+                    source: Arc::new(
+                        VolumeBrickSource::new(volume.clone(), N, DownsampleFilter::Mean2).unwrap(),
+                    ),
+                    // Room for 24 of the 64 bricks hi-res ((8 + 2)^3 f32 texels each): the
+                    // planner draws the far bricks low-res.
+                    config: MixedConfig {
+                        cache_budget_bytes: 24 * 4000,
+                        ..config(Transition::Smooth)
+                    },
+                })
+                .unwrap();
+            assert!(renderer.is_planned());
+            let unclipped = RenderSettings {
+                clip_planes: ClipPlanes::NONE,
+                ..settings
+            };
+            renderer.render(&camera, &unclipped, SIZE, SIZE).unwrap();
+            let culled_unclipped = renderer.last_plan().unwrap().report.culled;
+            let mut levels_seen = (false, false);
+            for f in 0..4 {
+                let frame = renderer.render(&camera, &settings, SIZE, SIZE).unwrap();
+                let plan = renderer.last_plan().unwrap();
+                assert!(
+                    plan.report.culled >= culled_unclipped + 8,
+                    "{name}: {} culled with the planes, {culled_unclipped} without",
+                    plan.report.culled
+                );
+                let levels = renderer.brick_cache().unwrap().levels();
+                levels_seen.0 |= levels.contains(&Level::Hi);
+                levels_seen.1 |= levels.contains(&Level::Lo);
+                check_clipped(
+                    &format!("{name}-planned-{f}"),
+                    &renderer,
+                    &volume,
+                    Transition::Smooth,
+                    &camera,
+                    &settings,
+                    &frame,
+                );
+            }
+            assert!(levels_seen.0 && levels_seen.1, "{name}: {levels_seen:?}");
+        }
     }
     common::finish(ctx);
 }

@@ -23,8 +23,19 @@ use crate::scene::{RayFeatures, RaycastParams, RenderSettings};
 use crate::volume::{RgbaVolume, Volume};
 use glam::{Vec2, Vec3, Vec4};
 
-/// Casts one ray with the default program (DVR, opacity-based sampling, unlit). Mirrors
-/// `cast_ray` in `glsl/raycast.frag` step by step; returns premultiplied RGB and opacity.
+/// The features of the default program: none, except the clip planes `p` holds (its
+/// `iso_colour.w` count), which the GPU applies whenever the settings have any (`CLIP_PLANES`).
+/// Planes held in `p` are never silently dropped by the default entry points.
+fn default_features(p: &RaycastParams) -> RayFeatures {
+    RayFeatures {
+        clip_planes: p.iso_colour.w > 0.0,
+        ..RayFeatures::default()
+    }
+}
+
+/// Casts one ray with the default program (DVR, opacity-based sampling, unlit, cut by the clip
+/// planes of `p`). Mirrors `cast_ray` in `glsl/raycast.frag` step by step; returns
+/// premultiplied RGB and opacity.
 pub fn cast_ray(volume: &Volume, tf: &TransferFunction, p: &RaycastParams, ray: &Ray) -> Vec4 {
     cast_ray_until(volume, tf, p, ray, f32::INFINITY)
 }
@@ -41,7 +52,7 @@ pub fn cast_ray_until(
     let table = ClassificationTable::new(tf, SamplingModel::Opacity);
     let field = volume_field(volume, p);
     let program = RayProgram {
-        features: RayFeatures::default(),
+        features: default_features(p),
         table: &table,
         preintegration: None,
         params: p,
@@ -136,7 +147,8 @@ fn merge_low_res_pair(
     i + 1
 }
 
-/// Casts one ray through a mixed-resolution brick cache with the default program. Mirrors the
+/// Casts one ray through a mixed-resolution brick cache with the default program (cut by the
+/// clip planes of `p`, as [`cast_ray`]). Mirrors the
 /// MIXED_RESOLUTION `cast_ray` in `glsl/raycast.frag`: the same samples as [`cast_ray`]; samples
 /// in absent bricks are skipped. `p` must come from [`RaycastParams::with_cache`].
 pub fn cast_ray_mixed(
@@ -149,7 +161,7 @@ pub fn cast_ray_mixed(
     let table = ClassificationTable::new(tf, SamplingModel::Opacity);
     let field = mixed_field(mv, transition, p);
     let program = RayProgram {
-        features: RayFeatures::default(),
+        features: default_features(p),
         table: &table,
         preintegration: None,
         params: p,

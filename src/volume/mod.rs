@@ -272,6 +272,10 @@ pub enum VolumeError {
         /// What is wrong.
         message: String,
     },
+    /// A DICOM folder or DICOMDIR did not give one volume: several series, irregular spacing,
+    /// inconsistent slices (see [`formats::DicomError`]).
+    #[error(transparent)]
+    Dicom(#[from] formats::DicomError),
 }
 
 impl VolumeError {

@@ -1,7 +1,8 @@
 //! Volume file formats: NIfTI-1 and NIfTI-2 (`.nii`, `.nii.gz`), NRRD (`.nrrd`, detached `.nhdr`; raw or gzip
 //! encoding), raw data described by a JSON sidecar (`.json`, or `.raw` beside one) and VolPack /
 //! Levoy density files (`.den`), and OME-Zarr images (`.zarr` folders, Zarr v2 and v3, through
-//! the `zarrs` crate; see [`zarr`]).
+//! the `zarrs` crate; see [`zarr`]), and DICOM series (a folder, a DICOMDIR or a `.dcm` file,
+//! through dicom-rs; see [`dicom`]).
 //!
 //! [`load_volume`] picks the format from the file name; the per-format loaders
 //! ([`load_nifti`], [`load_nrrd`], [`load_sidecar`], [`load_den`]) return the volume together
@@ -56,6 +57,7 @@
 //! world frame: the renderer works in index space.
 
 mod den;
+pub mod dicom;
 mod nii;
 mod nrrd;
 mod read;
@@ -64,6 +66,10 @@ pub(crate) mod slab_readers;
 pub mod zarr;
 
 pub use den::{load_den, parse_den_header, DenHeader, DEN_HEADER_BYTES};
+pub use dicom::{
+    decode_dicom_slice, list_dicom_series, load_dicom, parse_dicom_slice, DicomError, DicomOptions,
+    DicomSlice, SeriesSelector, SeriesSummary,
+};
 pub use nii::{
     load_nifti, parse_nifti_header, NiftiInfo, Reorientation, TransformSource, NIFTI1_HEADER_BYTES,
     NIFTI2_HEADER_BYTES,
@@ -197,6 +203,8 @@ pub enum FileFormat {
     Den,
     /// OME-Zarr image or plain Zarr array (v2 or v3): a folder, usually `.zarr` / `.ome.zarr`.
     Zarr,
+    /// DICOM series: a folder of DICOM files, a `DICOMDIR`, or one `.dcm` / `.dicom` file.
+    Dicom,
 }
 
 impl FileFormat {
@@ -215,6 +223,8 @@ impl FileFormat {
             Some(FileFormat::Den)
         } else if ends(".zarr") {
             Some(FileFormat::Zarr)
+        } else if ends(".dcm") || ends(".dicom") || dicom::is_dicomdir_name(path) {
+            Some(FileFormat::Dicom)
         } else {
             None
         }
@@ -224,7 +234,8 @@ impl FileFormat {
     /// name: [`FileFormat::from_path`], except that a `.raw` file counts only when its JSON
     /// sidecar exists (`NAME.raw.json` or `NAME.json`; a bare `.raw` is headerless data that the
     /// caller must describe), and a folder holding Zarr metadata (`zarr.json`, `.zattrs`,
-    /// `.zarray`) is [`FileFormat::Zarr`] whatever its name. `None`: no format with a header.
+    /// `.zarray`) is [`FileFormat::Zarr`] whatever its name, and another folder holding a
+    /// `DICOMDIR` or DICOM files is [`FileFormat::Dicom`]. `None`: no format with a header.
     pub fn detect(path: &Path) -> Option<Self> {
         let lower = path
             .file_name()
@@ -237,6 +248,7 @@ impl FileFormat {
                 .then_some(FileFormat::Sidecar),
             Some(format) => Some(format),
             None if is_zarr_folder(path) => Some(FileFormat::Zarr),
+            None if dicom::is_dicom_folder(path) => Some(FileFormat::Dicom),
             None => None,
         }
     }
@@ -350,8 +362,10 @@ pub struct LoadedVolume {
 /// Loads a volume file, choosing the format from its name: `.nii` / `.nii.gz` (NIfTI-1),
 /// `.nrrd` / `.nhdr` (NRRD), `.json` (raw data + JSON sidecar), `.raw` (with a sibling
 /// `NAME.raw.json` or `NAME.json` sidecar), `.den` (VolPack), `.zarr` (OME-Zarr folder; any
-/// folder holding `zarr.json`, `.zattrs` or `.zarray` too). Other names give a
-/// [`VolumeError::Format`] error on the field `extension`. See the module docs for the value
+/// folder holding `zarr.json`, `.zattrs` or `.zarray` too), `.dcm` / `.dicom` / `DICOMDIR`
+/// and folders of DICOM files (one series, [`load_dicom`]; to choose among several series call
+/// it with [`DicomOptions`]). Other names give a [`VolumeError::Format`] error on the field
+/// `extension`. See the module docs for the value
 /// mapping and the orientation policy.
 pub fn load_volume(path: &Path) -> Result<Volume, VolumeError> {
     load_volume_with_meta(path).map(|loaded| loaded.volume)
@@ -370,7 +384,9 @@ pub fn load_volume_with_meta(path: &Path) -> Result<LoadedVolume, VolumeError> {
         Some(FileFormat::Zarr) => load_zarr(path),
         Some(FileFormat::Sidecar) if lower.ends_with(".json") => load_sidecar(path),
         Some(FileFormat::Sidecar) => slab_readers::describe_raw_with_sidecar(path)?.load(),
+        Some(FileFormat::Dicom) => load_dicom(path, &DicomOptions::default()),
         None if is_zarr_folder(path) => load_zarr(path),
+        None if dicom::is_dicom_folder(path) => load_dicom(path, &DicomOptions::default()),
         None => Err(unknown_extension(path)),
     }
 }
@@ -381,7 +397,8 @@ fn unknown_extension(path: &Path) -> VolumeError {
         path,
         "extension",
         "unknown volume file type; expected .nii, .nii.gz, .nrrd, .nhdr, .json, \
-         .raw (with a .json sidecar), .den or a .zarr folder",
+         .raw (with a .json sidecar), .den, .dcm, DICOMDIR, a .zarr folder or a folder of \
+         DICOM files",
     )
 }
 

@@ -38,6 +38,8 @@ pub(crate) fn open(path: &Path, level: usize) -> Result<Box<dyn SlabReader + Sen
         None if super::is_zarr_folder(path) => {
             return Ok(Box::new(super::zarr::ZarrSlabs::open(path, level)?))
         }
+        Some(FileFormat::Dicom) => return Err(super::dicom::no_slabs(path)),
+        None if super::dicom::is_dicom_folder(path) => return Err(super::dicom::no_slabs(path)),
         None => return Err(super::unknown_extension(path)),
     };
     Ok(Box::new(PayloadSlabs::new(described)?))

@@ -12,6 +12,7 @@ requirements=(
   scripts/requirements-zarr.txt
   scripts/requirements-servers.txt
   scripts/requirements-nifti.txt
+  scripts/requirements-dicom.txt
 )
 
 venv="$PWD/target/python-venv"

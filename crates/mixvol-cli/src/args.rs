@@ -238,7 +238,8 @@ pub enum ProjectionArg {
 #[derive(Args, Debug)]
 pub struct RenderArgs {
     /// Volume to render: a synthetic field (`ml` = Marschner-Lobb, `sphere`, `wall`), a file with
-    /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), an
+    /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), a DICOM
+    /// series (a folder of DICOM files, a DICOMDIR or one .dcm file; see --series), an
     /// OME-Zarr folder or remote image (s3://BUCKET/PATH.zarr with the AWS_* environment
     /// variables, http(s)://HOST/PATH.zarr; MIXVOL_REMOTE_TIMEOUT_MS / _RETRIES bound each
     /// fetch), a brick store (streamed from disk under --ram-budget-mb), or a headerless raw
@@ -263,6 +264,10 @@ pub struct RenderArgs {
     /// Resolution level of an OME-Zarr image (index into its multiscales datasets, 0 = finest).
     #[arg(long)]
     pub zarr_level: Option<usize>,
+    /// DICOM series to load when the folder or DICOMDIR holds several: its SeriesInstanceUID or
+    /// its SeriesNumber (without it, such a folder is an error listing the series).
+    #[arg(long)]
+    pub series: Option<String>,
     /// Transfer-function preset: grey, fire, bands, constant, ct, mri.
     #[arg(long, default_value = "fire", value_parser = parse_tf)]
     pub tf: TfPreset,

@@ -65,8 +65,8 @@ fn unsupported_syntax(path: &Path, uid: &str) -> VolumeError {
         "TransferSyntaxUID (0002,0010)",
         format!(
             "{} ({uid}) is not decoded by this build (supported: implicit / explicit VR little \
-             endian, explicit VR big endian, deflated, RLE lossless, JPEG baseline, extended and \
-             lossless, JPEG 2000; not JPEG-LS, JPEG XL, video)",
+             endian, explicit VR big endian, deflated, RLE lossless, JPEG baseline and lossless, \
+             JPEG 2000; not JPEG-LS, JPEG XL, video)",
             transfer_syntax_name(uid)
         ),
     )
@@ -109,16 +109,30 @@ fn stored_values(
     s: &DicomSlice,
 ) -> Result<Vec<i64>, VolumeError> {
     check_loadable(path, s)?;
-    let decoded = object.decode_pixel_data().map_err(|e| {
-        format_err(
-            path,
-            "PixelData (7FE0,0010)",
-            format!(
-                "cannot decode ({}): {e}",
-                transfer_syntax_name(&s.transfer_syntax)
-            ),
-        )
-    })?;
+    // dicom-rs' decoders can panic on corrupt encapsulated data (an index out of bounds in its
+    // RLE adapter, found by tests/dicom.rs' mutations): that is a corrupt file, not a crash.
+    let decoded =
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| object.decode_pixel_data()))
+            .map_err(|_| {
+                format_err(
+                    path,
+                    "PixelData (7FE0,0010)",
+                    format!(
+                        "corrupt {} pixel data (the decoder failed on it)",
+                        transfer_syntax_name(&s.transfer_syntax)
+                    ),
+                )
+            })?
+            .map_err(|e| {
+                format_err(
+                    path,
+                    "PixelData (7FE0,0010)",
+                    format!(
+                        "cannot decode ({}): {e}",
+                        transfer_syntax_name(&s.transfer_syntax)
+                    ),
+                )
+            })?;
     let data = decoded.data();
     let bytes_per = usize::from(s.bits_allocated / 8);
     let pixels = s.pixels() as usize;

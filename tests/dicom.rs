@@ -33,6 +33,15 @@ fn fixtures() -> &'static Path {
     })
 }
 
+/// The DICOM error of a load that must fail with one.
+fn dicom_error(result: Result<LoadedVolume, VolumeError>, what: &str) -> DicomError {
+    match result {
+        Err(VolumeError::Dicom(e)) => *e,
+        Err(e) => panic!("{what}: not a DICOM series error: {e}"),
+        Ok(l) => panic!("{what}: loaded {:?}", l.volume.dims()),
+    }
+}
+
 fn load(path: &Path) -> LoadedVolume {
     load_volume_with_meta(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
@@ -243,8 +252,8 @@ fn dicomdir() -> PathBuf {
 fn a_dicomdir_over_several_series_lists_them_and_a_number_or_uid_picks_one() {
     let ct5n_uid = "1.3.6.1.4.1.5962.1.1.0.0.0.1194734704.16302.0.6";
     for input in [dicomdir(), dicomdir().join("DICOMDIR")] {
-        match load_volume_with_meta(&input) {
-            Err(VolumeError::Dicom(DicomError::SeveralSeries { folder, series })) => {
+        match dicom_error(load_volume_with_meta(&input), "DICOMDIR") {
+            DicomError::SeveralSeries { folder, series } => {
                 assert_eq!(folder, input);
                 let ct5n = series
                     .iter()
@@ -261,8 +270,7 @@ fn a_dicomdir_over_several_series_lists_them_and_a_number_or_uid_picks_one() {
                     "{text}"
                 );
             }
-            Err(e) => panic!("{}: {e}", input.display()),
-            Ok(_) => panic!("{}: loaded with several series", input.display()),
+            other => panic!("{other}"),
         }
     }
     assert!(list_dicom_series(&dicomdir())
@@ -284,24 +292,27 @@ fn a_dicomdir_over_several_series_lists_them_and_a_number_or_uid_picks_one() {
     let options = DicomOptions {
         series: Some(SeriesSelector::Number(2)),
     };
-    match load_dicom(&dicomdir(), &options) {
-        Err(VolumeError::Dicom(DicomError::SeriesNotFound { why, wanted, .. })) => {
+    match dicom_error(load_dicom(&dicomdir(), &options), "series 2") {
+        DicomError::SeriesNotFound { why, wanted, .. } => {
             assert_eq!(wanted, "2");
             assert!(why.contains("series have the number"), "{why}");
         }
-        other => panic!("{:?}", other.map(|l| l.volume.dims())),
+        other => panic!("{other}"),
     }
     let options = DicomOptions {
         series: Some(SeriesSelector::Number(99)),
     };
     assert!(matches!(
-        load_dicom(&dicomdir(), &options),
-        Err(VolumeError::Dicom(DicomError::SeriesNotFound { .. }))
+        dicom_error(load_dicom(&dicomdir(), &options), "series 99"),
+        DicomError::SeriesNotFound { .. }
     ));
     // The TINY_ALPHA DICOMDIR references files without pixel data.
     assert!(matches!(
-        load_volume_with_meta(&dicomdir().join("TINY_ALPHA")),
-        Err(VolumeError::Dicom(DicomError::NoImages { .. }))
+        dicom_error(
+            load_volume_with_meta(&dicomdir().join("TINY_ALPHA")),
+            "TINY_ALPHA"
+        ),
+        DicomError::NoImages { .. }
     ));
 }
 
@@ -309,15 +320,18 @@ fn a_dicomdir_over_several_series_lists_them_and_a_number_or_uid_picks_one() {
 fn irregular_spacing_and_mixed_orientations_are_refused() {
     // Real data: the CT2 series of patient 77654033 has slices at z -99.48, 103.02, 104.27,
     // 105.52: gaps of 202.5 and 1.25 mm.
-    match load_volume_with_meta(&dicomdir().join("77654033/CT2")) {
-        Err(VolumeError::Dicom(DicomError::IrregularSpacing {
+    match dicom_error(
+        load_volume_with_meta(&dicomdir().join("77654033/CT2")),
+        "CT2",
+    ) {
+        DicomError::IrregularSpacing {
             first,
             second,
             gap,
             expected,
             first_index,
             ..
-        })) => {
+        } => {
             assert_eq!(first_index, 0);
             assert!(
                 first.ends_with("17106") && second.ends_with("17136"),
@@ -326,8 +340,7 @@ fn irregular_spacing_and_mixed_orientations_are_refused() {
             assert!((gap - 202.5).abs() < 1e-3, "{gap}");
             assert!((expected - 1.25).abs() < 1e-3, "{expected}");
         }
-        Err(e) => panic!("{e}"),
-        Ok(_) => panic!("an irregular series loaded"),
+        other => panic!("{other}"),
     }
     // The MNI series with slice 100 removed: a 2 mm gap among 1 mm gaps.
     let src = fixtures().join("mni_lps");
@@ -345,8 +358,8 @@ fn irregular_spacing_and_mixed_orientations_are_refused() {
         std::fs::copy(&f, dst.join(f.file_name().unwrap())).unwrap();
     }
     assert!(removed.is_some());
-    match load_volume_with_meta(&dst) {
-        Err(VolumeError::Dicom(e @ DicomError::IrregularSpacing { .. })) => {
+    match dicom_error(load_volume_with_meta(&dst), "gap") {
+        e @ DicomError::IrregularSpacing { .. } => {
             let DicomError::IrregularSpacing {
                 gap,
                 expected,
@@ -359,16 +372,17 @@ fn irregular_spacing_and_mixed_orientations_are_refused() {
             assert_eq!((*gap, *expected, *first_index), (2.0, 1.0, 99));
             assert!(e.to_string().contains("refused, not resampled"), "{e}");
         }
-        Err(e) => panic!("{e}"),
-        Ok(_) => panic!("a series with a missing slice loaded"),
+        other => panic!("{other}"),
     }
     // The scout series of patient 98892001: two slices in different orientations.
-    match load_volume_with_meta(&dicomdir().join("98892001/CT2N")) {
-        Err(VolumeError::Dicom(DicomError::Inconsistent { field, .. })) => {
+    match dicom_error(
+        load_volume_with_meta(&dicomdir().join("98892001/CT2N")),
+        "CT2N",
+    ) {
+        DicomError::Inconsistent { field, .. } => {
             assert_eq!(field, "ImageOrientationPatient")
         }
-        Err(e) => panic!("{e}"),
-        Ok(_) => panic!("mixed orientations loaded"),
+        other => panic!("{other}"),
     }
 }
 
@@ -467,10 +481,9 @@ fn two_series_in_one_folder_are_listed_and_the_uid_chooses() {
         )
         .unwrap();
     }
-    let series = match load_volume_with_meta(&both) {
-        Err(VolumeError::Dicom(DicomError::SeveralSeries { series, .. })) => series,
-        Err(e) => panic!("{e}"),
-        Ok(_) => panic!("loaded with two series"),
+    let series = match dicom_error(load_volume_with_meta(&both), "two series") {
+        DicomError::SeveralSeries { series, .. } => series,
+        other => panic!("{other}"),
     };
     assert_eq!(series.len(), 2);
     assert!(series.iter().all(|s| s.slices == 189), "{series:?}");

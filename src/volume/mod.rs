@@ -273,9 +273,15 @@ pub enum VolumeError {
         message: String,
     },
     /// A DICOM folder or DICOMDIR did not give one volume: several series, irregular spacing,
-    /// inconsistent slices (see [`formats::DicomError`]).
+    /// inconsistent slices (see [`formats::DicomError`]; boxed to keep this error small).
     #[error(transparent)]
-    Dicom(#[from] formats::DicomError),
+    Dicom(Box<formats::DicomError>),
+}
+
+impl From<formats::DicomError> for VolumeError {
+    fn from(e: formats::DicomError) -> Self {
+        VolumeError::Dicom(Box::new(e))
+    }
 }
 
 impl VolumeError {

@@ -46,7 +46,8 @@
 //!
 //! NIfTI voxels are reordered to RAS+ (+x right, +y anterior, +z superior; flips and
 //! permutations from the sform, else the qform; see [`load_nifti`] and
-//! [`VolumeMeta::reorientation`]); an oblique residual rotation is not applied. Other formats keep
+//! [`VolumeMeta::reorientation`]); an oblique residual rotation is not applied. DICOM series are
+//! reordered the same way from their LPS patient geometry (see [`dicom`]). Other formats keep
 //! voxels in file order (first axis fastest), never resampled or flipped. Spacing is the
 //! size of a voxel step along each index axis: NIfTI `|pixdim[1..=3]|`, NRRD the norms of the
 //! `space directions` vectors (else `|spacings|`, else 1), the sidecar's `spacing`, 1 for `.den`.
@@ -271,23 +272,24 @@ pub struct VolumeMeta {
     /// True when the file's multi-byte values were big-endian.
     pub big_endian: bool,
     /// Unit vectors: the world direction of increasing x, y and z index (`directions[i]` for
-    /// index axis `i`), in the file's world frame (NIfTI: RAS+; NRRD: its `space`). Identity when
-    /// the file has no orientation. NIfTI voxels are reordered to RAS+ (see
+    /// index axis `i`), in the file's world frame (NIfTI, DICOM: RAS+; NRRD: its `space`).
+    /// Identity when the file has no orientation. NIfTI and DICOM voxels are reordered to RAS+ (see
     /// [`VolumeMeta::reorientation`]), so these are the residual rotation, near identity; other
     /// formats keep file order and report the file's directions.
     pub directions: [[f64; 3]; 3],
     /// World position of voxel (0, 0, 0)'s centre; zero when the file has none.
     pub origin: [f64; 3],
-    /// NIfTI `scl_slope`: physical value = `scale_slope * stored + scale_inter` (1 elsewhere, and
-    /// where the file's slope is 0 or not finite).
+    /// NIfTI `scl_slope` (DICOM: the first slice's RescaleSlope): physical value =
+    /// `scale_slope * stored + scale_inter` (1 elsewhere, and where the file's slope is 0 or not
+    /// finite).
     pub scale_slope: f64,
-    /// NIfTI `scl_inter` (0 elsewhere).
+    /// NIfTI `scl_inter` (DICOM: the first slice's RescaleIntercept; 0 elsewhere).
     pub scale_inter: f64,
     /// True when the loader applied `scale_slope` / `scale_inter`: the volume then holds f32
-    /// physical values (NIfTI with a non-identity scaling).
+    /// physical values (NIfTI with a non-identity scaling, DICOM with a non-identity rescale).
     pub scale_applied: bool,
-    /// NIfTI: how the voxels were reordered to RAS+ (`None` for the other formats, which keep
-    /// file order).
+    /// NIfTI and DICOM: how the voxels were reordered to RAS+ (`None` for the other formats,
+    /// which keep file order).
     pub reorientation: Option<Reorientation>,
 }
 

@@ -73,7 +73,8 @@ fn unsupported_syntax(path: &Path, uid: &str) -> VolumeError {
 }
 
 /// Decodes one file's bytes whole: its slice record and stored pixel values (row by row, column
-/// fastest); the fuzz targets' entry point. Checks [`check_loadable`] first, and that the
+/// fastest); the fuzz target's entry point. Checks first that the slice can be loaded (grey, one
+/// frame, a decodable transfer syntax: the checks of [`super::load_dicom`]), then that the
 /// decoded pixel data covers Rows x Columns (trailing padding is ignored).
 pub fn decode_dicom_slice(
     path: &Path,

@@ -13,6 +13,7 @@ requirements=(
   scripts/requirements-servers.txt
   scripts/requirements-nifti.txt
   scripts/requirements-tiff.txt
+  scripts/requirements-dicom.txt
 )
 
 venv="$PWD/target/python-venv"

@@ -4,7 +4,8 @@
 # on any validation warning or error. Installs what it needs first, and fetches the real test
 # volumes (scripts/fetch-datasets.sh: PyPI and Debian packages, checksummed, idempotent) and the
 # Python packages of the fixture writers and the loopback test servers (scripts/python-env.sh: a
-# venv under target/ with zarr-python, ome-zarr-py, moto and boto3, pinned, idempotent; the
+# venv under target/ with zarr-python, ome-zarr-py, moto, boto3, nibabel and pydicom, pinned,
+# idempotent; the
 # remote-store tests start the servers themselves).
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -287,6 +287,16 @@ pub enum VolumeError {
         /// What is wrong.
         message: String,
     },
+    /// A DICOM folder or DICOMDIR did not give one volume: several series, irregular spacing,
+    /// inconsistent slices (see [`formats::DicomError`]; boxed to keep this error small).
+    #[error(transparent)]
+    Dicom(Box<formats::DicomError>),
+}
+
+impl From<formats::DicomError> for VolumeError {
+    fn from(e: formats::DicomError) -> Self {
+        VolumeError::Dicom(Box::new(e))
+    }
 }
 
 impl VolumeError {

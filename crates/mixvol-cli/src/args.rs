@@ -239,7 +239,8 @@ pub enum ProjectionArg {
 pub struct RenderArgs {
     /// Volume to render: a synthetic field (`ml` = Marschner-Lobb, `sphere`, `wall`), a file with
     /// a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON sidecar or .raw with one), a TIFF
-    /// stack (.tif, .tiff, .btf; OME-TIFF; a folder of .tif slices), an OME-Zarr folder or
+    /// stack (.tif, .tiff, .btf; OME-TIFF; a folder of .tif slices), a DICOM series (a folder
+    /// of DICOM files, a DICOMDIR or one .dcm file; see --series), an OME-Zarr folder or
     /// remote image (s3://BUCKET/PATH.zarr with the AWS_* environment
     /// variables, http(s)://HOST/PATH.zarr; MIXVOL_REMOTE_TIMEOUT_MS / _RETRIES bound each
     /// fetch), a brick store (streamed from disk under --ram-budget-mb), or a headerless raw
@@ -274,6 +275,10 @@ pub struct RenderArgs {
     /// Image, channel and time point of an OME-TIFF or ImageJ hyperstack (default 0 each).
     #[command(flatten)]
     pub tiff: TiffSelectArgs,
+    /// DICOM series to load when the folder or DICOMDIR holds several: its SeriesInstanceUID or
+    /// its SeriesNumber (without it, such a folder is an error listing the series).
+    #[arg(long)]
+    pub series: Option<String>,
     /// Transfer-function preset: grey, fire, bands, constant, ct, mri.
     #[arg(long, default_value = "fire", value_parser = parse_tf)]
     pub tf: TfPreset,

@@ -6,7 +6,8 @@ use crate::parse::parse_floats;
 use mixvol::gpu::GpuContext;
 use mixvol::store::{BrickStore, MAGIC};
 use mixvol::volume::formats::{
-    load_tiff_with, load_zarr_at, load_zarr_level, FileFormat, RemoteOptions, ZarrLocation,
+    load_dicom, load_tiff_with, load_zarr_at, load_zarr_level, DicomOptions, FileFormat,
+    RemoteOptions, SeriesSelector, ZarrLocation,
 };
 use mixvol::volume::memory::check_host_bytes;
 use mixvol::volume::{load_raw, RawDescriptor, SyntheticField, Volume, VolumeError, VolumeMeta};
@@ -61,6 +62,26 @@ pub fn load_volume_with_meta(args: &RenderArgs) -> Result<(Volume, Option<Volume
         let loaded = load_tiff_with(path, &options)?;
         return Ok((loaded.volume, Some(loaded.meta)));
     }
+    if let Some(series) = &args.series {
+        if format != Some(FileFormat::Dicom) {
+            return Err(Error::InvalidInput(format!(
+                "--series applies to DICOM input (a folder of DICOM files, a DICOMDIR or a .dcm \
+                 file), not '{}'",
+                args.volume
+            )));
+        }
+        let selector = SeriesSelector::parse(series).ok_or_else(|| {
+            Error::InvalidInput(format!(
+                "--series {series}: expected a SeriesInstanceUID (digits and dots) or a series \
+                 number"
+            ))
+        })?;
+        let options = DicomOptions {
+            series: Some(selector),
+        };
+        let loaded = load_dicom(path, &options)?;
+        return Ok((loaded.volume, Some(loaded.meta)));
+    }
     if let Some(field) = SyntheticField::parse(&args.volume) {
         return Ok((field.generate(args.dims, args.scalar)?, None));
     }
@@ -70,8 +91,9 @@ pub fn load_volume_with_meta(args: &RenderArgs) -> Result<(Volume, Option<Volume
     }
     if path.is_dir() {
         return Err(Error::InvalidInput(format!(
-            "'{}' is a folder without Zarr metadata (zarr.json, .zattrs or .zarray) or .tif \
-             slices: give an OME-Zarr image or Zarr array folder, a folder of TIFF slices, a \
+            "'{}' is a folder without Zarr metadata (zarr.json, .zattrs or .zarray), .tif \
+             slices, DICOMDIR or DICOM files: give an OME-Zarr image or Zarr array folder, a \
+             folder of TIFF slices, a DICOM series folder, a \
              volume file or a brick store",
             args.volume
         )));
@@ -135,7 +157,8 @@ pub fn check_plain_synthetic(args: &RenderArgs, ctx: &GpuContext) -> Result<()> 
 /// The file names `FileFormat::detect` recognises, for messages.
 const KNOWN_FORMATS: &str =
     ".nii, .nii.gz, .nrrd, .nhdr, .den, .json sidecar or .raw beside one, .tif / .tiff / .btf \
-     (TIFF stack, OME-TIFF), .zarr folder, folder of .tif slices";
+     (TIFF stack, OME-TIFF), .zarr folder, folder of .tif slices, .dcm, DICOMDIR or a folder \
+     of DICOM files";
 
 /// What `--volume` names: a volume loaded into RAM, or a brick store streamed from disk.
 pub enum Input {
@@ -221,7 +244,7 @@ pub fn open_input_with_meta(args: &RenderArgs) -> Result<(Input, Option<VolumeMe
     Ok((Input::Volume(Arc::new(volume)), meta))
 }
 
-/// The lines `mixvol render` prints about a NIfTI file's orientation, e.g.
+/// The lines `mixvol render` prints about a NIfTI file's (or DICOM series') orientation, e.g.
 /// `orientation: LAS -> RAS (flipped x), from the sform (RAS+ world: +x right, +y anterior,
 /// +z superior)`; `None` for other inputs.
 pub fn orientation_line(meta: Option<&VolumeMeta>) -> Option<String> {
@@ -238,8 +261,19 @@ pub fn orientation_line(meta: Option<&VolumeMeta>) -> Option<String> {
 pub fn window_line(meta: Option<&VolumeMeta>, (lo, hi): (f32, f32)) -> String {
     match meta {
         Some(m) if m.scale_applied => format!(
-            "window: [{lo:.4}, {hi:.4}] (file units after scl_slope {} / scl_inter {}: HU for CT)",
-            m.scale_slope, m.scale_inter
+            "window: [{lo:.4}, {hi:.4}] (file units after {} {} / {} {}: HU for CT)",
+            if m.format == FileFormat::Dicom {
+                "RescaleSlope"
+            } else {
+                "scl_slope"
+            },
+            m.scale_slope,
+            if m.format == FileFormat::Dicom {
+                "RescaleIntercept"
+            } else {
+                "scl_inter"
+            },
+            m.scale_inter
         ),
         Some(m) if m.stored.value_offset() != 0 => format!(
             "window: [{lo:.4}, {hi:.4}] (normalised values) = [{:.1}, {:.1}] in file units \

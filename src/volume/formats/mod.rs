@@ -1,9 +1,10 @@
 //! Volume file formats: NIfTI-1 and NIfTI-2 (`.nii`, `.nii.gz`), NRRD (`.nrrd`, detached `.nhdr`; raw or gzip
 //! encoding), raw data described by a JSON sidecar (`.json`, or `.raw` beside one) and VolPack /
 //! Levoy density files (`.den`), OME-Zarr images (`.zarr` folders, Zarr v2 and v3, through
-//! the `zarrs` crate; see [`zarr`]), and TIFF stacks (multi-page TIFF and BigTIFF, OME-TIFF
+//! the `zarrs` crate; see [`zarr`]), TIFF stacks (multi-page TIFF and BigTIFF, OME-TIFF
 //! with physical sizes, folders of single-page TIFFs; `.tif`, `.tiff`, `.btf`, through the
-//! `tiff` crate; see [`tiff`]).
+//! `tiff` crate; see [`tiff`]), and DICOM series (a folder, a DICOMDIR or a `.dcm` file,
+//! through dicom-rs; see [`dicom`]).
 //!
 //! [`load_volume`] picks the format from the file name; the per-format loaders
 //! ([`load_nifti`], [`load_nrrd`], [`load_sidecar`], [`load_den`], [`load_tiff`]) return the volume together
@@ -48,7 +49,8 @@
 //!
 //! NIfTI voxels are reordered to RAS+ (+x right, +y anterior, +z superior; flips and
 //! permutations from the sform, else the qform; see [`load_nifti`] and
-//! [`VolumeMeta::reorientation`]); an oblique residual rotation is not applied. Other formats keep
+//! [`VolumeMeta::reorientation`]); an oblique residual rotation is not applied. DICOM series are
+//! reordered the same way from their LPS patient geometry (see [`dicom`]). Other formats keep
 //! voxels in file order (first axis fastest), never resampled or flipped. Spacing is the
 //! size of a voxel step along each index axis: NIfTI `|pixdim[1..=3]|`, NRRD the norms of the
 //! `space directions` vectors (else `|spacings|`, else 1), the sidecar's `spacing`, 1 for `.den`,
@@ -60,6 +62,7 @@
 //! world frame: the renderer works in index space.
 
 mod den;
+pub mod dicom;
 mod nii;
 mod nrrd;
 mod read;
@@ -69,6 +72,10 @@ pub mod tiff;
 pub mod zarr;
 
 pub use den::{load_den, parse_den_header, DenHeader, DEN_HEADER_BYTES};
+pub use dicom::{
+    decode_dicom_slice, list_dicom_series, load_dicom, parse_dicom_slice, DicomError, DicomOptions,
+    DicomSlice, SeriesSelector, SeriesSummary,
+};
 pub use nii::{
     load_nifti, parse_nifti_header, NiftiInfo, Reorientation, TransformSource, NIFTI1_HEADER_BYTES,
     NIFTI2_HEADER_BYTES,
@@ -206,6 +213,8 @@ pub enum FileFormat {
     /// TIFF stack: `.tif` / `.tiff` / `.btf` / `.tf8` (plain, BigTIFF or OME-TIFF), or a folder
     /// of single-page TIFFs.
     Tiff,
+    /// DICOM series: a folder of DICOM files, a `DICOMDIR`, or one `.dcm` / `.dicom` file.
+    Dicom,
 }
 
 impl FileFormat {
@@ -226,6 +235,8 @@ impl FileFormat {
             Some(FileFormat::Zarr)
         } else if tiff::has_tiff_extension(&name) {
             Some(FileFormat::Tiff)
+        } else if ends(".dcm") || ends(".dicom") || dicom::is_dicomdir_name(path) {
+            Some(FileFormat::Dicom)
         } else {
             None
         }
@@ -235,9 +246,9 @@ impl FileFormat {
     /// name: [`FileFormat::from_path`], except that a `.raw` file counts only when its JSON
     /// sidecar exists (`NAME.raw.json` or `NAME.json`; a bare `.raw` is headerless data that the
     /// caller must describe), and a folder holding Zarr metadata (`zarr.json`, `.zattrs`,
-    /// `.zarray`) is [`FileFormat::Zarr`] whatever its name, and another folder holding `.tif`
-    /// / `.tiff` files is [`FileFormat::Tiff`] (a folder stack). `None`: no format with a
-    /// header.
+    /// `.zarray`) is [`FileFormat::Zarr`] whatever its name, another folder holding `.tif`
+    /// / `.tiff` files is [`FileFormat::Tiff`] (a folder stack), and another folder holding a
+    /// `DICOMDIR` or DICOM files is [`FileFormat::Dicom`]. `None`: no format with a header.
     pub fn detect(path: &Path) -> Option<Self> {
         let lower = path
             .file_name()
@@ -251,6 +262,7 @@ impl FileFormat {
             Some(format) => Some(format),
             None if is_zarr_folder(path) => Some(FileFormat::Zarr),
             None if tiff::is_tiff_folder(path) => Some(FileFormat::Tiff),
+            None if dicom::is_dicom_folder(path) => Some(FileFormat::Dicom),
             None => None,
         }
     }
@@ -273,23 +285,24 @@ pub struct VolumeMeta {
     /// True when the file's multi-byte values were big-endian.
     pub big_endian: bool,
     /// Unit vectors: the world direction of increasing x, y and z index (`directions[i]` for
-    /// index axis `i`), in the file's world frame (NIfTI: RAS+; NRRD: its `space`). Identity when
-    /// the file has no orientation. NIfTI voxels are reordered to RAS+ (see
+    /// index axis `i`), in the file's world frame (NIfTI, DICOM: RAS+; NRRD: its `space`).
+    /// Identity when the file has no orientation. NIfTI and DICOM voxels are reordered to RAS+ (see
     /// [`VolumeMeta::reorientation`]), so these are the residual rotation, near identity; other
     /// formats keep file order and report the file's directions.
     pub directions: [[f64; 3]; 3],
     /// World position of voxel (0, 0, 0)'s centre; zero when the file has none.
     pub origin: [f64; 3],
-    /// NIfTI `scl_slope`: physical value = `scale_slope * stored + scale_inter` (1 elsewhere, and
-    /// where the file's slope is 0 or not finite).
+    /// NIfTI `scl_slope` (DICOM: the first slice's RescaleSlope): physical value =
+    /// `scale_slope * stored + scale_inter` (1 elsewhere, and where the file's slope is 0 or not
+    /// finite).
     pub scale_slope: f64,
-    /// NIfTI `scl_inter` (0 elsewhere).
+    /// NIfTI `scl_inter` (DICOM: the first slice's RescaleIntercept; 0 elsewhere).
     pub scale_inter: f64,
     /// True when the loader applied `scale_slope` / `scale_inter`: the volume then holds f32
-    /// physical values (NIfTI with a non-identity scaling).
+    /// physical values (NIfTI with a non-identity scaling, DICOM with a non-identity rescale).
     pub scale_applied: bool,
-    /// NIfTI: how the voxels were reordered to RAS+ (`None` for the other formats, which keep
-    /// file order).
+    /// NIfTI and DICOM: how the voxels were reordered to RAS+ (`None` for the other formats,
+    /// which keep file order).
     pub reorientation: Option<Reorientation>,
 }
 
@@ -365,8 +378,10 @@ pub struct LoadedVolume {
 /// `.nrrd` / `.nhdr` (NRRD), `.json` (raw data + JSON sidecar), `.raw` (with a sibling
 /// `NAME.raw.json` or `NAME.json` sidecar), `.den` (VolPack), `.zarr` (OME-Zarr folder; any
 /// folder holding `zarr.json`, `.zattrs` or `.zarray` too), `.tif` / `.tiff` / `.btf` (TIFF
-/// stack, OME-TIFF at channel 0 and time 0; a folder of TIFFs too). Other names give a
-/// [`VolumeError::Format`] error on the field `extension`. See the module docs for the value
+/// stack, OME-TIFF at channel 0 and time 0; a folder of TIFFs too), `.dcm` / `.dicom` /
+/// `DICOMDIR` and folders of DICOM files (one series, [`load_dicom`]; to choose among several
+/// series call it with [`DicomOptions`]). Other names give a [`VolumeError::Format`] error on
+/// the field `extension`. See the module docs for the value
 /// mapping and the orientation policy.
 pub fn load_volume(path: &Path) -> Result<Volume, VolumeError> {
     load_volume_with_meta(path).map(|loaded| loaded.volume)
@@ -386,8 +401,10 @@ pub fn load_volume_with_meta(path: &Path) -> Result<LoadedVolume, VolumeError> {
         Some(FileFormat::Tiff) => load_tiff(path),
         Some(FileFormat::Sidecar) if lower.ends_with(".json") => load_sidecar(path),
         Some(FileFormat::Sidecar) => slab_readers::describe_raw_with_sidecar(path)?.load(),
+        Some(FileFormat::Dicom) => load_dicom(path, &DicomOptions::default()),
         None if is_zarr_folder(path) => load_zarr(path),
         None if tiff::is_tiff_folder(path) => load_tiff(path),
+        None if dicom::is_dicom_folder(path) => load_dicom(path, &DicomOptions::default()),
         None => Err(unknown_extension(path)),
     }
 }
@@ -398,8 +415,8 @@ fn unknown_extension(path: &Path) -> VolumeError {
         path,
         "extension",
         "unknown volume file type; expected .nii, .nii.gz, .nrrd, .nhdr, .json, \
-         .raw (with a .json sidecar), .den, .tif / .tiff / .btf, a .zarr folder or a folder \
-         of .tif files",
+         .raw (with a .json sidecar), .den, .tif / .tiff / .btf, .dcm, DICOMDIR, a .zarr \
+         folder, a folder of .tif files or a folder of DICOM files",
     )
 }
 

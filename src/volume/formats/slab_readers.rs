@@ -50,6 +50,8 @@ pub(crate) fn open(path: &Path, level: usize) -> Result<Box<dyn SlabReader + Sen
                 &super::tiff::TiffOptions::default(),
             )?))
         }
+        Some(FileFormat::Dicom) => return Err(super::dicom::no_slabs(path)),
+        None if super::dicom::is_dicom_folder(path) => return Err(super::dicom::no_slabs(path)),
         None => return Err(super::unknown_extension(path)),
     };
     Ok(Box::new(PayloadSlabs::new(described)?))

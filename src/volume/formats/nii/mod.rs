@@ -32,6 +32,7 @@ mod orient;
 
 pub use header2::NIFTI2_HEADER_BYTES;
 pub(super) use orient::normalize_columns;
+pub(super) use orient::{reorder, reorientation};
 pub use orient::{Reorientation, TransformSource};
 
 use super::read::{self, format_err, layout, Described, Payload};

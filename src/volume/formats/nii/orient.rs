@@ -1,4 +1,4 @@
-//! NIfTI orientation: the voxel-to-world transform (sform, else qform, else none) in NIfTI's RAS+
+//! NIfTI orientation (also used for DICOM series, see [`crate::volume::formats::dicom`]): the voxel-to-world transform (sform, else qform, else none) in NIfTI's RAS+
 //! world (+x right, +y anterior, +z superior, as nibabel), the flips and permutation that bring
 //! the voxel axes closest to R, A and S, and the reordering of the voxels that applies them.
 use super::RawHeader;
@@ -16,6 +16,9 @@ pub enum TransformSource {
     Qform,
     /// Neither is set (or usable): the voxel axes are taken as R, A, S.
     None,
+    /// A DICOM series: ImageOrientationPatient, ImagePositionPatient, PixelSpacing and the
+    /// slice gap, converted from LPS to RAS+ (see [`crate::volume::formats::dicom`]).
+    Dicom,
 }
 
 impl TransformSource {
@@ -25,11 +28,12 @@ impl TransformSource {
             TransformSource::Sform => "sform",
             TransformSource::Qform => "qform",
             TransformSource::None => "none",
+            TransformSource::Dicom => "DICOM image orientation / position",
         }
     }
 }
 
-/// How a NIfTI volume's voxels were reordered to RAS+ (see the module docs of
+/// How a NIfTI volume's (or DICOM series') voxels were reordered to RAS+ (see the module docs of
 /// [`crate::volume::formats`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Reorientation {
@@ -190,7 +194,7 @@ impl Vec3d {
 /// (column-normalised) direction matrix are paired first, then the next among the rest. Also
 /// returns the unit directions of the reordered axes (columns; the residual rotation) and the
 /// world position of the reordered volume's voxel (0, 0, 0).
-pub(super) fn reorientation(
+pub(in crate::volume::formats) fn reorientation(
     affine: Option<([[f64; 4]; 3], TransformSource)>,
     dims: [u64; 3],
 ) -> (Reorientation, [[f64; 3]; 3], [f64; 3]) {
@@ -266,7 +270,7 @@ pub(super) fn reorientation(
 /// Reorders `volume`'s voxels as `r` says: volume axis `j` is file axis `r.permutation[j]`,
 /// reversed where `r.flipped[j]`; the spacing is permuted alike. Needs a second voxel buffer
 /// (checked against the host-memory limit first).
-pub(super) fn reorder(
+pub(in crate::volume::formats) fn reorder(
     path: &Path,
     volume: Volume,
     r: &Reorientation,

@@ -1,0 +1,125 @@
+//! `mixvol render` on DICOM series (fixtures from tests/fixtures/write_dicom_fixtures.py, run in
+//! the venv of scripts/python-env.sh): the MNI152 template written as an RLE int16 series with a
+//! rescale to HU renders, with `--preset ct`, the same image and the same HU window as the same
+//! values loaded from NIfTI; `--series` picks one series of a DICOMDIR, and without it the error
+//! lists them.
+#[path = "../../../tests/python_env/mod.rs"]
+mod python_env;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+fn fixtures() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        python_env::write_fixtures(
+            "write_dicom_fixtures.py",
+            "dicom-fixtures",
+            "scripts/requirements-dicom.txt",
+        )
+    })
+}
+
+fn mixvol(volume: &Path, png: &Path, extra: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_mixvol"))
+        .args([
+            "render",
+            "--frames",
+            "1",
+            "--width",
+            "48",
+            "--height",
+            "48",
+            "--validation",
+        ])
+        .args(extra)
+        .arg("--volume")
+        .arg(volume)
+        .arg("--output")
+        .arg(png)
+        .output()
+        .unwrap()
+}
+
+fn render(volume: &Path, png: &Path, extra: &[&str]) -> String {
+    let out = mixvol(volume, png, extra);
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    stdout
+}
+
+fn line<'a>(text: &'a str, prefix: &str) -> &'a str {
+    text.lines()
+        .find(|l| l.starts_with(prefix))
+        .unwrap_or_else(|| panic!("no line {prefix:?} in {text}"))
+}
+
+#[test]
+fn a_dicom_series_renders_as_the_same_volume_from_nifti() {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"));
+    let (dicom_png, nifti_png) = (dir.join("mni_ct_dicom.png"), dir.join("mni_ct_nifti.png"));
+    let dicom = render(&fixtures().join("mni_ct"), &dicom_png, &["--preset", "ct"]);
+    let nifti = render(
+        &fixtures().join("mni_ct.nii"),
+        &nifti_png,
+        &["--preset", "ct"],
+    );
+    assert!(
+        line(&dicom, "window:").contains("RescaleSlope 1 / RescaleIntercept -24"),
+        "{dicom}"
+    );
+    let window = |text: &str| {
+        line(text, "window:")
+            .split(" (")
+            .next()
+            .unwrap()
+            .to_string()
+    };
+    assert_eq!(
+        window(&dicom),
+        window(&nifti),
+        "HU windows\n{dicom}\n{nifti}"
+    );
+    let (a, b) = (
+        image::open(&dicom_png).unwrap().to_rgba8(),
+        image::open(&nifti_png).unwrap().to_rgba8(),
+    );
+    assert_eq!(a.dimensions(), b.dimensions());
+    assert!(
+        a.as_raw() == b.as_raw(),
+        "the DICOM and NIfTI renders differ"
+    );
+    // Not a blank frame: the head is there.
+    let centre = a.get_pixel(24, 24).0;
+    let corner = a.get_pixel(0, 0).0;
+    assert_ne!(centre, corner);
+    assert!(
+        line(&dicom, "orientation:").contains("LPS -> RAS (flipped x,y), from the DICOM"),
+        "{dicom}"
+    );
+}
+
+#[test]
+fn series_chooses_one_series_of_a_dicomdir() {
+    let dicomdir = fixtures().join("dicomdirtests");
+    let png = Path::new(env!("CARGO_TARGET_TMPDIR")).join("ct5n.png");
+    let out = mixvol(&dicomdir, &png, &[]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("--series")
+            && stderr.contains("SmartScore - Gated 0.5 sec")
+            && stderr.contains("5 slices"),
+        "{stderr}"
+    );
+    let stdout = render(&dicomdir, &png, &["--series", "5", "--preset", "ct"]);
+    assert!(stdout.contains("16x16x5"), "{stdout}");
+    let out = mixvol(&fixtures().join("mni_ct.nii"), &png, &["--series", "5"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--series applies to DICOM"));
+}

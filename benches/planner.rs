@@ -85,6 +85,15 @@ impl Path {
         }
     }
 
+    /// The name `MIXVOL_PLANNER_PATHS` selects the row by.
+    fn key(self) -> &'static str {
+        match self {
+            Path::Still => "still",
+            Path::Orbit => "orbit",
+            Path::Dolly => "dolly",
+        }
+    }
+
     fn camera(self, start: &Camera, frame: usize) -> Camera {
         let mut c = *start;
         let offset = c.eye - c.target;
@@ -136,8 +145,21 @@ fn date() -> String {
         .unwrap_or_else(|| "unknown date".into())
 }
 
+/// The timed call, not inlined, so that a profiler can collect it alone
+/// (`valgrind --tool=callgrind --toggle-collect='planner::timed_frame*'`).
+#[inline(never)]
+fn timed_frame<'p>(
+    planner: &'p mut ResidencyPlanner,
+    input: &FrameInput<'_>,
+    loaded: impl Fn(u32, Level) -> bool,
+) -> &'p mixvol::plan::FramePlan {
+    planner.plan_frame(input, loaded).expect("plan")
+}
+
 fn main() {
     let runs = env_u32("MIXVOL_BENCH_RUNS", 5).max(1) as usize;
+    let rows =
+        std::env::var("MIXVOL_PLANNER_PATHS").unwrap_or_else(|_| "still,orbit,dolly".into());
     let grid = BrickGrid::new(BRICKS * BRICK_SIZE, BRICK_SIZE).expect("grid");
     let geometry = BrickGeometry::new(grid, Vec3::ONE).expect("geometry");
     let bricks = grid.brick_count();
@@ -194,6 +216,9 @@ fn main() {
             Level::Absent => false,
         };
         for path in [Path::Still, Path::Orbit, Path::Dolly] {
+            if !rows.split(',').any(|r| r.trim() == path.key()) {
+                continue;
+            }
             let mut times = Vec::new();
             let mut last = None;
             let mut uploads = 0usize;
@@ -223,7 +248,7 @@ fn main() {
                         ..input
                     };
                     let t = Instant::now();
-                    let plan = planner.plan_frame(&input, loaded).expect("plan");
+                    let plan = timed_frame(&mut planner, &input, loaded);
                     times.push(t.elapsed().as_secs_f64() * 1e3);
                     uploads += plan.uploads.len();
                     black_box(plan);

@@ -99,20 +99,16 @@ pub(super) fn targets(
         } => {
             assert!(active.len() == count && rank.len() == count, "one rank per brick");
             let mut changed = 0u8;
-            for ((w, &p), (&a, &r)) in wanted
-                .iter_mut()
-                .zip(prev_wanted)
-                .zip(active.iter().zip(rank))
-            {
-                // `Level` is `Hi`, `Lo`, `Absent` in declaration order.
-                let l = if !a {
+            let (prev, active, rank) = (&prev_wanted[..count], &active[..count], &rank[..count]);
+            for (i, w) in wanted.iter_mut().enumerate() {
+                let l = if !active[i] {
                     Level::Absent
-                } else if r < hi_below {
+                } else if rank[i] < hi_below {
                     Level::Hi
                 } else {
                     Level::Lo
                 };
-                changed |= u8::from(l != p);
+                changed |= u8::from(l != prev[i]);
                 *w = l;
             }
             let mut c = pass(wanted, error, draw, target, changes, is_loaded);
@@ -140,11 +136,14 @@ fn pass(
     let mut c = Counts::default();
     // Bricks drawn and targeted at their wanted level; `hi` of them `Hi`.
     let (mut settled, mut settled_hi) = (0usize, 0usize);
-    let bricks = target
-        .iter_mut()
-        .zip(draw.iter_mut())
-        .zip(wanted.iter().zip(error));
-    for (i, ((t, d), (&w, &e))) in bricks.enumerate() {
+    let mut max_lo = 0.0f32;
+    // Indexed (the lengths checked once) rather than zipped: the zipped loop compiled to
+    // several times the instructions.
+    let count = wanted.len();
+    let (target, draw, error) = (&mut target[..count], &mut draw[..count], &error[..count]);
+    for i in 0..count {
+        let (w, e) = (wanted[i], error[i]);
+        let (t, d) = (&mut target[i], &mut draw[i]);
         let b = i as u32;
         let drawn = *d;
         let first = w != Level::Absent && is_loaded(b, w);
@@ -154,7 +153,11 @@ fn pass(
             let hi = w == Level::Hi;
             settled += 1;
             settled_hi += usize::from(hi);
-            c.max_lo_error = c.max_lo_error.max(if hi { 0.0 } else { e });
+            // As `max`, NaN ignored.
+            let e = if hi { 0.0 } else { e };
+            if e > max_lo {
+                max_lo = e;
+            }
             continue;
         }
         if w == Level::Absent && drawn == Level::Absent {
@@ -195,10 +198,11 @@ fn pass(
         if !keep {
             c.deferred += usize::from(*d != to);
             if (*d, to) == (Level::Lo, Level::Lo) {
-                c.max_lo_error = c.max_lo_error.max(e);
+                max_lo = max_lo.max(e);
             }
         }
     }
+    c.max_lo_error = max_lo;
     c.target_hi += settled_hi;
     c.target_lo += settled - settled_hi;
     c.drawn_hi += settled_hi;

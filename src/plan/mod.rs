@@ -64,8 +64,12 @@
 //! refilled): once they have grown, a frame allocates nothing. For a still camera (the same
 //! view, slot budget and culling inputs as the last frame) the errors, the dropping and the
 //! order by error are the last frame's and are reused; when the wanted levels, the RAM cut and
-//! the drawn-but-not-wanted `Hi` levels are the last frame's too, so are the requests.
-//! `benches/planner.rs` times a frame of about 10^5 bricks.
+//! the drawn-but-not-wanted `Hi` levels are the last frame's too, so are the requests. When
+//! the last frame's wanted levels were those of the frame before it (a settled still camera),
+//! the ranks and the `Hi` selection are skipped as well: their inputs are the last frame's, so
+//! the wanted levels are. The per-brick target pass (`targets.rs`) takes a short path for a
+//! brick drawn at its wanted level with that level loaded. `benches/planner.rs` times a frame
+//! of about 10^5 bricks.
 //!
 //! # Guarantees
 //!

@@ -97,7 +97,10 @@ pub(super) fn targets(
             rank,
             hi_below,
         } => {
-            assert!(active.len() == count && rank.len() == count, "one rank per brick");
+            assert!(
+                active.len() == count && rank.len() == count,
+                "one rank per brick"
+            );
             let mut changed = 0u8;
             let (prev, active, rank) = (&prev_wanted[..count], &active[..count], &rank[..count]);
             for (i, w) in wanted.iter_mut().enumerate() {

@@ -64,8 +64,12 @@
 //! refilled): once they have grown, a frame allocates nothing. For a still camera (the same
 //! view, slot budget and culling inputs as the last frame) the errors, the dropping and the
 //! order by error are the last frame's and are reused; when the wanted levels, the RAM cut and
-//! the drawn-but-not-wanted `Hi` levels are the last frame's too, so are the requests.
-//! `benches/planner.rs` times a frame of about 10^5 bricks.
+//! the drawn-but-not-wanted `Hi` levels are the last frame's too, so are the requests. When
+//! the last frame's wanted levels were those of the frame before it (a settled still camera),
+//! the ranks and the `Hi` selection are skipped as well: their inputs are the last frame's, so
+//! the wanted levels are. The per-brick target pass (`targets.rs`) takes a short path for a
+//! brick drawn at its wanted level with that level loaded. `benches/planner.rs` times a frame
+//! of about 10^5 bricks.
 //!
 //! # Guarantees
 //!
@@ -114,6 +118,7 @@ use order::{
     Histograms, BUCKETS,
 };
 use screen_error::{compute_errors, same_bits, width_factor};
+use targets::{targets, Bricks, Changes, Counts, Wanted};
 
 pub use frame::{
     cull_params, upload_bytes, FrameInput, FramePlan, PlanBudget, PlanOptions, PlanReport,
@@ -122,6 +127,7 @@ pub use frame::{
 mod frame;
 mod order;
 mod screen_error;
+mod targets;
 #[cfg(test)]
 mod tests;
 
@@ -193,6 +199,10 @@ struct Work {
     /// when the plan was reset or replaced): with them, the last order and the same wanted
     /// levels and `extra`, the requests are the same.
     request_fit: Option<(usize, usize)>,
+    /// The count of `Hi` bricks when the last frame's wanted levels were those of the frame
+    /// before it (`None` when they were not, or the plan was reset or replaced): with the
+    /// same errors they are this frame's as well.
+    settled_hi: Option<usize>,
     /// The kept bricks by descending error (NaN lowest), equal errors in brick order:
     /// `key << 32 | brick`.
     by_error: Vec<u64>,
@@ -269,6 +279,7 @@ impl ResidencyPlanner {
     pub fn reset(&mut self) {
         self.plan = FramePlan::default();
         self.work.request_fit = None;
+        self.work.settled_hi = None;
     }
 
     /// Replaces the drawn levels the next frame stages from with `drawn` (one per brick): for a
@@ -281,6 +292,7 @@ impl ResidencyPlanner {
             self.plan.draw.copy_from_slice(drawn);
         } else {
             self.work.request_fit = None;
+            self.work.settled_hi = None;
             self.plan = FramePlan {
                 draw: drawn.to_vec(),
                 wanted: drawn.to_vec(),
@@ -408,6 +420,7 @@ impl ResidencyPlanner {
             extra,
             prev_extra,
             request_fit,
+            settled_hi,
             by_error,
             sort_scratch,
             coarsen,
@@ -442,81 +455,90 @@ impl ResidencyPlanner {
         };
         // A brick wanted Hi last frame ranks with its error times `1 + m`.
         let rank_key = |e: f32, was_hi: bool| if was_hi { e * boost } else { e };
-        // Ranks, smaller first: the key descending (`u32::MAX` is left to non-candidates);
-        // equal ranks are ordered by `rank_order` below.
-        let mut candidate_count = 0usize;
-        rank.resize(count, 0);
-        // Counts of the ranks' upper 11 bits, for the selection.
-        let mut top = [0u32; BUCKETS];
-        // And, unless reused, the kept bricks keyed by descending error (NaN lowest) for the
-        // requests (`key << 32 | brick`), with the counts of the keys' radix digits.
-        let mut hist: Histograms = [[0; BUCKETS]; 3];
-        let mut keys = 0usize;
-        if !reuse_order {
-            by_error.clear();
-            by_error.resize(count, 0);
-        }
-        let bricks = rank
-            .iter_mut()
-            .zip(active.iter())
-            .zip(error)
-            .zip(prev_wanted);
-        for (i, (((r, &a), &e), &p)) in bricks.enumerate() {
-            let was_hi = p == Level::Hi;
-            let candidate = a & is_candidate(e, was_hi);
-            let key = descending_key(rank_key(e, was_hi)).min(u32::MAX - 1);
-            let key = if candidate { key } else { u32::MAX };
-            *r = key;
-            top[(key >> 21) as usize] += 1;
-            candidate_count += usize::from(candidate);
-            if !reuse_order {
-                // Written at the next free place, which only an active brick takes.
-                let e = if e.is_nan() { f32::NEG_INFINITY } else { e };
-                let k = descending_key(e);
-                count_key(&mut hist, k, u32::from(a));
-                by_error[keys] = (u64::from(k) << 32) | i as u64;
-                keys += usize::from(a);
-            }
-        }
-        if !reuse_order {
-            by_error.truncate(keys);
-            radix_sort_by_high_word(by_error, sort_scratch, &mut hist);
-            *order_inputs = Some((*frame.view, budget.slots, report.dropped));
-        }
-        let hi = max_hi_bricks(kept, candidate_count, budget.slots).unwrap_or(0);
-        // The `hi` best candidates are those with a rank below `boundary` and `take` of those
-        // with rank `boundary` (collected in `ties`).
-        ties.clear();
-        let (boundary, take) = if hi == 0 {
-            (0, 0)
-        } else if hi >= candidate_count {
-            (u32::MAX, 0)
+        // A still camera over settled wanted levels (the last frame's were the same as the frame
+        // before's, from the same errors): the ranks and the selection are the last frame's, and
+        // so are the wanted levels.
+        let reuse_wanted = if reuse_order { *settled_hi } else { None };
+        let (hi, hi_below) = if let Some(hi) = reuse_wanted {
+            (hi, 0)
         } else {
-            radix_select(rank, hi, &top, rank_scratch, ties)
-        };
-        // A kept brick is wanted `Hi` when its rank is below `hi_below`: the ties not taken are
-        // moved above it.
-        let mut hi_below = boundary;
-        if take > 0 {
-            // The full rank order: key descending, a brick wanted Hi last frame first, then
-            // importance.
-            let rank_order = |a: &u32, b: &u32| {
-                let (ia, ib) = (*a as usize, *b as usize);
-                let (ha, hb) = (prev_wanted[ia] == Level::Hi, prev_wanted[ib] == Level::Hi);
-                rank_key(error[ib], hb)
-                    .total_cmp(&rank_key(error[ia], ha))
-                    .then(hb.cmp(&ha))
-                    .then_with(|| importance(a, b))
+            // Ranks, smaller first: the key descending (`u32::MAX` is left to non-candidates);
+            // equal ranks are ordered by `rank_order` below.
+            let mut candidate_count = 0usize;
+            rank.resize(count, 0);
+            // Counts of the ranks' upper 11 bits, for the selection.
+            let mut top = [0u32; BUCKETS];
+            // And, unless reused, the kept bricks keyed by descending error (NaN lowest) for the
+            // requests (`key << 32 | brick`), with the counts of the keys' radix digits.
+            let mut hist: Histograms = [[0; BUCKETS]; 3];
+            let mut keys = 0usize;
+            if !reuse_order {
+                by_error.clear();
+                by_error.resize(count, 0);
+            }
+            let bricks = rank
+                .iter_mut()
+                .zip(active.iter())
+                .zip(error)
+                .zip(prev_wanted);
+            for (i, (((r, &a), &e), &p)) in bricks.enumerate() {
+                let was_hi = p == Level::Hi;
+                let candidate = a & is_candidate(e, was_hi);
+                let key = descending_key(rank_key(e, was_hi)).min(u32::MAX - 1);
+                let key = if candidate { key } else { u32::MAX };
+                *r = key;
+                top[(key >> 21) as usize] += 1;
+                candidate_count += usize::from(candidate);
+                if !reuse_order {
+                    // Written at the next free place, which only an active brick takes.
+                    let e = if e.is_nan() { f32::NEG_INFINITY } else { e };
+                    let k = descending_key(e);
+                    count_key(&mut hist, k, u32::from(a));
+                    by_error[keys] = (u64::from(k) << 32) | i as u64;
+                    keys += usize::from(a);
+                }
+            }
+            if !reuse_order {
+                by_error.truncate(keys);
+                radix_sort_by_high_word(by_error, sort_scratch, &mut hist);
+                *order_inputs = Some((*frame.view, budget.slots, report.dropped));
+            }
+            let hi = max_hi_bricks(kept, candidate_count, budget.slots).unwrap_or(0);
+            // The `hi` best candidates are those with a rank below `boundary` and `take` of those
+            // with rank `boundary` (collected in `ties`).
+            ties.clear();
+            let (boundary, take) = if hi == 0 {
+                (0, 0)
+            } else if hi >= candidate_count {
+                (u32::MAX, 0)
+            } else {
+                radix_select(rank, hi, &top, rank_scratch, ties)
             };
-            let take = take.min(ties.len());
-            if take < ties.len() {
-                ties.select_nth_unstable_by(take, rank_order);
+            // A kept brick is wanted `Hi` when its rank is below `hi_below`: the ties not taken are
+            // moved above it.
+            let mut hi_below = boundary;
+            if take > 0 {
+                // The full rank order: key descending, a brick wanted Hi last frame first, then
+                // importance.
+                let rank_order = |a: &u32, b: &u32| {
+                    let (ia, ib) = (*a as usize, *b as usize);
+                    let (ha, hb) = (prev_wanted[ia] == Level::Hi, prev_wanted[ib] == Level::Hi);
+                    rank_key(error[ib], hb)
+                        .total_cmp(&rank_key(error[ia], ha))
+                        .then(hb.cmp(&ha))
+                        .then_with(|| importance(a, b))
+                };
+                let take = take.min(ties.len());
+                if take < ties.len() {
+                    ties.select_nth_unstable_by(take, rank_order);
+                }
+                for &i in &ties[take..] {
+                    rank[i as usize] = boundary + 1;
+                }
+                hi_below = boundary + 1;
             }
-            for &i in &ties[take..] {
-                rank[i as usize] = boundary + 1;
-            }
-            hi_below = boundary + 1;
-        }
+            (hi, hi_below)
+        };
         report.wanted_hi = hi;
         report.wanted_lo = kept - hi;
 
@@ -524,77 +546,50 @@ impl ResidencyPlanner {
         // drawn `Hi` whose `Lo` level is not loaded keeps `Hi` while that is loaded and the
         // slots allow (decided below).
         let mut draw = std::mem::take(&mut plan.draw);
-        target.clear();
         target.resize(count, Level::Absent);
         keep_hi.clear();
         coarsen.clear();
         holes.clear();
         refine.clear();
-        let (mut target_hi, mut target_lo) = (0usize, 0usize);
-        let (mut drawn_hi, mut drawn_lo) = (0usize, 0usize);
-        // Bricks whose drawn level differs from the target, and the largest error of a brick
-        // drawn `Lo` that staging leaves alone (drawn and targeted `Lo`).
-        let mut deferred = 0usize;
-        let mut max_lo_error = 0.0f32;
         let mut wanted = std::mem::take(spare_wanted);
         wanted.resize(count, Level::Absent);
-        let bricks = target
-            .iter_mut()
-            .zip(draw.iter_mut())
-            .zip(wanted.iter_mut().zip(prev_wanted))
-            .zip(active.iter().zip(rank.iter()));
-        // Whether a wanted level differs from the last frame's.
-        let mut wanted_changed = false;
-        for (i, (((t, d), (w, &p)), (&a, &r))) in bricks.enumerate() {
-            *w = if !a {
-                Level::Absent
-            } else if r < hi_below {
-                Level::Hi
-            } else {
-                Level::Lo
-            };
-            wanted_changed |= *w != p;
-            let w = *w;
-            let b = i as u32;
-            let mut keep = false;
-            *t = match w {
-                Level::Absent => Level::Absent,
-                Level::Hi if is_loaded(b, Level::Hi) => Level::Hi,
-                _ if is_loaded(b, Level::Lo) => Level::Lo,
-                Level::Lo if *d == Level::Hi && is_loaded(b, Level::Hi) => {
-                    keep = true;
-                    Level::Absent
-                }
-                _ => Level::Absent,
-            };
-            if *t != w {
-                report.waiting_for_source += 1;
+        let wanted_from = if reuse_wanted.is_some() {
+            Wanted::Previous
+        } else {
+            Wanted::Ranked {
+                active,
+                rank,
+                hi_below,
             }
-            match (*d, *t) {
-                _ if keep => keep_hi.push(b),
-                (_, Level::Absent) => *d = Level::Absent,
-                (Level::Hi, Level::Lo) => coarsen.push(b),
-                (Level::Absent, _) => holes.push(b),
-                (Level::Lo, Level::Hi) => refine.push(b),
-                _ => {}
-            }
-            match *t {
-                Level::Hi => target_hi += 1,
-                Level::Lo => target_lo += 1,
-                Level::Absent => {}
-            }
-            match *d {
-                Level::Hi => drawn_hi += 1,
-                Level::Lo => drawn_lo += 1,
-                Level::Absent => {}
-            }
-            if !keep {
-                deferred += usize::from(*d != *t);
-                if (*d, *t) == (Level::Lo, Level::Lo) {
-                    max_lo_error = max_lo_error.max(error[i]);
-                }
-            }
-        }
+        };
+        let counts = targets(
+            wanted_from,
+            Bricks {
+                prev_wanted,
+                error,
+                draw: &mut draw,
+                wanted: &mut wanted,
+                target,
+            },
+            Changes {
+                keep_hi,
+                coarsen,
+                holes,
+                refine,
+            },
+            &is_loaded,
+        );
+        let Counts {
+            target_hi,
+            target_lo,
+            mut drawn_hi,
+            drawn_lo,
+            deferred,
+            waiting,
+            max_lo_error,
+            wanted_changed,
+        } = counts;
+        report.waiting_for_source = waiting;
         // The kept Hi levels take the slots the targets leave free, most important first.
         let free = budget
             .slots
@@ -807,6 +802,7 @@ impl ResidencyPlanner {
         }
         std::mem::swap(extra, prev_extra);
         *request_fit = Some((fit_lo, fit_hi));
+        *settled_hi = (!wanted_changed).then_some(report.wanted_hi);
         let prev_wanted = std::mem::replace(&mut plan.wanted, wanted);
         *spare_wanted = prev_wanted;
         plan.draw = draw;

@@ -140,7 +140,7 @@ fn orbit(
     );
     write(&summaries, &args.output_dir, when, &command).map_err(report_error)?;
     println!(
-        "wrote {} and scene-NAME.{{png,svg}} into {}",
+        "wrote {}, scene-NAME.{{png,svg}} and scene-NAME-seams.{{png,svg}} into {}",
         SCENE_FILES.join(", "),
         args.output_dir.display()
     );

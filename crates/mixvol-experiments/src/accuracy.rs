@@ -24,6 +24,7 @@
 mod output;
 
 pub use output::KNOB_NOTES;
+pub(crate) use output::{family_series, seams_chart};
 
 use crate::junction::JunctionScene;
 use crate::metrics::gradient::gradient_rmse;
@@ -67,6 +68,14 @@ pub enum ReportError {
     /// A chart could not be drawn or written.
     #[error(transparent)]
     Plot(#[from] PlotError),
+    /// Reading a report file back failed (missing, or not what the report writes).
+    #[error("reading {path}: {message}")]
+    Read {
+        /// The file.
+        path: std::path::PathBuf,
+        /// What went wrong.
+        message: String,
+    },
     /// Writing a report file failed.
     #[error("writing {path}: {message}")]
     Write {

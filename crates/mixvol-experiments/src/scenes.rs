@@ -5,14 +5,17 @@
 //! scene's own volume ([`JunctionScene::in_volume`]; one view, so mean = worst). Written as
 //! `scenes.md`, `scenes.csv`, `scenes.json` and per scene a chart `scene-NAME.{png,svg}` of the
 //! mean RMSE over the views against the mean frame time, unshaded rows (left) and shaded rows
-//! (right), log scale, one line per knob.
+//! (right), log scale, one line per knob, and a chart `scene-NAME-seams.{png,svg}` of the seam
+//! measure (max and mean along the seam lines, mean over the views) against the mean frame
+//! time, one line per knob with seams. [`summaries_from_json`] reads `scenes.json` back, so
+//! that the charts can be redrawn without measuring again.
 
 use crate::accuracy::{
-    accuracy_report, family_colour, report_camera, transition_rows, Report, ReportError,
-    ReportOptions, ReportRow, Result, FAMILIES,
+    accuracy_report, family_series, report_camera, seams_chart, transition_rows, Report,
+    ReportError, ReportOptions, ReportRow, Result, FAMILIES,
 };
 use crate::junction::JunctionScene;
-use crate::plot::{Chart, Panel, Series};
+use crate::plot::{Chart, Panel};
 use glam::{Quat, Vec3};
 use mixvol::gpu::GpuContext;
 use mixvol::optics::TransferFunction;
@@ -202,13 +205,13 @@ pub const SCENE_FILES: [&str; 3] = ["scenes.md", "scenes.csv", "scenes.json"];
 pub fn to_markdown(summaries: &[SceneSummary], when: &str, command: &str) -> String {
     let mut out = String::from("# Accuracy versus time over scenes and views\n\n");
     out.push_str(&format!(
-        "- Measured: {when}\n- Regenerate: `{command}`\n- Every scene is rendered from an orbit of views (the report's camera turned about the vertical axis in equal steps); each cell is the mean over the views and, after the slash, the worst (largest error, smallest SSIM); the transition rows are measured once per scene on a close-up of a junction in the scene's own volume (below). Metrics and rows as in `accuracy-vs-time.md`. Frame time is CPU time on lavapipe: compare rows, not absolute numbers.\n"
+        "- Measured: {when}\n- Regenerate: `{command}`\n- Every scene is rendered from an orbit of views (the report's camera turned about the vertical axis in equal steps); each cell is the mean over the views and, after the slash, the worst (largest error, smallest SSIM); the transition rows are measured once per scene on a close-up of a junction in the scene's own volume (below). Metrics and rows as in `accuracy-vs-time.md`. Frame time is CPU time on lavapipe: compare rows, not absolute numbers.\n- Charts per scene (PNG and SVG): `scene-NAME`: mean RMSE over the views against mean frame time, unshaded rows (left) and shaded rows (right, dashed), log scale (the transition rows are left out); `scene-NAME-seams`: the seam measure `max(0, J - J_ref)`, its max (left) and mean (right) along the seam lines, each the mean over the views, against mean frame time, log scale, one line per knob with a non-zero seam figure, shaded knobs dashed; the transition rows' frame time is that of their 128x128 close-up, not comparable with the other rows'. One line per knob joining its settings, each point labelled with its setting.\n"
     ));
     out.push_str(crate::accuracy::KNOB_NOTES);
     for s in summaries {
         out.push_str(&format!(
-            "\n## {}\n\n- {} views; {}\n- Chart: `scene-{}.png` / `.svg`\n\n| knob | setting | frame ms (mean) | RMSE mean / worst | grad RMSE mean / worst | SSIM mean / worst | seam max mean / worst | seam mean mean / worst |\n|---|---|---|---|---|---|---|---|\n",
-            s.name, s.views, s.description, s.name
+            "\n## {}\n\n- {} views; {}\n- Charts: `scene-{}.png` / `.svg` (error), `scene-{}-seams.png` / `.svg` (seams)\n\n| knob | setting | frame ms (mean) | RMSE mean / worst | grad RMSE mean / worst | SSIM mean / worst | seam max mean / worst | seam mean mean / worst |\n|---|---|---|---|---|---|---|---|\n",
+            s.name, s.views, s.description, s.name, s.name
         ));
         for r in &s.rows {
             out.push_str(&format!(
@@ -282,22 +285,14 @@ pub fn to_json(summaries: &[SceneSummary]) -> serde_json::Value {
 /// (left) and shaded rows (right), log scale (the transition rows, one view, are left out:
 /// their seams are in the table).
 pub fn chart(s: &SceneSummary) -> Chart {
-    let series = |shaded: bool| -> Vec<Series> {
-        FAMILIES
-            .iter()
-            .filter(|f| f.ends_with("shaded") == shaded && **f != FAMILIES[1] && **f != FAMILIES[2])
-            .map(|family| {
-                let rows: Vec<&OrbitRow> = s.rows.iter().filter(|r| r.family == *family).collect();
-                Series {
-                    name: (*family).to_string(),
-                    colour: family_colour(family),
-                    dashed: shaded,
-                    points: rows.iter().map(|r| (r.frame_ms_mean, r.rmse.0)).collect(),
-                    labels: rows.iter().map(|r| r.label.clone()).collect(),
-                }
-            })
-            .filter(|series| !series.points.is_empty())
-            .collect()
+    let series = |shaded: bool| {
+        family_series(
+            &s.rows,
+            |f| f.ends_with("shaded") == shaded && f != FAMILIES[1] && f != FAMILIES[2],
+            |r| r.family,
+            |r| (r.frame_ms_mean, r.rmse.0),
+            |r| r.label.clone(),
+        )
     };
     let panel = |title: &str, shaded: bool| Panel {
         title: title.into(),
@@ -321,7 +316,110 @@ pub fn chart(s: &SceneSummary) -> Chart {
     }
 }
 
-/// Writes [`SCENE_FILES`] and `scene-NAME.{png,svg}` per scene into `dir`.
+/// The seam chart of one scene: the seam measure's max (left) and mean (right) along the seam
+/// lines, each the mean over the views, against the mean frame time, log scale, one line per
+/// knob with a non-zero seam figure (LOD budget, downsampling filter, coarse low-res steps and
+/// the transition rows, whose frame time is that of their close-up), shaded knobs dashed.
+pub fn seam_chart(s: &SceneSummary) -> Chart {
+    let has_seams = |f: &str| {
+        s.rows
+            .iter()
+            .any(|r| r.family == f && (r.seam_max.0 > 0.0 || r.seam_mean.0 > 0.0))
+    };
+    let series = |y: &dyn Fn(&OrbitRow) -> f64| {
+        family_series(
+            &s.rows,
+            has_seams,
+            |r| r.family,
+            |r| (r.frame_ms_mean, y(r)),
+            |r| r.label.clone(),
+        )
+    };
+    seams_chart(
+        format!(
+            "{}: seams at level changes vs frame time, mean over {} views",
+            s.name, s.views
+        ),
+        "frame time (ms, mean over views)",
+        series(&|r| r.seam_max.0),
+        series(&|r| r.seam_mean.0),
+    )
+}
+
+/// The summaries [`to_json`] wrote, read back from its JSON (`path` names the file in errors).
+pub fn summaries_from_json(json: &serde_json::Value, path: &Path) -> Result<Vec<SceneSummary>> {
+    let bad = |what: String| ReportError::Read {
+        path: path.to_path_buf(),
+        message: what,
+    };
+    let text = |v: &serde_json::Value, key: &str| {
+        v.get(key)
+            .and_then(|x| x.as_str())
+            .map(str::to_string)
+            .ok_or_else(|| bad(format!("expected a string `{key}` in {v}")))
+    };
+    let number = |v: &serde_json::Value, key: &str| {
+        v.get(key)
+            .and_then(|x| x.as_f64())
+            .ok_or_else(|| bad(format!("expected a number `{key}` in {v}")))
+    };
+    let pair = |v: &serde_json::Value, key: &str| -> Result<(f64, f64)> {
+        let p = v
+            .get(key)
+            .ok_or_else(|| bad(format!("expected an object `{key}` in {v}")))?;
+        Ok((number(p, "mean")?, number(p, "worst")?))
+    };
+    json.as_array()
+        .ok_or_else(|| bad("expected an array of scenes".into()))?
+        .iter()
+        .map(|scene| {
+            let rows = scene
+                .get("rows")
+                .and_then(|r| r.as_array())
+                .ok_or_else(|| bad(format!("expected an array `rows` in scene {scene}")))?
+                .iter()
+                .map(|r| {
+                    let family = text(r, "family")?;
+                    Ok(OrbitRow {
+                        family: FAMILIES
+                            .iter()
+                            .find(|f| **f == family)
+                            .ok_or_else(|| bad(format!("unknown knob `{family}`")))?,
+                        label: text(r, "label")?,
+                        setting: text(r, "setting")?,
+                        frame_ms_mean: number(r, "frame_ms_mean")?,
+                        rmse: pair(r, "rmse")?,
+                        gradient_rmse: pair(r, "gradient_rmse")?,
+                        ssim: pair(r, "ssim")?,
+                        seam_max: pair(r, "seam_max")?,
+                        seam_mean: pair(r, "seam_mean")?,
+                    })
+                })
+                .collect::<Result<Vec<_>>>()?;
+            Ok(SceneSummary {
+                name: text(scene, "scene")?,
+                description: text(scene, "description")?,
+                views: scene
+                    .get("views")
+                    .and_then(|v| v.as_u64())
+                    .ok_or_else(|| bad(format!("expected a count `views` in scene {scene}")))?
+                    as usize,
+                rows,
+            })
+        })
+        .collect()
+}
+
+/// Writes `scene-NAME.{png,svg}` and `scene-NAME-seams.{png,svg}` per scene into `dir`.
+pub fn write_charts(summaries: &[SceneSummary], dir: &Path) -> Result<()> {
+    for s in summaries {
+        chart(s).write(dir, &format!("scene-{}", s.name))?;
+        seam_chart(s).write(dir, &format!("scene-{}-seams", s.name))?;
+    }
+    Ok(())
+}
+
+/// Writes [`SCENE_FILES`] and the charts of [`write_charts`] into `dir`.
 pub fn write(summaries: &[SceneSummary], dir: &Path, when: &str, command: &str) -> Result<()> {
     let io = |path: &Path, e: &dyn std::fmt::Display| ReportError::Write {
         path: path.to_path_buf(),
@@ -336,8 +434,5 @@ pub fn write(summaries: &[SceneSummary], dir: &Path, when: &str, command: &str) 
         let path = dir.join(name);
         mixvol::output::write_file_atomically(&path, text.as_bytes()).map_err(|e| io(&path, &e))?;
     }
-    for s in summaries {
-        chart(s).write(dir, &format!("scene-{}", s.name))?;
-    }
-    Ok(())
+    write_charts(summaries, dir)
 }

@@ -10,7 +10,8 @@ use mixvol::volume::{ScalarType, SyntheticField};
 use mixvol_experiments::accuracy::{report_camera, transition_rows, ReportOptions, FAMILIES};
 use mixvol_experiments::junction::JunctionScene;
 use mixvol_experiments::scenes::{
-    orbit_cameras, summarise, view_reports, write, OrbitScene, SCENE_FILES,
+    orbit_cameras, seam_chart, summaries_from_json, summarise, view_reports, write, OrbitScene,
+    SCENE_FILES,
 };
 use std::sync::Arc;
 
@@ -86,6 +87,60 @@ fn orbit_summary_is_mean_and_worst_of_the_views() {
         let chart = image::open(dir.join("scene-ml.png")).unwrap();
         assert!(chart.width() > 1000, "{}", chart.width());
         assert!(dir.join("scene-ml.svg").exists());
+        // The seam chart: one line per knob with a non-zero seam figure (the LOD-budget,
+        // filter and coarse-step rows here: no junction, so no transition rows), and none for
+        // the knobs without a level change.
+        let seamy: Vec<&str> = FAMILIES
+            .iter()
+            .copied()
+            .filter(|f| {
+                s.rows
+                    .iter()
+                    .any(|r| r.family == *f && (r.seam_max.0 > 0.0 || r.seam_mean.0 > 0.0))
+            })
+            .collect();
+        assert!(seamy.contains(&"LOD budget"), "{seamy:?}");
+        assert!(!seamy.contains(&"samples per voxel"), "{seamy:?}");
+        let png = image::open(dir.join("scene-ml-seams.png"))
+            .unwrap()
+            .to_rgb8();
+        assert_eq!(png.dimensions(), seam_chart(s).size());
+        assert_eq!(png.dimensions(), (1120, 460));
+        let colours: std::collections::HashSet<[u8; 3]> = png.pixels().map(|p| p.0).collect();
+        assert!(colours.len() > 50, "{} colours", colours.len());
+        for f in &seamy {
+            let c = mixvol_experiments::accuracy::family_colour(f);
+            let n = png.pixels().filter(|p| p.0 == c).count();
+            assert!(n > 40, "{f}: {n} pixels of {c:?}");
+        }
+        let svg = std::fs::read_to_string(dir.join("scene-ml-seams.svg")).unwrap();
+        assert!(svg.contains("frame time (ms, mean over views)"));
+        assert!(svg.contains("max(0, J - J_ref), max along seam lines (0-1, log)"));
+        assert!(svg.contains("max(0, J - J_ref), mean along seam lines (0-1, log)"));
+        for f in FAMILIES {
+            // A legend entry per panel for each knob with seams, none for the others.
+            let expected = if seamy.contains(&f) { 2 } else { 0 };
+            assert_eq!(svg.matches(&format!("\n{f}\n")).count(), expected, "{f}");
+        }
+        for f in &seamy {
+            let c = mixvol_experiments::accuracy::family_colour(f);
+            let stroke = format!("stroke=\"#{:02X}{:02X}{:02X}\"", c[0], c[1], c[2]);
+            assert!(svg.matches(&stroke).count() >= 4, "{f}: {stroke}");
+        }
+        let md = std::fs::read_to_string(dir.join("scenes.md")).unwrap();
+        assert!(md.contains("`scene-ml-seams.png` / `.svg`"), "{md}");
+        // scenes.json reads back to the same summaries (what the charts are redrawn from).
+        let json_path = dir.join("scenes.json");
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+        let back = summaries_from_json(&json, &json_path).unwrap();
+        assert_eq!(back.len(), 1);
+        assert_eq!(
+            (&back[0].name, &back[0].description, back[0].views),
+            (&s.name, &s.description, s.views)
+        );
+        assert_eq!(back[0].rows, s.rows);
+        assert!(summaries_from_json(&serde_json::json!([{ "scene": "x" }]), &json_path).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
     common::finish(ctx);

@@ -156,30 +156,17 @@ impl Report {
         seams_only: bool,
         shaded: Option<bool>,
     ) -> Vec<Series> {
-        FAMILIES
-            .iter()
-            .map(|family| (family, family_colour(family)))
-            .filter(|(family, _)| shaded.is_none_or(|lit| family.ends_with("shaded") == lit))
-            .filter(|(family, _)| {
-                !seams_only
-                    || self
-                        .rows
-                        .iter()
-                        .any(|r| r.family == **family && r.seam.faces > 0)
-            })
-            .map(|(family, colour)| {
-                let rows: Vec<&ReportRow> =
-                    self.rows.iter().filter(|r| r.family == *family).collect();
-                Series {
-                    name: (*family).to_string(),
-                    colour,
-                    dashed: family.ends_with("shaded"),
-                    points: rows.iter().map(|r| (r.frame_ms, y(r))).collect(),
-                    labels: rows.iter().map(|r| r.label.clone()).collect(),
-                }
-            })
-            .filter(|s| !s.points.is_empty())
-            .collect()
+        let has_seams = |f: &str| self.rows.iter().any(|r| r.family == f && r.seam.faces > 0);
+        family_series(
+            &self.rows,
+            |f| {
+                shaded.is_none_or(|lit| f.ends_with("shaded") == lit)
+                    && (!seams_only || has_seams(f))
+            },
+            |r| r.family,
+            |r| (r.frame_ms, y(r)),
+            |r| r.label.clone(),
+        )
     }
 
     /// The two charts: `accuracy-vs-time` (RMSE and gradient RMSE against frame time) and
@@ -225,26 +212,12 @@ impl Report {
             ),
             (
                 "seams-vs-time",
-                Chart {
-                    title: "Seams at level changes vs frame time".into(),
-                    panels: vec![
-                        panel(
-                            "Largest excess jump",
-                            "max(0, J - J_ref), max along seam lines (0-1, log)",
-                            &|r| r.seam.max_excess,
-                            true,
-                            None,
-                        ),
-                        panel(
-                            "Mean excess jump",
-                            "max(0, J - J_ref), mean along seam lines (0-1, log)",
-                            &|r| r.seam.mean_excess,
-                            true,
-                            None,
-                        ),
-                    ],
-                    panel_size: (560, 420),
-                },
+                seams_chart(
+                    "Seams at level changes vs frame time".into(),
+                    &x,
+                    self.series(|r| r.seam.max_excess, true, None),
+                    self.series(|r| r.seam.mean_excess, true, None),
+                ),
             ),
         ]
     }
@@ -270,5 +243,68 @@ impl Report {
             chart.write(dir, stem)?;
         }
         Ok(())
+    }
+}
+
+/// One series per knob of [`FAMILIES`] (in that order) that `keep` accepts and `rows` has rows
+/// of: its rows' points joined in row order, each labelled with its setting, in the knob's
+/// colour, dashed for shaded knobs; shared by the single-scene and the orbit report's charts.
+pub(crate) fn family_series<R>(
+    rows: &[R],
+    keep: impl Fn(&str) -> bool,
+    family: impl Fn(&R) -> &str,
+    point: impl Fn(&R) -> (f64, f64),
+    label: impl Fn(&R) -> String,
+) -> Vec<Series> {
+    FAMILIES
+        .iter()
+        .filter(|f| keep(f))
+        .map(|f| {
+            let mine: Vec<&R> = rows.iter().filter(|r| family(r) == *f).collect();
+            Series {
+                name: (*f).to_string(),
+                colour: family_colour(f),
+                dashed: f.ends_with("shaded"),
+                points: mine.iter().map(|r| point(r)).collect(),
+                labels: mine.iter().map(|r| label(r)).collect(),
+            }
+        })
+        .filter(|s| !s.points.is_empty())
+        .collect()
+}
+
+/// The seam chart of both reports: the seam measure's max (left) and mean (right) along the
+/// seam lines against frame time (x axis titled `x_label`), log scale, `max` and `mean` the
+/// series of the two panels.
+pub(crate) fn seams_chart(
+    title: String,
+    x_label: &str,
+    max: Vec<Series>,
+    mean: Vec<Series>,
+) -> Chart {
+    let panel = |title: &str, y_label: &str, series: Vec<Series>| Panel {
+        title: title.into(),
+        x_label: x_label.into(),
+        y_label: y_label.into(),
+        y_range: None,
+        series,
+        legend_left: false,
+        log_y: true,
+    };
+    Chart {
+        title,
+        panels: vec![
+            panel(
+                "Largest excess jump",
+                "max(0, J - J_ref), max along seam lines (0-1, log)",
+                max,
+            ),
+            panel(
+                "Mean excess jump",
+                "max(0, J - J_ref), mean along seam lines (0-1, log)",
+                mean,
+            ),
+        ],
+        panel_size: (560, 420),
     }
 }

@@ -102,7 +102,7 @@ fn main() -> mixvol::Result<()> {
             times[i].push(f.timing.gpu_raycast_ms.unwrap_or(f.timing.cpu_frame_ms));
         }
     }
-    // The same pair shaded (Blinn-Phong from the 4-tap gradient through the reconstruction):
+    // The same pair shaded (Blinn-Phong from central differences through the reconstruction):
     // the paper paid about 10x there.
     let shaded = RenderSettings {
         shading: Some(Shading::default()),

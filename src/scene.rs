@@ -125,7 +125,7 @@ pub enum RenderMode {
 }
 
 /// Blinn-Phong shading with a headlight (light and viewer along the ray), two-sided, with
-/// normals from a tetrahedral 4-tap gradient of the reconstructed field (through the same warped
+/// normals from central differences of the reconstructed field (through the same warped
 /// reconstruction as the samples, so shading is continuous across resolution changes). Lit
 /// colour = `colour * (ambient + diffuse * |n.l|) + specular * |n.l|^shininess`; where the
 /// gradient vanishes the sample counts as facing the light.
@@ -241,8 +241,7 @@ pub struct RenderSettings {
     /// Pre-integrated classification (DVR and MIDA): each step looks up the segment between the
     /// previous and the current sample in a 2D table built for the step length.
     pub preintegrated: bool,
-    /// Reach `h` of the tetrahedral gradient taps `x + h (+-1, +-1, +-1)`, in voxels of the
-    /// finest level.
+    /// Central-difference distance for gradients, in voxels of the finest level.
     pub gradient_step: f32,
     /// Reconstruction filter.
     pub reconstruction: Reconstruction,

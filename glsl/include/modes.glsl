@@ -40,25 +40,26 @@ RayState begin_ray() {
 }
 
 
-// The four gradient taps: the corners of a tetrahedron inscribed in the cube [-1, 1]^3 (an even
-// number of minus signs). They sum to zero and sum(v v^T) = 4 I, so for a linear field
-// sum(v_i f(x + h v_i)) / (4 h) is its gradient exactly: 4 reads instead of central differences'
-// 6, with the same reach (x +- h on every axis). Mirrors `GRADIENT_TAPS` in src/reference/modes.rs.
-const vec3 GRADIENT_TAPS[4] = vec3[4](vec3(1.0, 1.0, 1.0), vec3(1.0, -1.0, -1.0),
-                                      vec3(-1.0, 1.0, -1.0), vec3(-1.0, -1.0, 1.0));
-
-// World-space gradient of the field at voxel position x from the tetrahedral taps x + h v_i;
-// `value` is the field at x. A tap in an absent brick takes `value` (it adds nothing).
+// World-space gradient of the field at voxel position x by central differences `h` voxels
+// apart; `value` is the field at x. A side whose point lies in an absent brick falls back to x
+// itself (a one-sided difference).
 vec3 field_gradient(vec3 x, float value) {
     float h = params.mode.w;
     vec3 to_voxel = params.volume_dims.xyz / (params.box_max.xyz - params.box_min.xyz);
     vec3 g = vec3(0.0);
-    for (int k = 0; k < 4; ++k) {
-        bool present;
-        float v = field_value(x + h * GRADIENT_TAPS[k], present);
-        g += GRADIENT_TAPS[k] * ((present ? v : value) - value);
+    for (int k = 0; k < 3; ++k) {
+        vec3 e = vec3(0.0);
+        e[k] = h;
+        bool present_hi;
+        bool present_lo;
+        float hi = field_value(x + e, present_hi);
+        float lo = field_value(x - e, present_lo);
+        float span = (present_hi ? h : 0.0) + (present_lo ? h : 0.0);
+        hi = present_hi ? hi : value;
+        lo = present_lo ? lo : value;
+        g[k] = span > 0.0 ? (hi - lo) / span : 0.0;
     }
-    return g * (to_voxel / (4.0 * h));
+    return g * to_voxel;
 }
 
 // Blinn-Phong with a headlight along the ray, two-sided.

@@ -68,18 +68,6 @@ impl Default for RayState {
     }
 }
 
-/// The four gradient taps: the corners of a tetrahedron inscribed in the cube `[-1, 1]^3` (an
-/// even number of minus signs). They sum to zero and `sum(v v^T) = 4 I`, so for a linear field
-/// `sum(v_i f(x + h v_i)) / (4 h)` is its gradient exactly, from 4 reads instead of central
-/// differences' 6 and with the same reach (`x +- h` on every axis). Mirrors `GRADIENT_TAPS` in
-/// glsl/include/modes.glsl.
-pub const GRADIENT_TAPS: [Vec3; 4] = [
-    Vec3::new(1.0, 1.0, 1.0),
-    Vec3::new(1.0, -1.0, -1.0),
-    Vec3::new(-1.0, 1.0, -1.0),
-    Vec3::new(-1.0, -1.0, 1.0),
-];
-
 impl RayProgram<'_> {
     /// The field the samples, gradients and iso refinement see: `field`, or with
     /// `features.tricubic` its cubic B-spline. Mirrors `field_value` in raycast.frag.
@@ -138,19 +126,23 @@ impl RayProgram<'_> {
         s.prev_len = 0.0;
     }
 
-    /// World-space gradient at voxel position `x` (field value `value` there) from the
-    /// tetrahedral taps `x + h v` ([`GRADIENT_TAPS`]); a tap in an absent brick takes `value`.
-    /// Mirrors `field_gradient`.
+    /// World-space gradient at voxel position `x` (field value `value` there) by central
+    /// differences; an absent side falls back to `x` itself. Mirrors `field_gradient`.
     pub fn field_gradient(&self, x: Vec3, value: f32) -> Vec3 {
         let p = self.params;
         let h = p.mode.w;
         let to_voxel = p.volume_dims.truncate() / (p.box_max.truncate() - p.box_min.truncate());
         let mut g = Vec3::ZERO;
-        for v in GRADIENT_TAPS {
-            let tap = self.field_value(x + h * v).unwrap_or(value);
-            g += v * (tap - value);
+        for k in 0..3 {
+            let mut e = Vec3::ZERO;
+            e[k] = h;
+            let hi = self.field_value(x + e);
+            let lo = self.field_value(x - e);
+            let span = hi.map_or(0.0, |_| h) + lo.map_or(0.0, |_| h);
+            let (hi, lo) = (hi.unwrap_or(value), lo.unwrap_or(value));
+            g[k] = if span > 0.0 { (hi - lo) / span } else { 0.0 };
         }
-        g * (to_voxel / (4.0 * h))
+        g * to_voxel
     }
 
     /// Blinn-Phong with a headlight, two-sided. Mirrors `shade`.

@@ -284,6 +284,7 @@ fn a_dicomdir_over_several_series_lists_them_and_a_number_or_uid_picks_one() {
     ] {
         let options = DicomOptions {
             series: Some(selector),
+            ..DicomOptions::default()
         };
         let l = load_dicom(&dicomdir(), &options).unwrap();
         check("CT5N", &l, 0.0);
@@ -291,6 +292,7 @@ fn a_dicomdir_over_several_series_lists_them_and_a_number_or_uid_picks_one() {
     // Series number 2 is shared (CT2 of one patient, MR2 of another): the UID must choose.
     let options = DicomOptions {
         series: Some(SeriesSelector::Number(2)),
+        ..DicomOptions::default()
     };
     match dicom_error(load_dicom(&dicomdir(), &options), "series 2") {
         DicomError::SeriesNotFound { why, wanted, .. } => {
@@ -301,6 +303,7 @@ fn a_dicomdir_over_several_series_lists_them_and_a_number_or_uid_picks_one() {
     }
     let options = DicomOptions {
         series: Some(SeriesSelector::Number(99)),
+        ..DicomOptions::default()
     };
     assert!(matches!(
         dicom_error(load_dicom(&dicomdir(), &options), "series 99"),
@@ -492,9 +495,11 @@ fn two_series_in_one_folder_are_listed_and_the_uid_chooses() {
     assert_eq!(ct.description, "mni_ct");
     let by_uid = DicomOptions {
         series: Some(SeriesSelector::Uid(ct.uid.clone())),
+        ..DicomOptions::default()
     };
     let by_number = DicomOptions {
         series: Some(SeriesSelector::Number(3)),
+        ..DicomOptions::default()
     };
     let alone = load(&fixtures().join("mni_ct"));
     assert!(load_dicom(&both, &by_uid).unwrap().volume == alone.volume);

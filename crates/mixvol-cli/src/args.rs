@@ -513,7 +513,8 @@ impl TiffSelectArgs {
 pub struct ConvertArgs {
     /// The volume to convert: a file with a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON
     /// sidecar or .raw with one), a TIFF stack (.tif, .tiff, .btf; OME-TIFF; a folder of .tif
-    /// slices; streamed page by page), an OME-Zarr folder or remote image (s3://BUCKET/PATH.zarr
+    /// slices; streamed page by page), a DICOM series (a folder, a DICOMDIR or a .dcm file;
+    /// loaded whole, within --ram-budget-mb; see --series), an OME-Zarr folder or remote image (s3://BUCKET/PATH.zarr
     /// with the AWS_* environment variables, http(s)://HOST/PATH.zarr; MIXVOL_REMOTE_TIMEOUT_MS
     /// / _RETRIES bound each fetch), a headerless raw file (described by
     /// --dims, --scalar, --spacing, --header-bytes, --big-endian), or a synthetic field (ml,
@@ -551,6 +552,10 @@ pub struct ConvertArgs {
     /// Image, channel and time point of an OME-TIFF or ImageJ hyperstack (default 0 each).
     #[command(flatten)]
     pub tiff: TiffSelectArgs,
+    /// DICOM series to convert when the folder or DICOMDIR holds several: its
+    /// SeriesInstanceUID or its SeriesNumber.
+    #[arg(long)]
+    pub series: Option<String>,
     /// Replace an existing STORE (atomically, once the new store is complete).
     #[arg(long)]
     pub force: bool,

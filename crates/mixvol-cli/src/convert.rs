@@ -2,8 +2,9 @@
 //!
 //! Files with a header (NRRD raw / gzip, NIfTI `.nii` / `.nii.gz`, raw or gzip data with a JSON
 //! sidecar, `.den`), one level of an OME-Zarr image and headerless raw data are read slab by
-//! slab ([`mixvol::store::write_store_from_slabs`]) under `--ram-budget-mb`; synthetic fields are
-//! generated whole, after checking that they fit the budget. Everything is checked before any
+//! slab ([`mixvol::store::write_store_from_slabs`]) under `--ram-budget-mb`; synthetic fields and
+//! DICOM series (sorted and reoriented as a whole) are loaded whole, after checking that they fit
+//! the budget. Everything is checked before any
 //! work (the store's brick size, the budget against the slab the brick size needs, an existing
 //! STORE without `--force`); the store is written to `STORE.partial` and renamed at the end, so a
 //! failed convert leaves nothing under STORE (with `--force`, an existing STORE stays as it was).
@@ -16,7 +17,10 @@ use mixvol::store::{
     write_store_from_volume_with_progress, SlabPlan, StoreDesc, WriteSummary,
 };
 use mixvol::volume::formats::zarr::ZarrSlabs;
-use mixvol::volume::formats::{FileFormat, RemoteOptions, TiffSlabs, ZarrLocation};
+use mixvol::volume::formats::{
+    load_dicom, DicomOptions, FileFormat, LoadedVolume, RemoteOptions, SeriesSelector, TiffSlabs,
+    ZarrLocation,
+};
 use mixvol::volume::{open_raw_slabs, open_slabs, RawDescriptor, SlabReader, SyntheticField};
 use mixvol::{Error, Result};
 use serde_json::json;
@@ -73,6 +77,22 @@ pub fn convert(args: &ConvertArgs) -> Result<()> {
         )?;
         bar.finish_and_clear();
         (summary, bytes, None, format!("synthetic {}", args.input))
+    } else if let Some(loaded) = load_dicom_input(args, budget)? {
+        let bytes = loaded.volume.data().as_bytes().len() as u64;
+        let bar = progress_bar();
+        let summary = write_store_from_volume_with_progress(
+            store,
+            &loaded.volume,
+            args.brick_size,
+            filter,
+            &mut |done, total| update(&bar, done, total),
+        )?;
+        bar.finish_and_clear();
+        let what = format!(
+            "{} (DICOM series, {:?}, loaded whole)",
+            args.input, loaded.meta.stored
+        );
+        (summary, bytes, None, what)
     } else {
         let mut reader = open_input(args)?;
         let desc = slab_store_desc(&*reader, args.brick_size, filter);
@@ -94,6 +114,38 @@ pub fn convert(args: &ConvertArgs) -> Result<()> {
         (summary, input_bytes, Some(plan), what)
     };
     report(args, &summary, input_bytes, plan, &what, start)
+}
+
+/// Loads INPUT whole when it is a DICOM series (a folder of DICOM files, a DICOMDIR or a `.dcm`
+/// file): a series is sorted along its normal, checked and reoriented as a whole, so it is not
+/// read in slabs; its size, from the headers, is checked against `budget` before any pixel data
+/// is decoded. `None` for every other input. `--series` on another input is an error.
+fn load_dicom_input(args: &ConvertArgs, budget: u64) -> Result<Option<LoadedVolume>> {
+    let path = Path::new(&args.input);
+    let is_dicom = !ZarrLocation::is_url(&args.input)
+        && FileFormat::detect(path) == Some(FileFormat::Dicom);
+    let series = match (&args.series, is_dicom) {
+        (_, false) if args.series.is_some() => {
+            return Err(Error::InvalidInput(format!(
+                "--series applies to DICOM input (a folder of DICOM files, a DICOMDIR or a .dcm \
+                 file), not '{}'",
+                args.input
+            )))
+        }
+        (_, false) => return Ok(None),
+        (None, true) => None,
+        (Some(text), true) => Some(SeriesSelector::parse(text).ok_or_else(|| {
+            Error::InvalidInput(format!(
+                "--series {text}: expected a SeriesInstanceUID (digits and dots) or a series \
+                 number"
+            ))
+        })?),
+    };
+    let options = DicomOptions {
+        series,
+        max_bytes: Some(budget),
+    };
+    Ok(Some(load_dicom(path, &options)?))
 }
 
 /// Refuses an existing STORE without `--force`, and a STORE that is a folder.

@@ -78,6 +78,7 @@ pub fn load_volume_with_meta(args: &RenderArgs) -> Result<(Volume, Option<Volume
         })?;
         let options = DicomOptions {
             series: Some(selector),
+            ..DicomOptions::default()
         };
         let loaded = load_dicom(path, &options)?;
         return Ok((loaded.volume, Some(loaded.meta)));

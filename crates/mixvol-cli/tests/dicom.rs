@@ -123,3 +123,60 @@ fn series_chooses_one_series_of_a_dicomdir() {
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--series applies to DICOM"));
 }
+
+fn convert(input: &Path, store: &Path, extra: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_mixvol"))
+        .arg("convert")
+        .arg(input)
+        .arg(store)
+        .args(["--brick-size", "16"])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn convert_writes_a_dicom_series_as_the_store_of_the_same_volume_from_nifti() {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("dicom-cli-convert");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (ours, theirs, small) = (
+        dir.join("mni-ct-dicom.mvbs"),
+        dir.join("mni-ct-nifti.mvbs"),
+        dir.join("too-small.mvbs"),
+    );
+    for f in [&ours, &theirs, &small] {
+        let _ = std::fs::remove_file(f);
+    }
+    let out = convert(&fixtures().join("mni_ct"), &ours, &["--ram-budget-mb", "64"]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("DICOM series"), "{stdout}");
+    let out = convert(&fixtures().join("mni_ct.nii"), &theirs, &[]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        std::fs::read(&ours).unwrap() == std::fs::read(&theirs).unwrap(),
+        "the store converted from the DICOM series differs from the NIfTI file's"
+    );
+    // The series is loaded whole (f32 HU, 197x233x189 x 4 bytes = 33 MiB): a budget below
+    // that is refused from the headers, and no store is left.
+    let out = convert(&fixtures().join("mni_ct"), &small, &["--ram-budget-mb", "8"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("DICOM series") && stderr.contains("loaded whole"),
+        "{stderr}"
+    );
+    assert!(!small.exists() && !dir.join("too-small.mvbs.partial").exists());
+    // --series on another input is refused by name.
+    let out = convert(&fixtures().join("mni_ct.nii"), &small, &["--series", "5"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--series applies to DICOM"));
+}

@@ -99,7 +99,7 @@ pub(super) fn no_slabs(path: &Path) -> VolumeError {
         path,
         "format",
         "a DICOM series is sorted, checked and reoriented as a whole, so it is not read slab by \
-         slab: load it whole (mixvol render --volume), or save it as NIfTI first",
+         slab: load it whole (load_dicom; mixvol convert and render do, within their budgets)",
     )
 }
 
@@ -147,6 +147,11 @@ impl fmt::Display for SeriesSelector {
 pub struct DicomOptions {
     /// The series to load when the input holds several (`None`: there must be one).
     pub series: Option<SeriesSelector>,
+    /// A limit on the loaded volume's bytes, checked from the headers before any pixel data is
+    /// decoded ([`VolumeError::TooLarge`] above it; `None`: only the host-memory and
+    /// [`MAX_VOLUME_BYTES`] limits). `mixvol convert` passes its RAM budget here, since a series
+    /// is sorted and reoriented as a whole.
+    pub max_bytes: Option<u64>,
 }
 
 /// The image series of a folder, DICOMDIR or file (see the module docs), ordered by series
@@ -189,6 +194,13 @@ pub fn load_dicom(path: &Path, options: &DicomOptions) -> Result<LoadedVolume, V
         ));
     }
     crate::volume::memory::check_host_bytes(&format!("DICOM series {}", path.display()), bytes)?;
+    if let Some(limit) = options.max_bytes.filter(|&limit| bytes > limit) {
+        return Err(VolumeError::TooLarge {
+            what: format!("DICOM series {} (loaded whole)", path.display()),
+            bytes,
+            limit,
+        });
+    }
     let mut sink = pixels::Sink::new(stored, rescaled, voxels as usize);
     for &i in &stack.order {
         let (file, s) = &series.slices[i];

@@ -122,25 +122,30 @@ pub fn convert(args: &ConvertArgs) -> Result<()> {
 /// is decoded. `None` for every other input. `--series` on another input is an error.
 fn load_dicom_input(args: &ConvertArgs, budget: u64) -> Result<Option<LoadedVolume>> {
     let path = Path::new(&args.input);
-    let is_dicom = !ZarrLocation::is_url(&args.input)
-        && FileFormat::detect(path) == Some(FileFormat::Dicom);
-    let series = match (&args.series, is_dicom) {
-        (_, false) if args.series.is_some() => {
-            return Err(Error::InvalidInput(format!(
+    let is_dicom =
+        !ZarrLocation::is_url(&args.input) && FileFormat::detect(path) == Some(FileFormat::Dicom);
+    if !is_dicom {
+        return match args.series {
+            Some(_) => Err(Error::InvalidInput(format!(
                 "--series applies to DICOM input (a folder of DICOM files, a DICOMDIR or a .dcm \
                  file), not '{}'",
                 args.input
-            )))
-        }
-        (_, false) => return Ok(None),
-        (None, true) => None,
-        (Some(text), true) => Some(SeriesSelector::parse(text).ok_or_else(|| {
-            Error::InvalidInput(format!(
-                "--series {text}: expected a SeriesInstanceUID (digits and dots) or a series \
-                 number"
-            ))
-        })?),
-    };
+            ))),
+            None => Ok(None),
+        };
+    }
+    let series = args
+        .series
+        .as_deref()
+        .map(|text| {
+            SeriesSelector::parse(text).ok_or_else(|| {
+                Error::InvalidInput(format!(
+                    "--series {text}: expected a SeriesInstanceUID (digits and dots) or a series \
+                     number"
+                ))
+            })
+        })
+        .transpose()?;
     let options = DicomOptions {
         series,
         max_bytes: Some(budget),

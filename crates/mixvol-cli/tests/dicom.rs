@@ -147,7 +147,11 @@ fn convert_writes_a_dicom_series_as_the_store_of_the_same_volume_from_nifti() {
     for f in [&ours, &theirs, &small] {
         let _ = std::fs::remove_file(f);
     }
-    let out = convert(&fixtures().join("mni_ct"), &ours, &["--ram-budget-mb", "64"]);
+    let out = convert(
+        &fixtures().join("mni_ct"),
+        &ours,
+        &["--ram-budget-mb", "64"],
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
@@ -167,7 +171,11 @@ fn convert_writes_a_dicom_series_as_the_store_of_the_same_volume_from_nifti() {
     );
     // The series is loaded whole (f32 HU, 197x233x189 x 4 bytes = 33 MiB): a budget below
     // that is refused from the headers, and no store is left.
-    let out = convert(&fixtures().join("mni_ct"), &small, &["--ram-budget-mb", "8"]);
+    let out = convert(
+        &fixtures().join("mni_ct"),
+        &small,
+        &["--ram-budget-mb", "8"],
+    );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(

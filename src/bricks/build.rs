@@ -176,11 +176,7 @@ pub fn build_bricks_with_threads(
     };
     let hi_len = texels(hi_res_brick_extent(grid.brick_size()))?;
     let lo_len = texels(low_res_brick_extent(grid.brick_size()))?;
-    let zeroed = |len: usize| match storage {
-        ScalarType::U8 => VoxelData::U8(vec![0; len]),
-        ScalarType::U16 => VoxelData::U16(vec![0; len]),
-        ScalarType::F32 => VoxelData::F32(vec![0.0; len]),
-    };
+    let zeroed = |len: usize| VoxelData::zeroed(storage, len);
     let level_dims = low_res_dims(grid.dims());
     let mut packed = PackedBricks {
         grid: *grid,

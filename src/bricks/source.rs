@@ -8,8 +8,7 @@
 //! backend (the streamer's [`crate::store::StoreError`] is kept as the source).
 
 use super::build::{available_threads, build_value_ranges};
-use super::kernel::{BrickBox, BrickKernel, PackOutputs, TexelsMut, VoxelWindow};
-use super::packing::{hi_res_brick_extent, low_res_brick_extent};
+use super::kernel::{BrickKernel, VoxelWindow};
 use super::{BrickError, BrickGrid, DownsampleFilter, Level, ValueRange};
 use crate::error::Result;
 use crate::optics::SamplingModel;
@@ -372,33 +371,16 @@ impl BrickSource for VolumeBrickSource {
         if brick >= count {
             return Err(SourceError::BrickOutOfRange { brick, count });
         }
-        let n = self.grid.brick_size();
-        let extent = match level {
-            Level::Hi => hi_res_brick_extent(n),
-            Level::Lo => low_res_brick_extent(n),
-            Level::Absent => return Err(SourceError::AbsentLevel { brick }),
-        };
+        if level == Level::Absent {
+            return Err(SourceError::AbsentLevel { brick });
+        }
         let storage = self.volume.scalar_type();
-        let texels = (extent as usize).pow(3);
-        let mut packed = match storage {
-            ScalarType::U8 => VoxelData::U8(vec![0; texels]),
-            ScalarType::U16 => VoxelData::U16(vec![0; texels]),
-            ScalarType::F32 => VoxelData::F32(vec![0.0; texels]),
-        };
-        let texels = Some(TexelsMut::of(&mut packed));
-        let out = match level {
-            Level::Hi => PackOutputs {
-                hi: texels,
-                ..PackOutputs::default()
-            },
-            _ => PackOutputs {
-                lo: texels,
-                ..PackOutputs::default()
-            },
-        };
-        let bricks = BrickBox::single(self.grid.brick_coords(brick as usize));
-        BrickKernel::new(&self.grid, self.filter, storage)
-            .pack_window(&VoxelWindow::of_volume(&self.volume), &bricks, out)
+        let packed = BrickKernel::new(&self.grid, self.filter, storage)
+            .pack_level(
+                &VoxelWindow::of_volume(&self.volume),
+                self.grid.brick_coords(brick as usize),
+                level == Level::Hi,
+            )
             .map_err(invalid("brick"))?;
         Ok(Some(packed.as_bytes().into()))
     }

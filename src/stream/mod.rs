@@ -38,7 +38,7 @@ mod chunk_cache;
 
 pub use chunk_cache::{ChunkCache, ChunkCacheStats};
 
-use crate::bricks::kernel::{BrickBox, BrickKernel, PackOutputs, TexelsMut, VoxelWindow};
+use crate::bricks::kernel::{BrickBox, BrickKernel, VoxelWindow};
 use crate::bricks::{
     hi_res_brick_extent, low_res_brick_extent, BrickError, BrickGrid, DownsampleFilter, Level,
     ValueRange,
@@ -243,43 +243,15 @@ impl ZarrBricks {
         let (origin, extent) = self.window(brick, level)?;
         let wanted = chunks_meeting(self.chunks.chunk_shape(), origin, extent);
         let chunks = self.cache.get_many(&self.chunks, &wanted)?;
-        let count = extent.element_product() as usize;
-        let mut window = match self.scalar {
-            ScalarType::U8 => VoxelData::U8(vec![0; count]),
-            ScalarType::U16 => VoxelData::U16(vec![0; count]),
-            ScalarType::F32 => VoxelData::F32(vec![0.0; count]),
-        };
+        let mut window = VoxelData::zeroed(self.scalar, extent.element_product() as usize);
         for chunk in &chunks {
             copy_into(&mut window, origin, extent, chunk);
         }
         drop(chunks);
-        let n = self.grid.brick_size();
-        let edge = match level {
-            Level::Hi => hi_res_brick_extent(n),
-            _ => low_res_brick_extent(n),
-        };
-        let texels = (edge as usize).pow(3);
-        let mut packed = match self.scalar {
-            ScalarType::U8 => VoxelData::U8(vec![0; texels]),
-            ScalarType::U16 => VoxelData::U16(vec![0; texels]),
-            ScalarType::F32 => VoxelData::F32(vec![0.0; texels]),
-        };
-        let texels = Some(TexelsMut::of(&mut packed));
-        let outputs = match level {
-            Level::Hi => PackOutputs {
-                hi: texels,
-                ..PackOutputs::default()
-            },
-            _ => PackOutputs {
-                lo: texels,
-                ..PackOutputs::default()
-            },
-        };
-        let bricks = BrickBox::single(self.grid.brick_coords(brick as usize));
-        BrickKernel::new(&self.grid, self.filter, self.scalar).pack_window(
+        let packed = BrickKernel::new(&self.grid, self.filter, self.scalar).pack_level(
             &VoxelWindow::new(&window, origin, extent)?,
-            &bricks,
-            outputs,
+            self.grid.brick_coords(brick as usize),
+            level == Level::Hi,
         )?;
         let bytes = packed.as_bytes();
         if bytes.len() != out.len() {

@@ -70,6 +70,15 @@ pub enum VoxelData {
 }
 
 impl VoxelData {
+    /// `len` zero voxels of `scalar`.
+    pub fn zeroed(scalar: ScalarType, len: usize) -> Self {
+        match scalar {
+            ScalarType::U8 => VoxelData::U8(vec![0; len]),
+            ScalarType::U16 => VoxelData::U16(vec![0; len]),
+            ScalarType::F32 => VoxelData::F32(vec![0.0; len]),
+        }
+    }
+
     /// Number of voxels stored.
     pub fn len(&self) -> usize {
         match self {

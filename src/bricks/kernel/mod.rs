@@ -322,6 +322,39 @@ impl BrickKernel {
         Ok((origin, extent))
     }
 
+    /// Packs one level of one brick from `window` into a new buffer: the hi-res brick
+    /// (`(n+2)^3` texels) when `hi`, else the low-res brick (`(n/2+1)^3`). The window must hold
+    /// what [`BrickKernel::window_for_outputs`] says that level reads. Errors as
+    /// [`BrickKernel::pack_window`].
+    pub fn pack_level(
+        &mut self,
+        window: &VoxelWindow<'_>,
+        brick: UVec3,
+        hi: bool,
+    ) -> Result<VoxelData, BrickError> {
+        let n = self.grid.brick_size();
+        let edge = if hi {
+            hi_res_brick_extent(n)
+        } else {
+            low_res_brick_extent(n)
+        };
+        let mut packed = VoxelData::zeroed(self.storage, (edge as usize).pow(3));
+        let texels = Some(TexelsMut::of(&mut packed));
+        let out = if hi {
+            PackOutputs {
+                hi: texels,
+                ..PackOutputs::default()
+            }
+        } else {
+            PackOutputs {
+                lo: texels,
+                ..PackOutputs::default()
+            }
+        };
+        self.pack_window(window, &BrickBox::single(brick), out)?;
+        Ok(packed)
+    }
+
     /// Packs the box `bricks` from `window` into `out` (see [`PackOutputs`] and the
     /// [module documentation](self)).
     ///

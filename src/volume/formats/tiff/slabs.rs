@@ -53,11 +53,7 @@ impl TiffSlabs {
     pub fn load(mut self) -> Result<LoadedVolume, VolumeError> {
         let layout = self.stack.layout;
         check_layout_memory(&self.stack.path, &layout)?;
-        let mut data = match layout.stored.volume_scalar() {
-            ScalarType::U8 => VoxelData::U8(vec![0; layout.count]),
-            ScalarType::U16 => VoxelData::U16(vec![0; layout.count]),
-            ScalarType::F32 => VoxelData::F32(vec![0.0; layout.count]),
-        };
+        let mut data = VoxelData::zeroed(layout.stored.volume_scalar(), layout.count);
         let out = SlabMut::of_range(&mut data, 0..layout.count).ok_or_else(|| {
             VolumeError::SlabRequest {
                 path: self.stack.path.clone(),

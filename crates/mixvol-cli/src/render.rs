@@ -106,22 +106,13 @@ pub fn set_up_scene(
                 ram,
                 window_of(args, None)?,
             )?;
-            renderer.set_residency_config(ResidencyConfig {
+            // Half of the RAM budget caches decoded chunks: the planner plans the other half.
+            let residency = ResidencyConfig {
                 upload_bytes_per_frame: upload,
                 ram_bytes: Some(ram / 2),
                 options,
-            });
-            renderer.set_source(VolumeSource::Bricks {
-                source: streamer.clone(),
-                config,
-            })?;
-            print_cache(renderer, &config, upload, Some(ram));
-            Ok(Scene {
-                volume: None,
-                streamer: Some(streamer),
-                planned: true,
-                config: Some(config),
-            })
+            };
+            planned_scene(renderer, streamer, config, residency, ram)
         }
         Input::Store(store) => {
             if args.mixed.levels.is_some() {
@@ -147,22 +138,12 @@ pub fn set_up_scene(
                     record_load_order: false,
                 },
             )?);
-            renderer.set_residency_config(ResidencyConfig {
+            let residency = ResidencyConfig {
                 upload_bytes_per_frame: upload,
                 ram_bytes: Some(ram),
                 options,
-            });
-            renderer.set_source(VolumeSource::Bricks {
-                source: streamer.clone(),
-                config,
-            })?;
-            print_cache(renderer, &config, upload, Some(ram));
-            Ok(Scene {
-                volume: None,
-                streamer: Some(streamer),
-                planned: true,
-                config: Some(config),
-            })
+            };
+            planned_scene(renderer, streamer, config, residency, ram)
         }
         Input::Volume(volume) => {
             let volume = volume.clone();
@@ -231,6 +212,30 @@ pub fn set_up_scene(
 }
 
 /// Prints the brick cache a camera-driven scene renders through.
+/// Draws `streamer` (a brick store's or a streamed image's) through camera-driven residency
+/// under `residency`, and prints the cache set-up (`ram`: the whole RAM budget).
+fn planned_scene<S: Streaming + 'static>(
+    renderer: &mut Renderer,
+    streamer: Arc<S>,
+    config: MixedConfig,
+    residency: ResidencyConfig,
+    ram: u64,
+) -> Result<Scene> {
+    let upload = residency.upload_bytes_per_frame;
+    renderer.set_residency_config(residency);
+    renderer.set_source(VolumeSource::Bricks {
+        source: streamer.clone(),
+        config,
+    })?;
+    print_cache(renderer, &config, upload, Some(ram));
+    Ok(Scene {
+        volume: None,
+        streamer: Some(streamer),
+        planned: true,
+        config: Some(config),
+    })
+}
+
 fn print_cache(renderer: &Renderer, config: &MixedConfig, upload: u64, ram: Option<u64>) {
     if let Some(cache) = renderer.brick_cache() {
         let grid = cache.grid();

@@ -36,19 +36,6 @@ fn write_images(dir: &Path) -> [ImageSpec; 2] {
     [v2, v3]
 }
 
-/// Short timeouts and quick retries, so that the fault tests end fast.
-fn quick(retries: usize, timeout_ms: u64) -> RemoteOptions {
-    RemoteOptions {
-        timeout: Duration::from_millis(timeout_ms),
-        connect_timeout: Duration::from_secs(2),
-        max_retries: retries,
-        retry_timeout: Duration::from_secs(30),
-        init_backoff: Duration::from_millis(10),
-        max_backoff: Duration::from_millis(50),
-        s3_config: Vec::new(),
-    }
-}
-
 fn at(url: &str) -> ZarrLocation {
     let loc = ZarrLocation::parse(url).unwrap();
     assert!(loc.is_remote(), "{url}");

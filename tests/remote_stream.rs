@@ -29,7 +29,7 @@ use glam::{UVec3, Vec3, Vec4};
 use mixvol::bricks::{BrickSource, DownsampleFilter, Level, SourceError, VolumeBrickSource};
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::{self, ReferenceCache};
-use mixvol::renderer::{Frame, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource};
+use mixvol::renderer::{MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Transition};
 use mixvol::store::{BrickBackend, StreamerConfig};
 use mixvol::stream::{
@@ -52,11 +52,6 @@ const MISSING: [u64; 3] = [3, 3, 3];
 /// The chunk left out for the render tests: away from the corner they draw.
 const FAR: [u64; 3] = [0, 0, 0];
 const CHUNK_BYTES: u64 = CHUNK * CHUNK * CHUNK * 2;
-
-const MEAN_TOLERANCE: f32 = 1.0 / 1000.0;
-const LARGE: f32 = 1.0 / 255.0;
-const LARGE_FRACTION_TOLERANCE: f32 = 0.005;
-const MAX_TOLERANCE: f32 = 6.0 / 255.0;
 
 fn spec(missing: [u64; 3]) -> ImageSpec {
     ImageSpec {
@@ -82,18 +77,6 @@ fn write_image(dir: &Path, missing: [u64; 3]) -> (usize, Volume) {
     let chunks = spec(missing).write_with(&root, smooth);
     let volume = mixvol::volume::load_zarr(&root).unwrap().volume;
     (chunks, volume)
-}
-
-fn quick(retries: usize, timeout_ms: u64) -> RemoteOptions {
-    RemoteOptions {
-        timeout: Duration::from_millis(timeout_ms),
-        connect_timeout: Duration::from_secs(2),
-        max_retries: retries,
-        retry_timeout: Duration::from_secs(30),
-        init_backoff: Duration::from_millis(10),
-        max_backoff: Duration::from_millis(50),
-        s3_config: Vec::new(),
-    }
 }
 
 fn stream_config(concurrency: usize) -> ZarrStreamConfig {
@@ -248,21 +231,6 @@ fn reference_image(renderer: &Renderer, volume: &Volume, camera: &Camera) -> Vec
     )
 }
 
-fn assert_matches(name: &str, frame: &Frame, expected: &[Vec4]) {
-    let d = common::diff(&frame.pixels, expected, LARGE);
-    let ok = d.mean <= MEAN_TOLERANCE
-        && d.large_fraction <= LARGE_FRACTION_TOLERANCE
-        && d.max <= MAX_TOLERANCE;
-    if !ok {
-        let dir =
-            common::write_failure_images(name, frame.width, frame.height, &frame.pixels, expected);
-        panic!(
-            "{name}: GPU differs from the CPU reference for this residency: {d:?} (images in {})",
-            dir.display()
-        );
-    }
-}
-
 /// Renders until nothing waits for the source, or the source has loaded all it was asked for
 /// and the frame changed nothing (at most `frames`), checking every frame against the
 /// reference; returns the last frame's report.
@@ -280,7 +248,7 @@ fn render_until_settled(
         let frame = renderer.render(&camera, &settings, SIZE, SIZE).unwrap();
         let report = frame.residency.clone().expect("a planned frame");
         let expected = reference_image(renderer, volume, &camera);
-        assert_matches(&format!("{name}-{f:02}"), &frame, &expected);
+        common::assert_frame_matches(&format!("{name}-{f:02}"), &frame, &expected);
         // Steady: nothing left to load, nothing changed this frame.
         let done = f > 0
             && (report.plan.waiting_for_source == 0

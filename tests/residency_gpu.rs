@@ -31,7 +31,7 @@ use mixvol::embed::FrameReport;
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::plan::upload_bytes;
 use mixvol::reference::{self, sample_mixed, ReferenceCache};
-use mixvol::renderer::{Frame, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource};
+use mixvol::renderer::{MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource};
 use mixvol::scene::Transition;
 use mixvol::scene::{Camera, RenderSettings};
 use mixvol::store::{write_store_from_volume, BrickStreamer, StreamerConfig};
@@ -51,10 +51,6 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
 }
 
 const N: u32 = 8;
-const MEAN_TOLERANCE: f32 = 1.0 / 1000.0;
-const LARGE: f32 = 1.0 / 255.0;
-const LARGE_FRACTION_TOLERANCE: f32 = 0.005;
-const MAX_TOLERANCE: f32 = 6.0 / 255.0;
 /// Probe steps for the C0 check.
 const EPS: [f32; 2] = [1e-2, 1e-3];
 
@@ -138,24 +134,6 @@ fn reference_image(
     let params = renderer.params(camera, settings, size, size).unwrap();
     let image = reference::render_mixed(&cache.view(), Transition::Smooth, tf, &params);
     (image, cache)
-}
-
-/// Checks `frame` against `expected` with the GPU-vs-reference tolerances; writes images and
-/// panics on failure.
-fn assert_matches(name: &str, frame: &Frame, expected: &[Vec4]) -> common::Diff {
-    let d = common::diff(&frame.pixels, expected, LARGE);
-    let ok = d.mean <= MEAN_TOLERANCE
-        && d.large_fraction <= LARGE_FRACTION_TOLERANCE
-        && d.max <= MAX_TOLERANCE;
-    if !ok {
-        let dir =
-            common::write_failure_images(name, frame.width, frame.height, &frame.pixels, expected);
-        panic!(
-            "{name}: GPU differs from the CPU reference for this residency: {d:?} (images in {})",
-            dir.display()
-        );
-    }
-    d
 }
 
 /// Fraction of pixels with opacity above 0.05.
@@ -372,7 +350,7 @@ fn camera_path_over_a_store_matches_the_reference_every_frame() {
             }
             let (expected, reference) =
                 reference_image(&renderer, &volume, &tf, &camera, &settings, SIZE);
-            let d = assert_matches(&format!("camera-path-{f:02}"), &frame, &expected);
+            let d = common::assert_frame_matches(&format!("camera-path-{f:02}"), &frame, &expected);
             let cover = coverage(&frame.pixels);
             if f > 0 {
                 assert!(
@@ -601,7 +579,7 @@ fn a_thousand_frames_of_camera_motion_stay_clean_and_bounded() {
             if SAMPLED.contains(&f) {
                 let (expected, _) =
                     reference_image(&renderer, &volume, &tf, &camera, &settings, SIZE);
-                let d = assert_matches(&format!("soak-{f:04}"), &frame, &expected);
+                let d = common::assert_frame_matches(&format!("soak-{f:04}"), &frame, &expected);
                 let cover = coverage(&frame.pixels);
                 assert!(cover > 0.1, "frame {f}: {:.1} % covered", 100.0 * cover);
                 eprintln!(
@@ -756,7 +734,7 @@ fn bricks_that_fail_to_load_are_reported_and_drawn_at_a_fallback() {
                 "{message}"
             );
             let (expected, _) = reference_image(&renderer, &volume, &tf, &camera, &settings, SIZE);
-            assert_matches(&format!("failing-source-{f}"), &frame, &expected);
+            common::assert_frame_matches(&format!("failing-source-{f}"), &frame, &expected);
             assert!(coverage(&frame.pixels) > 0.2);
         }
         drop(renderer);
@@ -802,7 +780,7 @@ fn bricks_that_fail_to_load_are_reported_and_drawn_at_a_fallback() {
             let levels = renderer.brick_cache().unwrap().levels();
             assert_eq!(levels[last as usize], Level::Absent, "frame {f}");
             let (expected, _) = reference_image(&renderer, &volume, &tf, &camera, &settings, SIZE);
-            assert_matches(&format!("truncated-store-{f}"), &frame, &expected);
+            common::assert_frame_matches(&format!("truncated-store-{f}"), &frame, &expected);
             last_cover = coverage(&frame.pixels);
             reports.push((report, levels));
             assert!(streamer.wait_settled(Duration::from_secs(10)));
@@ -978,7 +956,7 @@ fn a_still_camera_converges_then_uploads_nothing() {
             if s == STILL_FRAMES - 1 {
                 let (expected, _) =
                     reference_image(&renderer, &volume, &tf, &camera, &settings, SIZE);
-                assert_matches("converged", &frame, &expected);
+                common::assert_frame_matches("converged", &frame, &expected);
             }
         }
         eprintln!(
@@ -1061,7 +1039,7 @@ fn streaming_under_a_tight_ram_budget_draws_what_is_loaded_and_matches_the_refer
             if SAMPLED.contains(&f) {
                 let (expected, _) =
                     reference_image(&renderer, &volume, &tf, &camera, &settings, SIZE);
-                assert_matches(&format!("tight-ram-{f:03}"), &frame, &expected);
+                common::assert_frame_matches(&format!("tight-ram-{f:03}"), &frame, &expected);
                 assert!(coverage(&frame.pixels) > 0.1, "frame {f}");
                 compared += 1;
             }

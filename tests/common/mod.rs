@@ -51,6 +51,37 @@ pub struct Diff {
     pub large_fraction: f32,
 }
 
+/// The GPU-vs-reference tolerances of a camera-driven frame: mean and largest channel
+/// difference, and the fraction of channels above [`FRAME_LARGE`].
+pub const FRAME_MEAN_TOLERANCE: f32 = 1.0 / 1000.0;
+/// A channel difference counted as large by [`assert_frame_matches`].
+pub const FRAME_LARGE: f32 = 1.0 / 255.0;
+/// At most this fraction of channels may differ by more than [`FRAME_LARGE`].
+pub const FRAME_LARGE_FRACTION_TOLERANCE: f32 = 0.005;
+/// No channel may differ by more than this.
+pub const FRAME_MAX_TOLERANCE: f32 = 6.0 / 255.0;
+
+/// Checks `frame` against `expected` (the CPU reference for the frame's residency) with the
+/// `FRAME_*` tolerances; writes both images and panics on failure.
+pub fn assert_frame_matches(
+    name: &str,
+    frame: &mixvol::renderer::Frame,
+    expected: &[Vec4],
+) -> Diff {
+    let d = diff(&frame.pixels, expected, FRAME_LARGE);
+    let ok = d.mean <= FRAME_MEAN_TOLERANCE
+        && d.large_fraction <= FRAME_LARGE_FRACTION_TOLERANCE
+        && d.max <= FRAME_MAX_TOLERANCE;
+    if !ok {
+        let dir = write_failure_images(name, frame.width, frame.height, &frame.pixels, expected);
+        panic!(
+            "{name}: GPU differs from the CPU reference for this residency: {d:?} (images in {})",
+            dir.display()
+        );
+    }
+    d
+}
+
 pub fn diff(a: &[Vec4], b: &[Vec4], large: f32) -> Diff {
     assert_eq!(a.len(), b.len());
     let mut max = 0.0f32;

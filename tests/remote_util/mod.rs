@@ -382,3 +382,16 @@ pub fn check_volume(volume: &mixvol::volume::Volume, spec: &ImageSpec) {
         }
     }
 }
+
+/// Short timeouts and quick retries, so that the fault tests end fast.
+pub fn quick(retries: usize, timeout_ms: u64) -> mixvol::volume::formats::RemoteOptions {
+    mixvol::volume::formats::RemoteOptions {
+        timeout: Duration::from_millis(timeout_ms),
+        connect_timeout: Duration::from_secs(2),
+        max_retries: retries,
+        retry_timeout: Duration::from_secs(30),
+        init_backoff: Duration::from_millis(10),
+        max_backoff: Duration::from_millis(50),
+        s3_config: Vec::new(),
+    }
+}

@@ -15,8 +15,9 @@
 //! 3. **Wanted levels**, budget-driven as in [`crate::lod::LodSelector`]: every kept brick is at
 //!    least `Lo` and the `h` best-ranked candidates are `Hi`, `h` the largest count with
 //!    `h + ceil((kept - h) / 8) <= slots` ([`max_hi_bricks`]). With hysteresis margin `m`
-//!    ([`PlanOptions::hysteresis`]; the `h` best are found by a radix selection on the ranking
-//!    key, equal keys ordered as below):
+//!    ([`PlanOptions::hysteresis`]; the `h` best are found by merging two runs of the order by
+//!    error of step 6, the bricks wanted `Hi` last frame and the others, visiting only the
+//!    bricks before the boundary (`select.rs`); equal keys ordered as below):
 //!    - a brick wanted `Hi` last frame ranks with its error times `1 + m` (and wins exact ties),
 //!      so two bricks of nearly equal error do not swap levels back and forth;
 //!    - with an error threshold `t > 0` ([`PlanOptions::error_threshold`]) a brick becomes a
@@ -55,7 +56,8 @@
 //!    that the priorities are `len - position`. With a RAM budget
 //!    ([`PlanBudget::ram_bytes`]) the list is cut to the longest prefix whose bytes fit. The
 //!    order by error comes from one radix sort of the kept bricks (equal errors in brick order,
-//!    as `request_plan` keeps them).
+//!    as `request_plan` keeps them), the one sort of a moving frame: the `Hi` selection of
+//!    step 3 reads it too.
 //!
 //! Errors and box distances are computed from per-axis squared distance components (the same
 //! floating-point operations as [`screen_space_error`], so the same values; the distances, only
@@ -66,7 +68,7 @@
 //! order by error are the last frame's and are reused; when the wanted levels, the RAM cut and
 //! the drawn-but-not-wanted `Hi` levels are the last frame's too, so are the requests. When
 //! the last frame's wanted levels were those of the frame before it (a settled still camera),
-//! the ranks and the `Hi` selection are skipped as well: their inputs are the last frame's, so
+//! the `Hi` selection is skipped as well: its inputs are the last frame's, so
 //! the wanted levels are. The per-brick target pass (`targets.rs`) takes a short path for a
 //! brick drawn at its wanted level with that level loaded. `benches/planner.rs` times a frame
 //! of about 10^5 bricks.
@@ -113,12 +115,10 @@ use crate::bricks::request_plan;
 use crate::lod::screen_space_error;
 #[cfg(test)]
 use glam::Vec3;
-use order::{
-    count_key, descending_key, more_important, radix_select, radix_sort_by_high_word, Distances,
-    Histograms, BUCKETS,
-};
+use order::{count_key, more_important, radix_sort_by_high_word, Distances, Histograms, BUCKETS};
 use screen_error::{compute_errors, same_bits, width_factor};
-use targets::{targets, Bricks, Changes, Counts, Wanted};
+use select::{request_key, select_hi, Ranking, SelectScratch};
+use targets::{targets, Bricks, Changes, Counts};
 
 pub use frame::{
     cull_params, upload_bytes, FrameInput, FramePlan, PlanBudget, PlanOptions, PlanReport,
@@ -127,6 +127,7 @@ pub use frame::{
 mod frame;
 mod order;
 mod screen_error;
+mod select;
 mod targets;
 #[cfg(test)]
 mod tests;
@@ -187,11 +188,8 @@ struct Work {
     spare_wanted: Vec<Level>,
     /// Active bricks (only when dropping).
     order: Vec<u32>,
-    /// Per brick, the rank for `Hi` (smaller first; `u32::MAX` for none).
-    rank: Vec<u32>,
-    rank_scratch: Vec<(u32, u32)>,
-    /// Candidates whose rank is the boundary rank of the `Hi` selection.
-    ties: Vec<u32>,
+    /// Scratch of the `Hi` selection.
+    select_scratch: SelectScratch,
     /// Bricks drawn `Hi` but not wanted `Hi`, this frame's and the last one's.
     extra: Vec<u32>,
     prev_extra: Vec<u32>,
@@ -203,8 +201,8 @@ struct Work {
     /// before it (`None` when they were not, or the plan was reset or replaced): with the
     /// same errors they are this frame's as well.
     settled_hi: Option<usize>,
-    /// The kept bricks by descending error (NaN lowest), equal errors in brick order:
-    /// `key << 32 | brick`.
+    /// The kept bricks by descending error (NaN last), equal errors in brick order:
+    /// `key << 32 | brick` ([`request_key`]).
     by_error: Vec<u64>,
     sort_scratch: Vec<u64>,
     coarsen: Vec<u32>,
@@ -414,9 +412,7 @@ impl ResidencyPlanner {
             target,
             spare_wanted,
             order,
-            rank,
-            rank_scratch,
-            ties,
+            select_scratch,
             extra,
             prev_extra,
             request_fit,
@@ -453,91 +449,58 @@ impl ResidencyPlanner {
         let is_candidate = |e: f32, was_hi: bool| {
             (error_threshold == 0.0) | (e > refine_above) | (was_hi & (e > keep_above)) | e.is_nan()
         };
-        // A brick wanted Hi last frame ranks with its error times `1 + m`.
-        let rank_key = |e: f32, was_hi: bool| if was_hi { e * boost } else { e };
         // A still camera over settled wanted levels (the last frame's were the same as the frame
-        // before's, from the same errors): the ranks and the selection are the last frame's, and
-        // so are the wanted levels.
+        // before's, from the same errors): the selection is the last frame's, and so are the
+        // wanted levels.
         let reuse_wanted = if reuse_order { *settled_hi } else { None };
-        let (hi, hi_below) = if let Some(hi) = reuse_wanted {
-            (hi, 0)
+        let mut wanted = std::mem::take(spare_wanted);
+        wanted.resize(count, Level::Absent);
+        let hi = if let Some(hi) = reuse_wanted {
+            wanted.copy_from_slice(prev_wanted);
+            hi
         } else {
-            // Ranks, smaller first: the key descending (`u32::MAX` is left to non-candidates);
-            // equal ranks are ordered by `rank_order` below.
-            let mut candidate_count = 0usize;
-            rank.resize(count, 0);
-            // Counts of the ranks' upper 11 bits, for the selection.
-            let mut top = [0u32; BUCKETS];
-            // And, unless reused, the kept bricks keyed by descending error (NaN lowest) for the
-            // requests (`key << 32 | brick`), with the counts of the keys' radix digits.
-            let mut hist: Histograms = [[0; BUCKETS]; 3];
-            let mut keys = 0usize;
             if !reuse_order {
-                by_error.clear();
+                // The kept bricks by descending error (NaN last), equal errors in brick order
+                // (`key << 32 | brick`), sorted with the counts of the keys' radix digits.
+                let mut hist: Histograms = [[0; BUCKETS]; 3];
+                // Every entry up to the last kept brick's is written below.
                 by_error.resize(count, 0);
-            }
-            let bricks = rank
-                .iter_mut()
-                .zip(active.iter())
-                .zip(error)
-                .zip(prev_wanted);
-            for (i, (((r, &a), &e), &p)) in bricks.enumerate() {
-                let was_hi = p == Level::Hi;
-                let candidate = a & is_candidate(e, was_hi);
-                let key = descending_key(rank_key(e, was_hi)).min(u32::MAX - 1);
-                let key = if candidate { key } else { u32::MAX };
-                *r = key;
-                top[(key >> 21) as usize] += 1;
-                candidate_count += usize::from(candidate);
-                if !reuse_order {
+                let mut keys = 0usize;
+                for (i, (&a, &e)) in active.iter().zip(error).enumerate() {
                     // Written at the next free place, which only an active brick takes.
-                    let e = if e.is_nan() { f32::NEG_INFINITY } else { e };
-                    let k = descending_key(e);
+                    let k = request_key(e);
                     count_key(&mut hist, k, u32::from(a));
                     by_error[keys] = (u64::from(k) << 32) | i as u64;
                     keys += usize::from(a);
                 }
-            }
-            if !reuse_order {
                 by_error.truncate(keys);
                 radix_sort_by_high_word(by_error, sort_scratch, &mut hist);
                 *order_inputs = Some((*frame.view, budget.slots, report.dropped));
             }
-            let hi = max_hi_bricks(kept, candidate_count, budget.slots).unwrap_or(0);
-            // The `hi` best candidates are those with a rank below `boundary` and `take` of those
-            // with rank `boundary` (collected in `ties`).
-            ties.clear();
-            let (boundary, take) = if hi == 0 {
-                (0, 0)
-            } else if hi >= candidate_count {
-                (u32::MAX, 0)
-            } else {
-                radix_select(rank, hi, &top, rank_scratch, ties)
-            };
-            // A kept brick is wanted `Hi` when its rank is below `hi_below`: the ties not taken are
-            // moved above it.
-            let mut hi_below = boundary;
-            if take > 0 {
-                // The full rank order: key descending, a brick wanted Hi last frame first, then
-                // importance.
-                let rank_order = |a: &u32, b: &u32| {
-                    let (ia, ib) = (*a as usize, *b as usize);
-                    let (ha, hb) = (prev_wanted[ia] == Level::Hi, prev_wanted[ib] == Level::Hi);
-                    rank_key(error[ib], hb)
-                        .total_cmp(&rank_key(error[ia], ha))
-                        .then(hb.cmp(&ha))
-                        .then_with(|| importance(a, b))
-                };
-                let take = take.min(ties.len());
-                if take < ties.len() {
-                    ties.select_nth_unstable_by(take, rank_order);
-                }
-                for &i in &ties[take..] {
-                    rank[i as usize] = boundary + 1;
-                }
-                hi_below = boundary + 1;
+            // Every kept brick is at least `Lo`; the best-ranked candidates become `Hi`.
+            for (w, &a) in wanted.iter_mut().zip(active.iter()) {
+                *w = if a { Level::Lo } else { Level::Absent };
             }
-            (hi, hi_below)
+            let candidate_count = if error_threshold == 0.0 {
+                kept
+            } else {
+                by_error
+                    .iter()
+                    .map(|&k| k as u32 as usize)
+                    .filter(|&i| is_candidate(error[i], prev_wanted[i] == Level::Hi))
+                    .count()
+            };
+            let hi = max_hi_bricks(kept, candidate_count, budget.slots).unwrap_or(0);
+            let ranking = Ranking {
+                by_error,
+                error,
+                distance,
+                prev_wanted,
+                boost,
+            };
+            let selected = select_hi(ranking, hi, is_candidate, select_scratch, &mut wanted);
+            debug_assert_eq!(selected, hi);
+            hi
         };
         report.wanted_hi = hi;
         report.wanted_lo = kept - hi;
@@ -551,24 +514,12 @@ impl ResidencyPlanner {
         coarsen.clear();
         holes.clear();
         refine.clear();
-        let mut wanted = std::mem::take(spare_wanted);
-        wanted.resize(count, Level::Absent);
-        let wanted_from = if reuse_wanted.is_some() {
-            Wanted::Previous
-        } else {
-            Wanted::Ranked {
-                active,
-                rank,
-                hi_below,
-            }
-        };
         let counts = targets(
-            wanted_from,
             Bricks {
                 prev_wanted,
+                wanted: &wanted,
                 error,
                 draw: &mut draw,
-                wanted: &mut wanted,
                 target,
             },
             Changes {

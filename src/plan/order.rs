@@ -1,6 +1,6 @@
 //! The orders the planner ranks bricks by: f32 keys for radix passes, the stable radix sort of
-//! the requests, the radix selection of the `Hi` candidates, and the importance order (error,
-//! then box distance, then index) with distances computed on demand.
+//! the order by error, and the importance order (error, then box distance, then index) with
+//! distances computed on demand.
 
 use std::cmp::Ordering;
 
@@ -38,7 +38,7 @@ pub(super) fn radix_sort_by_high_word(
     hist: &mut Histograms,
 ) {
     let len = v.len() as u32;
-    scratch.clear();
+    // Every entry is written by a pass before it is read.
     scratch.resize(v.len(), 0);
     for (pass, counts) in hist.iter_mut().enumerate() {
         if counts.contains(&len) {
@@ -58,59 +58,6 @@ pub(super) fn radix_sort_by_high_word(
         }
         std::mem::swap(v, scratch);
     }
-}
-
-/// For `0 < h < values.len()`: the value `b` and count `take` such that the `h` smallest of
-/// `values` are those below `b` and `take` of those equal to `b`, whose indices it leaves in
-/// `ties` (a radix selection, rounds of 11, 11 and 10 bits). `top` holds the counts of the
-/// upper 11 bits of `values`, gathered while they were computed.
-pub(super) fn radix_select(
-    values: &[u32],
-    h: usize,
-    top: &[u32; BUCKETS],
-    scratch: &mut Vec<(u32, u32)>,
-    ties: &mut Vec<u32>,
-) -> (u32, usize) {
-    let mut remaining = h;
-    let mut prefix = 0u32;
-    let mut hist = *top;
-    scratch.clear();
-    for (round, (shift, bits)) in [(21u32, 11u32), (10, 11), (0, 10)].into_iter().enumerate() {
-        let mask = (1usize << bits) - 1;
-        if round > 0 {
-            hist = [0; BUCKETS];
-            for &(v, _) in scratch.iter() {
-                hist[(v >> shift) as usize & mask] += 1;
-            }
-        }
-        let mut below = 0;
-        let mut digit = mask;
-        for (d, &c) in hist[..=mask].iter().enumerate() {
-            let c = c as usize;
-            if below + c >= remaining {
-                digit = d;
-                break;
-            }
-            below += c;
-        }
-        remaining -= below;
-        prefix = (prefix << bits) | digit as u32;
-        let matches = |v: u32| (v >> shift) as usize & mask == digit;
-        if round == 0 {
-            scratch.extend(
-                values
-                    .iter()
-                    .enumerate()
-                    .filter(|&(_, &v)| matches(v))
-                    .map(|(i, &v)| (v, i as u32)),
-            );
-        } else {
-            scratch.retain(|&(v, _)| matches(v));
-        }
-    }
-    ties.clear();
-    ties.extend(scratch.iter().map(|&(_, i)| i));
-    (prefix, remaining)
 }
 
 /// Box distances from the eye, computed on demand from the per-axis squared components (one

@@ -1,33 +1,19 @@
-//! The planner's per-brick target pass: the wanted level of every brick, its target (the best
-//! loaded level at or below the wanted one, see step 4 of the [planner](super)), and the
-//! lists of changes staging works through, in one pass over the bricks.
+//! The planner's per-brick target pass: the target of every brick (the best loaded level at or
+//! below the wanted one, see step 4 of the [planner](super)), and the lists of changes staging
+//! works through, in one pass over the bricks.
 
 use crate::bricks::Level;
-
-/// Where the wanted levels come from.
-#[derive(Copy, Clone)]
-pub(super) enum Wanted<'a> {
-    /// The previous frame's, unchanged.
-    Previous,
-    /// Culling and the `Hi` selection: an active brick is wanted `Hi` when its rank is below
-    /// `hi_below`, else `Lo`; an inactive one `Absent`.
-    Ranked {
-        active: &'a [bool],
-        rank: &'a [u32],
-        hi_below: u32,
-    },
-}
 
 /// The per-brick state the pass reads and fills (one entry per brick each).
 pub(super) struct Bricks<'a> {
     /// Last frame's wanted levels.
     pub prev_wanted: &'a [Level],
+    /// This frame's wanted levels.
+    pub wanted: &'a [Level],
     /// Screen-space errors.
     pub error: &'a [f32],
     /// Drawn levels, in: the last frame's; out: `Absent` where the target is `Absent`.
     pub draw: &'a mut [Level],
-    /// Out: this frame's wanted levels.
-    pub wanted: &'a mut [Level],
     /// Out: the targets (`Absent` for the bricks in `keep_hi`, decided later).
     pub target: &'a mut [Level],
 }
@@ -62,74 +48,22 @@ pub(super) struct Counts {
     pub wanted_changed: bool,
 }
 
-/// Fills the wanted levels and the targets, and collects the changes. `is_loaded` is asked
-/// about the wanted level of every wanted brick first, and then only as the fallback rules
-/// need. The common case (a brick drawn at its wanted level, which is loaded) takes a short
-/// branch-light path.
+/// Fills the targets of the wanted levels and collects the changes, in one pass over the
+/// bricks. `is_loaded` is asked about the wanted level of every wanted brick first, and then
+/// only as the fallback rules need. The common case (a brick drawn at its wanted level, which
+/// is loaded) takes a short branch-light path.
 pub(super) fn targets(
-    wanted_from: Wanted<'_>,
     bricks: Bricks<'_>,
     changes: Changes<'_>,
     is_loaded: impl Fn(u32, Level) -> bool,
 ) -> Counts {
     let Bricks {
         prev_wanted,
+        wanted,
         error,
         draw,
-        wanted,
         target,
     } = bricks;
-    let count = prev_wanted.len();
-    assert!(
-        error.len() == count && draw.len() == count && wanted.len() == count,
-        "one entry per brick"
-    );
-    assert_eq!(target.len(), count, "one target per brick");
-    match wanted_from {
-        Wanted::Previous => {
-            wanted.copy_from_slice(prev_wanted);
-            let mut c = pass(prev_wanted, error, draw, target, changes, is_loaded);
-            c.wanted_changed = false;
-            c
-        }
-        Wanted::Ranked {
-            active,
-            rank,
-            hi_below,
-        } => {
-            assert!(
-                active.len() == count && rank.len() == count,
-                "one rank per brick"
-            );
-            let mut changed = 0u8;
-            let (prev, active, rank) = (&prev_wanted[..count], &active[..count], &rank[..count]);
-            for (i, w) in wanted.iter_mut().enumerate() {
-                let l = if !active[i] {
-                    Level::Absent
-                } else if rank[i] < hi_below {
-                    Level::Hi
-                } else {
-                    Level::Lo
-                };
-                changed |= u8::from(l != prev[i]);
-                *w = l;
-            }
-            let mut c = pass(wanted, error, draw, target, changes, is_loaded);
-            c.wanted_changed = changed != 0;
-            c
-        }
-    }
-}
-
-/// The targets and changes of the wanted levels `wanted`.
-fn pass(
-    wanted: &[Level],
-    error: &[f32],
-    draw: &mut [Level],
-    target: &mut [Level],
-    changes: Changes<'_>,
-    is_loaded: impl Fn(u32, Level) -> bool,
-) -> Counts {
     let Changes {
         keep_hi,
         coarsen,
@@ -144,8 +78,11 @@ fn pass(
     // several times the instructions.
     let count = wanted.len();
     let (target, draw, error) = (&mut target[..count], &mut draw[..count], &error[..count]);
+    let prev_wanted = &prev_wanted[..count];
+    let mut changed = 0u8;
     for i in 0..count {
         let (w, e) = (wanted[i], error[i]);
+        changed |= u8::from(w != prev_wanted[i]);
         let (t, d) = (&mut target[i], &mut draw[i]);
         let b = i as u32;
         let drawn = *d;
@@ -206,6 +143,7 @@ fn pass(
         }
     }
     c.max_lo_error = max_lo;
+    c.wanted_changed = changed != 0;
     c.target_hi += settled_hi;
     c.target_lo += settled - settled_hi;
     c.drawn_hi += settled_hi;

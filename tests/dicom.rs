@@ -191,15 +191,17 @@ fn pydicom_test_files_load_to_pydicoms_pixel_arrays() {
     }
 }
 
-/// `bytes` with the JPEG-LS frame header (SOF55, FFF7) changed by `change(header)`, where
-/// `header` starts at the segment's length (Lf, P, Y, X, Nf, ...).
-fn with_jpeg_ls_frame(bytes: &[u8], change: impl Fn(&mut [u8])) -> Vec<u8> {
+/// `bytes` with the JPEG-LS frame header (SOF55, FFF7) changed: `(i, value)` sets its byte `i`,
+/// counted from the segment's length (Lf: 0-1, P: 2, Y: 3-4, X: 5-6, Nf: 7).
+fn with_jpeg_ls_frame(bytes: &[u8], edits: &[(usize, u8)]) -> Vec<u8> {
     let mut b = bytes.to_vec();
     let at = b
         .windows(2)
         .position(|w| w == [0xFF, 0xF7])
         .expect("a SOF55 marker");
-    change(&mut b[at + 2..at + 13]);
+    for &(i, value) in edits {
+        b[at + 2 + i] = value;
+    }
     b
 }
 
@@ -210,20 +212,21 @@ fn jpeg_ls_frames_that_disagree_with_the_header_are_refused_before_decoding() {
     let (s, values) = decode_dicom_slice(&p, &bytes).unwrap();
     assert_eq!((s.columns, s.rows, s.bits_allocated), (64, 64, 16));
     assert_eq!(values.len(), 64 * 64);
-    let cases: [(&str, fn(&mut [u8])); 4] = [
-        // 65535 x 65535 16-bit samples: CharLS would allocate 8 GiB for this 5 KiB file.
-        ("is 65535x65535 samples", |h| h[3..7].fill(0xFF)),
-        ("has 3 components", |h| {
-            h[1] = 8 + 9;
-            h[7] = 3
-        }),
-        ("decode to 1 byte(s) each, but BitsAllocated is 16", |h| {
-            h[2] = 8
-        }),
-        ("does not fit its 1 components", |h| h[1] = 20),
+    let cases: [(&str, &[(usize, u8)]); 4] = [
+        // 65535 x 65535 16-bit samples: CharLS would allocate 8 GiB for this 6 KiB file.
+        (
+            "is 65535x65535 samples",
+            &[(3, 0xFF), (4, 0xFF), (5, 0xFF), (6, 0xFF)],
+        ),
+        ("has 3 components", &[(1, 8 + 9), (7, 3)]),
+        (
+            "decode to 1 byte(s) each, but BitsAllocated is 16",
+            &[(2, 8)],
+        ),
+        ("does not fit its 1 components", &[(1, 20)]),
     ];
-    for (fragment, change) in cases {
-        let b = with_jpeg_ls_frame(&bytes, change);
+    for (fragment, edits) in cases {
+        let b = with_jpeg_ls_frame(&bytes, edits);
         match decode_dicom_slice(&p, &b) {
             Err(VolumeError::Format { field, message, .. }) => {
                 assert!(field.starts_with("PixelData"), "{fragment}: {field}");

@@ -1,11 +1,11 @@
 //! DICOM series (src/volume/formats/dicom) against real files and real writers, through the venv
 //! of scripts/python-env.sh (scripts/test.sh runs it and exports `MIXVOL_PYTHON`):
 //! tests/fixtures/write_dicom_fixtures.py copies pydicom's own test files (CT, MR; RLE, JPEG 2000,
-//! JPEG extended, deflated, big endian, implicit VR; a DICOMDIR over 3 patients) with the
-//! volumes pydicom's pixel_array and nibabel's reorientation give for them, and writes the
+//! JPEG-LS, JPEG extended, deflated, big endian, implicit VR; a DICOMDIR over 3 patients) with
+//! the volumes pydicom's pixel_array and nibabel's reorientation give for them, and writes the
 //! MNI152 template (scripts/fetch-datasets.sh) as DICOM series in LPS axial and sagittal
-//! orientations (uncompressed, JPEG 2000 lossless, RLE with a rescale to HU), file names
-//! shuffled.
+//! orientations (uncompressed, JPEG 2000 lossless, JPEG-LS lossless and near-lossless, RLE with
+//! a rescale to HU), file names shuffled.
 //!
 //! Every value is checked against what the generator computed or against the same volume loaded
 //! from NIfTI (never the loader against itself, except for file-order invariance).
@@ -150,11 +150,12 @@ fn pydicom_test_files_load_to_pydicoms_pixel_arrays() {
         let l = load(&fixtures().join("pydicom").join(name));
         check(name, &l, 0.0);
     }
-    // The MR variants (RLE, JPEG 2000, big endian, implicit VR) hold the same pixels.
+    // The MR variants (RLE, JPEG 2000, JPEG-LS, big endian, implicit VR) hold the same pixels.
     let mr = load(&fixtures().join("pydicom/MR_small.dcm"));
     for name in [
         "MR_small_RLE.dcm",
         "MR_small_jp2klossless.dcm",
+        "MR_small_jpeg_ls_lossless.dcm",
         "MR_small_bigendian.dcm",
     ] {
         assert_eq!(
@@ -177,16 +178,69 @@ fn pydicom_test_files_load_to_pydicoms_pixel_arrays() {
         let l = load(&fixtures().join("pydicom").join(name));
         check(name, &l, 0.0);
     }
+    // JPEG-LS lossless (int16 MR) and near-lossless (8 and 16 bits): CharLS gives exactly what
+    // pydicom's libjpeg plugin, another JPEG-LS implementation, gives.
+    for (name, stored) in [
+        ("MR_small_jpeg_ls_lossless.dcm", StoredType::I16),
+        ("JPEGLSNearLossless_08.dcm", StoredType::U8),
+        ("JPEGLSNearLossless_16.dcm", StoredType::U16),
+    ] {
+        let l = load(&fixtures().join("pydicom").join(name));
+        check(name, &l, 0.0);
+        assert_eq!(l.meta.stored, stored, "{name}");
+    }
+}
+
+/// `bytes` with the JPEG-LS frame header (SOF55, FFF7) changed: `(i, value)` sets its byte `i`,
+/// counted from the segment's length (Lf: 0-1, P: 2, Y: 3-4, X: 5-6, Nf: 7).
+fn with_jpeg_ls_frame(bytes: &[u8], edits: &[(usize, u8)]) -> Vec<u8> {
+    let mut b = bytes.to_vec();
+    let at = b
+        .windows(2)
+        .position(|w| w == [0xFF, 0xF7])
+        .expect("a SOF55 marker");
+    for &(i, value) in edits {
+        b[at + 2 + i] = value;
+    }
+    b
+}
+
+#[test]
+fn jpeg_ls_frames_that_disagree_with_the_header_are_refused_before_decoding() {
+    let p = fixtures().join("pydicom/MR_small_jpeg_ls_lossless.dcm");
+    let bytes = std::fs::read(&p).unwrap();
+    let (s, values) = decode_dicom_slice(&p, &bytes).unwrap();
+    assert_eq!((s.columns, s.rows, s.bits_allocated), (64, 64, 16));
+    assert_eq!(values.len(), 64 * 64);
+    let cases: [(&str, &[(usize, u8)]); 4] = [
+        // 65535 x 65535 16-bit samples: CharLS would allocate 8 GiB for this 6 KiB file.
+        (
+            "is 65535x65535 samples",
+            &[(3, 0xFF), (4, 0xFF), (5, 0xFF), (6, 0xFF)],
+        ),
+        ("has 3 components", &[(1, 8 + 9), (7, 3)]),
+        (
+            "decode to 1 byte(s) each, but BitsAllocated is 16",
+            &[(2, 8)],
+        ),
+        ("does not fit its 1 components", &[(1, 20)]),
+    ];
+    for (fragment, edits) in cases {
+        let b = with_jpeg_ls_frame(&bytes, edits);
+        match decode_dicom_slice(&p, &b) {
+            Err(VolumeError::Format { field, message, .. }) => {
+                assert!(field.starts_with("PixelData"), "{fragment}: {field}");
+                assert!(message.contains(fragment), "{fragment}: {message}");
+            }
+            Err(e) => panic!("{fragment}: unexpected error {e}"),
+            Ok(_) => panic!("{fragment}: decoded"),
+        }
+    }
 }
 
 #[test]
 fn unsupported_files_are_refused_by_name() {
     let cases = [
-        (
-            "MR_small_jpeg_ls_lossless.dcm",
-            "TransferSyntaxUID",
-            "JPEG-LS",
-        ),
         ("MR_truncated.dcm", "header", "unreadable DICOM file"),
         ("JPGExtended.dcm", "PixelData", "JPEG Extended"),
         ("rtdose.dcm", "NumberOfFrames", "multi-frame"),
@@ -436,6 +490,39 @@ fn series_written_from_the_mni_template_load_to_the_nifti_volume() {
     assert_eq!(hu, 198.0 * 8.0 - 1024.0, "white matter voxel in HU");
 }
 
+#[test]
+fn jpeg_ls_series_load_to_the_uncompressed_volume() {
+    // Lossless: uint8, and int16 with negative stored values and a rescale (two's complement
+    // samples in the codestream, sign-extended from BitsStored).
+    let nifti = mni_nifti();
+    let lps = load(&fixtures().join("mni_lps"));
+    let jls = load(&fixtures().join("mni_jpegls"));
+    assert!(jls.volume == nifti.volume, "JPEG-LS voxels differ");
+    assert_eq!(jls.meta.stored, StoredType::U8);
+    assert_eq!(jls.meta.reorientation, lps.meta.reorientation);
+    assert_eq!(jls.meta.origin, lps.meta.origin);
+    let ct = load(&fixtures().join("mni_ct_jpegls"));
+    let nii = load(&fixtures().join("mni_ct.nii"));
+    assert_eq!(ct.meta.stored, StoredType::I16);
+    assert!(ct.meta.scale_applied);
+    assert!(ct.volume == nii.volume, "JPEG-LS HU voxels differ");
+    assert_eq!(
+        ct.volume.value(0, 0, 0),
+        -1024.0,
+        "background: stored -1000"
+    );
+    // Near-lossless with NEAR = 2: every voxel within 2 of the original, and not all equal.
+    let near = load(&fixtures().join("mni_jpegls_near"));
+    assert_eq!(near.volume.dims(), nifti.volume.dims());
+    let (VoxelData::U8(a), VoxelData::U8(b)) = (near.volume.data(), nifti.volume.data()) else {
+        panic!("uint8 volumes expected");
+    };
+    let worst = a.iter().zip(b).map(|(&x, &y)| x.abs_diff(y)).max().unwrap();
+    let differ = a.iter().zip(b).filter(|(x, y)| x != y).count();
+    assert!(worst <= 2, "error {worst} above NEAR = 2");
+    assert!(differ > a.len() / 100, "{differ} voxels differ: not lossy?");
+}
+
 /// Copies the files of `src` into a fresh `dst` under new names from `rename`.
 fn copy_renamed(src: &Path, dst: &Path, rename: impl Fn(usize, &Path) -> String) {
     let _ = std::fs::remove_dir_all(dst);
@@ -521,6 +608,7 @@ fn mutated_files_give_errors_not_panics() {
         "CT_small.dcm",
         "MR_small_RLE.dcm",
         "MR_small_jp2klossless.dcm",
+        "MR_small_jpeg_ls_lossless.dcm",
         "image_dfl.dcm",
     ] {
         let p = fixtures().join("pydicom").join(name);

@@ -61,15 +61,17 @@
 //!
 //! # Transfer syntaxes
 //!
-//! Decoded by dicom-rs' pure-Rust adapters (no C or C++ codec is built), each checked against
-//! pydicom on its own test files (tests/dicom.rs): implicit VR little endian, explicit VR little
-//! and big endian, deflated explicit VR little endian, RLE lossless, JPEG 2000 lossless and lossy
-//! (the Rust port of OpenJPEG; identical to pydicom's openjpeg plugin on `693_J2KI.dcm` and
-//! `JPEG2000.dcm`). JPEG baseline (8-bit) and lossless go through jpeg-decoder but have no grey
-//! test file here; 12-bit JPEG extended (pydicom's `JPGExtended.dcm`) is not decoded by it and
-//! fails with a typed error on the pixel data. Refused by name before decoding: JPEG-LS (CharLS is
-//! a CMake C++ build linked as a shared library), JPEG XL, the video syntaxes. A decoder that
-//! fails (or panics) on corrupt data gives a [`VolumeError::Format`] error on `PixelData`.
+//! Decoded by dicom-rs' adapters (pure Rust, except CharLS for JPEG-LS, built from the C++
+//! sources charls-sys bundles and linked statically), each checked against pydicom on its own
+//! test files (tests/dicom.rs): implicit VR little endian, explicit VR little and big endian,
+//! deflated explicit VR little endian, RLE lossless, JPEG 2000 lossless and lossy (the Rust port
+//! of OpenJPEG; identical to pydicom's openjpeg plugin on `693_J2KI.dcm` and `JPEG2000.dcm`),
+//! JPEG-LS lossless and near-lossless (identical to pydicom's libjpeg plugin; the frame header
+//! must match Columns x Rows, one component and BitsAllocated before CharLS decodes it). JPEG
+//! baseline (8-bit) and lossless go through jpeg-decoder but have no grey test file here; 12-bit
+//! JPEG extended (pydicom's `JPGExtended.dcm`) is not decoded by it and fails with a typed error
+//! on the pixel data. Refused by name before decoding: JPEG XL, the video syntaxes. A decoder
+//! that fails (or panics) on corrupt data gives a [`VolumeError::Format`] error on `PixelData`.
 //!
 //! # Safety
 //!

@@ -1,6 +1,10 @@
 //! Pixel data: decoding one file's frame through dicom-pixeldata (native and the compressed
-//! transfer syntaxes its pure-Rust adapters handle), the stored values it holds (BitsStored
-//! masked or sign-extended, as pydicom does), and the series' value mapping into the volume.
+//! transfer syntaxes its adapters handle: RLE, JPEG and JPEG 2000 in Rust, JPEG-LS through
+//! CharLS, whose frame header is checked first: [`jpegls`]), the stored values it holds
+//! (BitsStored masked or sign-extended, as pydicom does), and the series' value mapping into the
+//! volume.
+mod jpegls;
+
 use super::slice::{object_from_bytes, slice_of, DicomSlice};
 use crate::volume::formats::read::format_err;
 use crate::volume::formats::StoredType;
@@ -66,7 +70,7 @@ fn unsupported_syntax(path: &Path, uid: &str) -> VolumeError {
         format!(
             "{} ({uid}) is not decoded by this build (supported: implicit / explicit VR little \
              endian, explicit VR big endian, deflated, RLE lossless, JPEG baseline and lossless, \
-             JPEG 2000; not JPEG-LS, JPEG XL, video)",
+             JPEG 2000, JPEG-LS lossless and near-lossless; not JPEG XL, video)",
             transfer_syntax_name(uid)
         ),
     )
@@ -110,6 +114,9 @@ fn stored_values(
     s: &DicomSlice,
 ) -> Result<Vec<i64>, VolumeError> {
     check_loadable(path, s)?;
+    if jpegls::is_jpeg_ls(&s.transfer_syntax) {
+        jpegls::check_frame(path, object, s)?;
+    }
     // dicom-rs' decoders can panic on corrupt encapsulated data (an index out of bounds in its
     // RLE adapter, found by tests/dicom.rs' mutations): that is a corrupt file, not a crash.
     let decoded =

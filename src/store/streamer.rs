@@ -46,7 +46,7 @@ use crate::bricks::{BrickGrid, BrickSource, DownsampleFilter, Level, SourceError
 use crate::error::Result;
 use crate::volume::ScalarType;
 use glam::Vec3;
-use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::Path;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -432,15 +432,23 @@ impl<B: BrickBackend> BrickStreamer<B> {
             .copied()
             .filter(|&(_, level, _)| level != Level::Absent)
             .collect();
-        sorted.sort_by(|a, b| key_priority(b.2).total_cmp(&key_priority(a.2)));
-        let mut seen = HashSet::with_capacity(sorted.len());
+        // A planner's list is in priority order already: only check that.
+        let in_order = sorted
+            .windows(2)
+            .all(|w| key_priority(w[0].2) >= key_priority(w[1].2));
+        if !in_order {
+            sorted.sort_by(|a, b| key_priority(b.2).total_cmp(&key_priority(a.2)));
+        }
+        // The first of each (brick, level), marked in a bit per brick and level.
+        let bit = |brick: u32, level: Level| brick as usize * 2 + usize::from(level == Level::Lo);
+        let mut seen = vec![0u64; (count as usize * 2).div_ceil(64)];
         let mut order = Vec::with_capacity(sorted.len());
-        let mut rank = HashMap::with_capacity(sorted.len());
         for (brick, level, _) in sorted {
-            let key = (brick, level);
-            if seen.insert(key) {
-                rank.insert(key, order.len());
-                order.push(key);
+            let b = bit(brick, level);
+            let (word, mask) = (b / 64, 1u64 << (b % 64));
+            if seen[word] & mask == 0 {
+                seen[word] |= mask;
+                order.push((brick, level));
             }
         }
         let old = {
@@ -452,7 +460,11 @@ impl<B: BrickBackend> BrickStreamer<B> {
                 self.shared.work.notify_all();
                 return Ok(());
             }
-            state.set_wanted(order, rank)
+            drop(state);
+            // Ranked outside the lock.
+            let rank: HashMap<Key, usize> =
+                order.iter().enumerate().map(|(r, &k)| (k, r)).collect();
+            self.shared.lock().set_wanted(order, rank)
         };
         self.shared.work.notify_all();
         drop(old);

@@ -22,6 +22,14 @@
 //! - `a_corrupt_local_chunk_is_a_typed_error_naming_it_and_other_bricks_load`: a chunk file cut
 //!   short in a local image: both levels of a brick that reads it fail naming the chunk and its
 //!   file, the chunk is remembered as failed, other bricks pack as from memory.
+//! - `learned_value_ranges_cull_empty_bricks_before_their_hi_levels_load`: an image empty under
+//!   the transfer function but for a blob in 8 of its 64 bricks, through the planner and
+//!   renderer: after the low-res pass (the request cut to the low-res levels) the source knows
+//!   every brick's exact range (bit for bit the in-memory source's), the next frames cull the 56
+//!   empty bricks, only the 8 others load their hi-res level, and a chunk only empty bricks read
+//!   is not fetched after the low-res pass; with the ranges hidden (the baseline) nothing is
+//!   culled, the 62 hi-res levels the GPU cache holds load and that chunk is fetched again (the
+//!   chunk cache holds two chunks; the figures are printed).
 //! - `a_failed_chunk_falls_back_to_pyramid_level_1`: a two-level OME-Zarr written by
 //!   ome-zarr-py (tests/fixtures/write_stream_pyramid.py) with one level-0 chunk served corrupt
 //!   (then failing with HTTP 500): the low-res bricks that read it load, their texels whose
@@ -36,7 +44,9 @@ mod common;
 mod remote_util;
 
 use glam::{UVec3, Vec3, Vec4};
-use mixvol::bricks::{BrickSource, DownsampleFilter, Level, SourceError, VolumeBrickSource};
+use mixvol::bricks::{
+    BrickGrid, BrickSource, DownsampleFilter, Level, SourceError, ValueRange, VolumeBrickSource,
+};
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::{self, ReferenceCache};
 use mixvol::renderer::{MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource};
@@ -203,7 +213,7 @@ fn renderer_over(
 /// [`renderer_over`] with bricks of edge `n`.
 fn renderer_of(
     ctx: &mixvol::gpu::GpuContext,
-    source: Arc<ZarrBrickSource>,
+    source: Arc<dyn BrickSource>,
     ram_bytes: Option<u64>,
     n: u32,
 ) -> Renderer {
@@ -761,6 +771,179 @@ fn a_failed_chunk_falls_back_to_pyramid_level_1() {
         assert!(first.contains(&format!("{url}/{key}")), "{first}");
         assert_eq!(source.store().fallback_stats().bricks, 8);
         drop(renderer);
+    }
+    common::finish(ctx);
+}
+
+/// A streamed source whose value ranges stay the conservative ones (what the pass saw before the
+/// source learned ranges): the baseline of the culling test.
+struct Conservative(Arc<ZarrBrickSource>);
+
+impl BrickSource for Conservative {
+    fn grid(&self) -> BrickGrid {
+        self.0.grid()
+    }
+    fn scalar(&self) -> mixvol::volume::ScalarType {
+        self.0.scalar()
+    }
+    fn filter(&self) -> DownsampleFilter {
+        self.0.filter()
+    }
+    fn spacing(&self) -> Vec3 {
+        self.0.spacing()
+    }
+    fn value_ranges(&self) -> &[ValueRange] {
+        self.0.value_ranges()
+    }
+    fn value_range(&self) -> ValueRange {
+        self.0.value_range()
+    }
+    fn brick_bytes(&self, brick: u32, level: Level) -> Result<Option<Arc<[u8]>>, SourceError> {
+        self.0.brick_bytes(brick, level)
+    }
+    fn is_loaded(&self, brick: u32, level: Level) -> bool {
+        self.0.is_loaded(brick, level)
+    }
+    fn request_levels(&self, requests: &[(u32, Level, f32)]) -> Result<(), SourceError> {
+        self.0.request_levels(requests)
+    }
+}
+
+#[test]
+fn learned_value_ranges_cull_empty_bricks_before_their_hi_levels_load() {
+    let dir = TempDir::new("stream-learn");
+    let root = dir.0.join("img.zarr");
+    // 64^3 u16 in 16^3 chunks, zero (transparent under Bands) but for a blob in voxels 12..28
+    // per axis: 8 of the 64 bricks of 16^3 (2 per axis) read it.
+    let spec = ImageSpec {
+        shape: [DIM; 3],
+        chunks: [CHUNK; 3],
+        v3: true,
+        missing: None,
+        fill: 0,
+    };
+    let inside = |v: u64| (12..28).contains(&v);
+    spec.write_with(&root, |x, y, z| {
+        if inside(x) && inside(y) && inside(z) {
+            30_000 + 500 * ((x + 2 * y + 3 * z) % 11) as u16
+        } else {
+            0
+        }
+    });
+    let volume = mixvol::volume::load_zarr(&root).unwrap().volume;
+    let memory = VolumeBrickSource::new(Arc::new(volume), PN, DownsampleFilter::Mean2).unwrap();
+    let grid = memory.grid();
+    let exact = memory.value_ranges().to_vec();
+    let empty: Vec<bool> = exact.iter().map(|r| r.max == 0.0).collect();
+    let full: Vec<u32> = (0..grid.brick_count() as u32)
+        .filter(|&b| !empty[b as usize])
+        .collect();
+    assert_eq!(full.len(), 8, "{exact:?}");
+    let server = range_server(&dir.0);
+    let url = format!("{}/ok/img.zarr", server.base());
+    // Chunk (3, 3, 3) is read by empty bricks only.
+    let far = "/ok/img.zarr/0/c/3/3/3";
+    let lo_bytes = grid.brick_count() as u64 * 9 * 9 * 9 * 2;
+    let camera = Camera::perspective(Vec3::new(1.3, 1.1, 2.2), Vec3::ZERO, 35.0);
+    let settings = corner_settings();
+    let ctx = common::validated_context();
+    {
+        let mut figures = Vec::new();
+        for learn in [true, false] {
+            let before = request_count(&server, far);
+            let source = Arc::new(
+                open_zarr_source(
+                    &at(&url),
+                    0,
+                    &quick(1, 5000),
+                    ZarrStreamConfig {
+                        brick_size: PN,
+                        // Two chunks: the hi-res pass fetches again what it needs.
+                        chunk_cache_bytes: 2 * CHUNK_BYTES as usize,
+                        ..stream_config(4)
+                    },
+                    StreamerConfig {
+                        ram_budget_bytes: 4 << 20,
+                        record_load_order: true,
+                    },
+                )
+                .unwrap(),
+            );
+            let shown: Arc<dyn BrickSource> = match learn {
+                true => source.clone(),
+                false => Arc::new(Conservative(source.clone())),
+            };
+            // The low-res pass: the request cut to the 64 Lo levels.
+            let mut renderer = renderer_of(&ctx, shown, Some(lo_bytes), PN);
+            renderer.render(&camera, &settings, SIZE, SIZE).unwrap();
+            assert!(source.wait_settled(Duration::from_secs(30)));
+            let lo_pass = source.loaded_order();
+            assert_eq!(lo_pass.len(), grid.brick_count(), "{lo_pass:?}");
+            assert!(lo_pass.iter().all(|l| l.1 == Level::Lo), "{lo_pass:?}");
+            let zarr = source.store();
+            let lo_fetches = zarr.cache_stats().fetches;
+            let far_lo = request_count(&server, far) - before;
+            assert!(far_lo >= 1, "the Lo pass reads chunk (3, 3, 3)");
+            // Every brick's exact range is known now, bit for bit the in-memory source's.
+            assert_eq!(zarr.learned_ranges(), grid.brick_count());
+            assert_eq!(&source.learned_value_ranges().unwrap()[..], &exact[..]);
+            // Then without the cut, until settled.
+            renderer.set_residency_config(ResidencyConfig::default());
+            let mut report = None;
+            for _ in 0..10 {
+                let frame = renderer.render(&camera, &settings, SIZE, SIZE).unwrap();
+                let r = frame.residency.clone().expect("a planned frame");
+                let settled = source.wait_settled(Duration::from_secs(30));
+                let done = settled && r.plan.is_settled() && r.plan.waiting_for_source == 0;
+                report = Some(r);
+                if done {
+                    break;
+                }
+            }
+            let report = report.unwrap();
+            let hi: BTreeSet<u32> = source
+                .loaded_order()
+                .iter()
+                .filter(|l| l.1 == Level::Hi)
+                .map(|l| l.0)
+                .collect();
+            let far_all = request_count(&server, far) - before;
+            let c = zarr.cache_stats();
+            let s = source.stats();
+            figures.push(format!(
+                "learned ranges {learn}: culled {}, Hi loaded {}, chunk fetches {} (Lo pass {}), \
+                 stored bytes fetched {}, packed bytes {}, chunk (3,3,3) requested {far_all}x \
+                 ({far_lo}x in the Lo pass)",
+                report.plan.culled,
+                hi.len(),
+                c.fetches,
+                lo_fetches,
+                zarr.chunks().bytes_fetched(),
+                s.bytes_read
+            ));
+            if learn {
+                // The empty bricks are culled, and their hi-res levels never load: no chunk
+                // is fetched for them after the low-res pass.
+                assert_eq!(
+                    report.plan.culled,
+                    grid.brick_count() - full.len(),
+                    "{report:?}"
+                );
+                assert_eq!(report.plan.drawn_hi, full.len(), "{report:?}");
+                assert_eq!(hi, full.iter().copied().collect(), "{report:?}");
+                assert_eq!(far_all, far_lo, "chunk (3, 3, 3) fetched after the Lo pass");
+            } else {
+                assert_eq!(report.plan.culled, 0, "{report:?}");
+                // As many hi-res levels as the 63 cache slots hold.
+                assert_eq!(hi.len(), report.plan.drawn_hi, "{report:?}");
+                assert!(hi.len() > 7 * full.len(), "{report:?}");
+                assert!(far_all > far_lo, "{far_all} {far_lo}");
+            }
+            drop(renderer);
+        }
+        for f in &figures {
+            eprintln!("{f}");
+        }
     }
     common::finish(ctx);
 }

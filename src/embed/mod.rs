@@ -52,6 +52,7 @@
 //! submit cmd with fence[slot]; slot = (slot + 1) % frames_in_flight
 //! ```
 
+mod cull_ranges;
 mod frames;
 mod residency;
 mod source;

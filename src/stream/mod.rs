@@ -7,8 +7,9 @@
 //! `BrickStreamer<ZarrBricks>`. To pack one brick level, the backend:
 //!
 //! 1. asks the [kernel](crate::bricks::kernel) which voxels that level reads
-//!    ([`BrickKernel::window_for_outputs`]: the brick and its one-voxel border for `Hi`; the
-//!    downsampling filter's footprint for `Lo`);
+//!    ([`BrickKernel::window_for_outputs`]: the brick and its one-voxel border for `Hi`; for `Lo`
+//!    the downsampling filter's footprint widened to what the brick's value range reads, see
+//!    below);
 //! 2. takes the level-0 chunks that meet them from its [`ChunkCache`] (decoded chunks under a
 //!    byte budget, least recently used evicted first), fetching the missing ones with at most
 //!    [`ZarrStreamConfig::concurrency`] requests in flight; each request has the timeout and the
@@ -64,16 +65,38 @@
 //!   fails with the level-0 chunk's error as the `Hi` level does, and the brick is drawn
 //!   `Absent` (the frame still renders).
 //!
-//! **Value ranges.** The per-brick ranges the planner culls with would need every voxel; before
-//! anything is fetched they are conservative: the whole normalised range `[0, 1]` for 8- and
-//! 16-bit images, the caller's [`ZarrStreamConfig::value_range`] for float images (required).
+//! **Value ranges.** The per-brick ranges the planner culls with need the voxels a brick's
+//! reconstruction reads. [`BrickBackend::value_ranges`] are the conservative ones, known before
+//! anything is fetched: the whole normalised range `[0, 1]` for 8- and 16-bit images, the
+//! caller's [`ZarrStreamConfig::value_range`] for float images (required). The source then
+//! **learns each brick's exact range as its voxels arrive**: the window a `Lo` level is packed
+//! from is the kernel's window for every output ([`BrickKernel::window_for`]: the low-res taps,
+//! the hi-res brick with its border, and the taps of the one extra sample layer the range
+//! covers; with a chunk shape that is a multiple of the brick size it meets the same chunks as
+//! the low-res taps alone, for every filter but `LaMarSubsample`, whose taps do not reach the
+//! voxel below a brick), so packing `Lo` also yields the range exactly as
+//! [`crate::bricks::brick_value_ranges_for_storage`] defines it (the kernel's range output, bit
+//! for bit that of [`crate::bricks::VolumeBrickSource`]). A `Lo` level packed with a failed chunk
+//! in its window (even one resampled from the coarser level) teaches nothing: that brick keeps its
+//! conservative range. [`BrickBackend::learned_value_ranges`] hands the ranges out (a shared
+//! snapshot, copied once per change, so [`BrickBackend::value_ranges`] keeps its plain borrow of
+//! ranges that never change). The pass ([`crate::embed::VolumePass::update`]) culls with them:
+//! a brick its culling rejects under its learned range is given the planner with that range,
+//! every other brick keeps its conservative one (the planner also ranks bricks by range width,
+//! and exact widths for streamed bricks against conservative ones for the others would rank
+//! every brick not yet streamed first); the planner culls again whenever that changes
+//! ([`crate::plan`], step 1). Because the planner requests every `Lo` level
+//! before any `Hi` one, a brick that turns out empty under the transfer function is culled
+//! before its `Hi` level is loaded, and that level is never packed, uploaded or held in RAM (its
+//! chunks were fetched for `Lo` already; they are fetched again only when the chunk cache
+//! evicted them, which no longer happens for such bricks).
 
 mod chunk_cache;
 mod coarser;
 
 pub use chunk_cache::{ChunkCache, ChunkCacheStats};
 
-use crate::bricks::kernel::{BrickBox, BrickKernel, VoxelWindow};
+use crate::bricks::kernel::{BrickBox, BrickKernel, PackOutputs, TexelsMut, VoxelWindow};
 use crate::bricks::{
     hi_res_brick_extent, low_res_brick_extent, max_low_res_index, quantize_to, BrickError,
     BrickGrid, DownsampleFilter, Level, ValueRange,
@@ -180,6 +203,17 @@ pub struct FallbackStats {
     pub bytes_fetched: u64,
 }
 
+/// The value ranges learned from packed low-res levels.
+struct Learned {
+    /// Per brick: the exact range where `known`, else the conservative one.
+    ranges: Vec<ValueRange>,
+    known: Vec<bool>,
+    /// Bricks `known`.
+    count: usize,
+    /// `ranges` as last handed out; `None` after a change.
+    snapshot: Option<Arc<[ValueRange]>>,
+}
+
 /// The coarser level, opened lazily.
 enum CoarserState {
     /// Not needed yet.
@@ -208,6 +242,7 @@ pub struct ZarrBricks {
     /// that made it necessary.
     degraded: Mutex<BTreeMap<u32, Arc<StreamError>>>,
     coarser_samples: AtomicU64,
+    learned: Mutex<Learned>,
 }
 
 /// Locks `m`, recovering from a poisoned lock (the data stays consistent: every update is one
@@ -268,6 +303,12 @@ impl ZarrBricks {
             coarser: Mutex::new(CoarserState::Unopened),
             degraded: Mutex::new(BTreeMap::new()),
             coarser_samples: AtomicU64::new(0),
+            learned: Mutex::new(Learned {
+                ranges: vec![range; grid.brick_count()],
+                known: vec![false; grid.brick_count()],
+                count: 0,
+                snapshot: None,
+            }),
         })
     }
 
@@ -302,6 +343,12 @@ impl ZarrBricks {
             CoarserState::Failed => *coarser = CoarserState::Unopened,
             CoarserState::Unopened | CoarserState::Missing => {}
         }
+    }
+
+    /// Bricks whose exact value range is known (learned when their `Lo` level was packed from
+    /// level 0 alone).
+    pub fn learned_ranges(&self) -> usize {
+        lock(&self.learned).count
     }
 
     /// What the fallback to the coarser pyramid level did.
@@ -363,7 +410,11 @@ impl ZarrBricks {
         }
     }
 
-    /// The voxels `(origin, extent)` that packing `brick` at `level` reads.
+    /// The voxels `(origin, extent)` that packing `brick` at `level` reads: for `Hi` the brick
+    /// and its one-voxel border ([`BrickKernel::window_for_outputs`]); for `Lo` the window of
+    /// every output ([`BrickKernel::window_for`]), which holds the low-res filter's taps, the
+    /// hi-res window and the taps of the extra sample layer of the brick's value range, so that
+    /// packing `Lo` also learns the brick's exact range (see the [module docs](self)).
     pub fn window(&self, brick: u32, level: Level) -> Result<(UVec3, UVec3), StreamError> {
         let count = self.grid.brick_count();
         if brick as usize >= count || level == Level::Absent {
@@ -374,7 +425,10 @@ impl ZarrBricks {
         }
         let bricks = BrickBox::single(self.grid.brick_coords(brick as usize));
         let kernel = BrickKernel::new(&self.grid, self.filter, self.scalar);
-        Ok(kernel.window_for_outputs(&bricks, level == Level::Hi, level == Level::Lo)?)
+        Ok(match level {
+            Level::Lo => kernel.window_for(&bricks)?,
+            _ => kernel.window_for_outputs(&bricks, true, false)?,
+        })
     }
 
     /// The chunks (chunk coordinates) that packing `brick` at `level` reads, x fastest.
@@ -414,60 +468,93 @@ impl ZarrBricks {
                 Err(e) => failed.push((*c, e)),
             }
         }
-        // A failed chunk: only a low-res level can fall back, and only to a coarser level.
-        let coarser = match failed.is_empty() {
+        let coords = self.grid.brick_coords(brick as usize);
+        let mut kernel = BrickKernel::new(&self.grid, self.filter, self.scalar);
+        let voxels = VoxelWindow::new(&window, origin, extent)?;
+        if level == Level::Hi {
+            if !failed.is_empty() {
+                return Err(failed.swap_remove(0).1);
+            }
+            out.copy_from_slice(kernel.pack_level(&voxels, coords, true)?.as_bytes());
+            return Ok(());
+        }
+        // Low-res: the samples whose taps meet a failed chunk (none when the failed chunks only
+        // hold voxels of the range's extra layer) come from the coarser level.
+        let bad: Vec<UVec3> = failed.iter().map(|(c, _)| *c).collect();
+        let (texels, points, first_bad) = self.samples_meeting(coords, &bad);
+        let coarser = match texels.is_empty() {
             true => None,
-            false => match (level, self.coarser()) {
-                (Level::Lo, Some(c)) => Some(c),
-                _ => return Err(failed.swap_remove(0).1),
+            false => match self.coarser() {
+                Some(c) => Some(c),
+                None => return Err(failed.swap_remove(first_bad).1),
             },
         };
-        let coords = self.grid.brick_coords(brick as usize);
-        let packed = BrickKernel::new(&self.grid, self.filter, self.scalar).pack_level(
-            &VoxelWindow::new(&window, origin, extent)?,
-            coords,
-            level == Level::Hi,
+        let mut packed = VoxelData::zeroed(self.scalar, expected / self.scalar.size_bytes());
+        let mut range = [ValueRange::EMPTY];
+        kernel.pack_window(
+            &voxels,
+            &BrickBox::single(coords),
+            PackOutputs {
+                lo: Some(TexelsMut::of(&mut packed)),
+                // Exact only when every voxel read is the image's.
+                ranges: failed.is_empty().then_some(&mut range[..]),
+                ..PackOutputs::default()
+            },
         )?;
         drop(window);
         out.copy_from_slice(packed.as_bytes());
-        match coarser {
-            None => {
-                if level == Level::Lo {
-                    lock(&self.degraded).remove(&brick);
-                }
+        if failed.is_empty() {
+            self.learn(brick, range[0]);
+        }
+        let Some(coarser) = coarser else {
+            lock(&self.degraded).remove(&brick);
+            return Ok(());
+        };
+        let first = failed.swap_remove(first_bad).1;
+        match self.fill_from_coarser(&coarser, &texels, &points, out) {
+            Ok(()) => {
+                self.coarser_samples
+                    .fetch_add(texels.len() as u64, Ordering::Relaxed);
+                lock(&self.degraded).insert(brick, Arc::new(first));
+                Ok(())
             }
-            Some(coarser) => {
-                let bad: Vec<UVec3> = failed.iter().map(|(c, _)| *c).collect();
-                let first = failed.swap_remove(0).1;
-                match self.fill_from_coarser(&coarser, coords, &bad, out) {
-                    Ok(samples) => {
-                        self.coarser_samples.fetch_add(samples, Ordering::Relaxed);
-                        lock(&self.degraded).insert(brick, Arc::new(first));
-                    }
-                    Err(e) => {
-                        log::warn!(
-                            "{}: brick {brick} from level {}: {e}",
-                            self.name(),
-                            coarser.chunks().level()
-                        );
-                        return Err(first);
-                    }
-                }
+            Err(e) => {
+                log::warn!(
+                    "{}: brick {brick} from level {}: {e}",
+                    self.name(),
+                    coarser.chunks().level()
+                );
+                Err(first)
             }
         }
-        Ok(())
     }
 
-    /// Overwrites the texels of the packed low-res brick `brick` (`out`) whose samples read a
-    /// voxel of a `failed` chunk with the coarser level resampled at their positions; returns
-    /// how many.
-    fn fill_from_coarser(
+    /// Records `range` as the exact value range of `brick`.
+    fn learn(&self, brick: u32, range: ValueRange) {
+        let mut learned = lock(&self.learned);
+        let b = brick as usize;
+        if !learned.known[b] {
+            learned.known[b] = true;
+            learned.count += 1;
+        }
+        if learned.ranges[b] != range {
+            learned.ranges[b] = range;
+            learned.snapshot = None;
+        }
+    }
+
+    /// The texels (indices into the packed low-res brick `brick`) whose samples' filter taps
+    /// read a voxel of a `failed` chunk, their samples' level-0 index coordinates, and the
+    /// index in `failed` of the first chunk such a tap reads (0 when none does).
+    fn samples_meeting(
         &self,
-        coarser: &Coarser,
         brick: UVec3,
         failed: &[UVec3],
-        out: &mut [u8],
-    ) -> Result<u64, StreamError> {
+    ) -> (Vec<usize>, Vec<[f64; 3]>, usize) {
+        let (mut texels, mut points, mut first) = (Vec::new(), Vec::new(), None);
+        if failed.is_empty() {
+            return (texels, points, 0);
+        }
         let n = self.grid.brick_size();
         let e = low_res_brick_extent(n) as usize;
         let dims = self.grid.dims();
@@ -501,23 +588,35 @@ impl ZarrBricks {
                 })
             })
             .collect();
-        let mut texels = Vec::new();
-        let mut points = Vec::new();
         for z in 0..e {
             for y in 0..e {
                 for x in 0..e {
-                    if meets.iter().any(|m| m[0][x] && m[1][y] && m[2][z]) {
-                        texels.push(x + e * (y + e * z));
-                        // Sample k sits at hi-res position 2k: level-0 index coordinate 2k - 1/2.
-                        let at = |a: usize, j: usize| 2.0 * f64::from(ks[a][j]) - 0.5;
-                        points.push([at(0, x), at(1, y), at(2, z)]);
-                    }
+                    let Some(i) = meets.iter().position(|m| m[0][x] && m[1][y] && m[2][z]) else {
+                        continue;
+                    };
+                    first = Some(first.map_or(i, |f: usize| f.min(i)));
+                    texels.push(x + e * (y + e * z));
+                    // Sample k sits at hi-res position 2k: level-0 index coordinate 2k - 1/2.
+                    let at = |a: usize, j: usize| 2.0 * f64::from(ks[a][j]) - 0.5;
+                    points.push([at(0, x), at(1, y), at(2, z)]);
                 }
             }
         }
+        (texels, points, first.unwrap_or(0))
+    }
+
+    /// Overwrites `texels` of the packed low-res brick `out` with the coarser level resampled
+    /// at their samples' level-0 index coordinates `points`.
+    fn fill_from_coarser(
+        &self,
+        coarser: &Coarser,
+        texels: &[usize],
+        points: &[[f64; 3]],
+        out: &mut [u8],
+    ) -> Result<(), StreamError> {
         let range = self.range;
         let values: Vec<f32> = coarser
-            .sample(&points)?
+            .sample(points)?
             .into_iter()
             .map(|v| match self.scalar {
                 // The reported value range must hold every texel.
@@ -530,7 +629,7 @@ impl ZarrBricks {
         for (i, &t) in texels.iter().enumerate() {
             out[t * size..(t + 1) * size].copy_from_slice(&bytes[i * size..(i + 1) * size]);
         }
-        Ok(texels.len() as u64)
+        Ok(())
     }
 }
 
@@ -627,6 +726,21 @@ impl BrickBackend for ZarrBricks {
 
     fn value_range(&self) -> ValueRange {
         self.range
+    }
+
+    fn learned_value_ranges(&self) -> Option<Arc<[ValueRange]>> {
+        let mut learned = lock(&self.learned);
+        if learned.count == 0 {
+            return None;
+        }
+        let Learned {
+            ranges, snapshot, ..
+        } = &mut *learned;
+        Some(
+            snapshot
+                .get_or_insert_with(|| ranges.as_slice().into())
+                .clone(),
+        )
     }
 
     fn level_bytes(&self, level: Level) -> usize {

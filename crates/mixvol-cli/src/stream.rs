@@ -61,14 +61,16 @@ impl Streaming for ZarrBrickSource {
         };
         format!(
             "{}; fetched {} chunks, {:.2} MB stored bytes ({} cache hits, chunk cache peak \
-             {:.2} MB of {:.2} MB, {} failed chunks){fallback}",
+             {:.2} MB of {:.2} MB, {} failed chunks); exact value ranges of {} bricks \
+             learned{fallback}",
             streamer_line(self),
             c.fetches,
             zarr.chunks().bytes_fetched() as f64 / 1e6,
             c.hits,
             c.peak_bytes as f64 / 1e6,
             c.budget_bytes as f64 / 1e6,
-            c.failed_chunks
+            c.failed_chunks,
+            zarr.learned_ranges()
         )
     }
 }

@@ -35,7 +35,8 @@
 //!   (then failing with HTTP 500): the low-res bricks that read it load, their texels whose
 //!   filter taps meet the chunk are level 1 trilinearly resampled at the texel's position (the
 //!   mapping from the multiscale's scale and translation, read from zarr.json here) within one
-//!   u16 step, every other texel and every other brick is exact; the hi-res levels fail naming
+//!   u16 step, every other texel and every other brick is exact, neighbouring low-res bricks
+//!   (fallen back or not) agree on their shared faces; the hi-res levels fail naming
 //!   the chunk, the degraded bricks are listed with that error and counted, level 1 is fetched
 //!   only around it; through the planner and renderer no brick is drawn absent, the fed bricks
 //!   are drawn low-res, the frame report names the chunk.
@@ -718,6 +719,34 @@ fn a_failed_chunk_falls_back_to_pyramid_level_1() {
         // The failed chunk was tried once (and retried at most once), then remembered.
         let tries = request_count(&server, &format!("/{prefix}/pyr.zarr/{key}"));
         assert!((1..=2).contains(&tries), "{mode}: {tries} tries");
+        // Neighbouring low-res bricks store the same samples on their shared face, whether
+        // one, both or neither fell back (what keeps the low-res function one continuous
+        // function): along x between bricks 1 | 2 (clean | fed) and 2 | 3 (both fed), and
+        // along y and z between fed bricks.
+        for (a, b, axis) in [
+            ([1, 0, 0], [2, 0, 0], 0),
+            ([2, 1, 1], [3, 1, 1], 0),
+            ([2, 0, 1], [2, 1, 1], 1),
+            ([3, 1, 0], [3, 1, 1], 2),
+        ] {
+            let read = |c: [u32; 3]| {
+                let b = grid.linear_index(UVec3::from_array(c)) as u32;
+                let bytes = zarr.read_brick(b, Level::Lo).unwrap();
+                bytemuck::cast_slice::<u8, u16>(&bytes).to_vec()
+            };
+            let (lo, hi) = (read(a), read(b));
+            for v in 0..e {
+                for u in 0..e {
+                    let mut on_lo = UVec3::new(u, v, u);
+                    on_lo[(axis + 1) % 3] = u;
+                    on_lo[(axis + 2) % 3] = v;
+                    let mut on_hi = on_lo;
+                    (on_lo[axis], on_hi[axis]) = (e - 1, 0);
+                    let t = |p: UVec3| (p.x + e * (p.y + e * p.z)) as usize;
+                    assert_eq!(lo[t(on_lo)], hi[t(on_hi)], "{mode}: face {a:?} | {b:?}");
+                }
+            }
+        }
     }
 
     // Through the planner and the renderer: nothing in the failed chunk's region is drawn

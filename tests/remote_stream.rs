@@ -36,7 +36,8 @@
 //!   filter taps meet the chunk are level 1 trilinearly resampled at the texel's position (the
 //!   mapping from the multiscale's scale and translation, read from zarr.json here) within one
 //!   u16 step, every other texel and every other brick is exact, neighbouring low-res bricks
-//!   (fallen back or not) agree on their shared faces; the hi-res levels fail naming
+//!   (fallen back or not) agree on their shared faces, only the clean bricks learn their exact
+//!   value range; the hi-res levels fail naming
 //!   the chunk, the degraded bricks are listed with that error and counted, level 1 is fetched
 //!   only around it; through the planner and renderer no brick is drawn absent, the fed bricks
 //!   are drawn low-res, the frame report names the chunk.
@@ -708,6 +709,17 @@ fn a_failed_chunk_falls_back_to_pyramid_level_1() {
         for (_, e) in &degraded {
             assert!(matches!(**e, StreamError::Chunk { .. }), "{mode}: {e}");
             assert_eq!(named_chunk(e), (bad.to_array(), format!("{url}/{key}")));
+        }
+        // Only the bricks packed from level 0 alone learned their exact range.
+        let learned = zarr.learned_value_ranges().unwrap();
+        assert_eq!(zarr.learned_ranges(), grid.brick_count() - fed_bricks.len());
+        for brick in grid.bricks() {
+            let b = grid.linear_index(brick);
+            let want = match fed(brick) {
+                true => ValueRange { min: 0.0, max: 1.0 },
+                false => memory.value_ranges()[b],
+            };
+            assert_eq!(learned[b], want, "{mode}: brick {brick}");
         }
         let stats = zarr.fallback_stats();
         assert_eq!(stats.level, Some(1), "{mode}: {stats:?}");

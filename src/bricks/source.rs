@@ -84,6 +84,17 @@ pub trait BrickSource: Send + Sync {
     /// [`crate::bricks::brick_value_ranges_for_storage`] defines them.
     fn value_ranges(&self) -> &[ValueRange];
 
+    /// The per-brick ranges as far as a streaming source has learned them so far, when they
+    /// can tighten while it streams (a source that cannot read every voxel up front reports
+    /// conservative [`BrickSource::value_ranges`] and learns a brick's exact range, as
+    /// [`crate::bricks::brick_value_ranges_for_storage`] defines it, once the voxels it reads
+    /// have arrived; see [`crate::stream`]). A host culls with these when given, and culls
+    /// again when they change. `None` (the default): [`BrickSource::value_ranges`] are final.
+    /// Never blocks on I/O.
+    fn learned_value_ranges(&self) -> Option<Arc<[ValueRange]>> {
+        None
+    }
+
     /// Smallest and largest voxel value of the whole volume. The default is the union of the
     /// brick ranges (conservative: it includes the low-res samples).
     fn value_range(&self) -> ValueRange {

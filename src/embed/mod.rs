@@ -3,8 +3,9 @@
 //! The pass is a folder: this file holds the contract below, the pass and its
 //! [`VolumePass::record`]; `source` what is drawn ([`VolumeSource`], given to
 //! [`VolumePass::set_source`]) and residency changes; `tables` the transfer-function and
-//! pre-integration tables; `frames` the frame slots and their timings. Every Vulkan command is
-//! recorded through the safe types of [`crate::gpu`].
+//! pre-integration tables; `frames` the frame slots and their timings; `cull_ranges` the value
+//! ranges the planner gets from a source that learns them while streaming. Every Vulkan command
+//! is recorded through the safe types of [`crate::gpu`].
 //!
 //! [`VolumePass`] records everything it does into a command buffer the caller owns: staged
 //! uploads (volume, brick cache, transfer function), the fixup pass, and the ray-cast, which
@@ -52,6 +53,7 @@
 //! submit cmd with fence[slot]; slot = (slot + 1) % frames_in_flight
 //! ```
 
+mod cull_ranges;
 mod frames;
 mod residency;
 mod source;

@@ -154,10 +154,15 @@ impl VolumePass {
             ram_bytes: config.ram_bytes,
         };
         let plan_start = Instant::now();
+        // A streaming source's ranges tighten as its voxels arrive: bricks found empty are
+        // culled (see cull_ranges.rs).
+        let ranges = state
+            .cull_ranges
+            .ranges(&*state.source, &state.geometry, &cull)?;
         let frame = FrameInput {
             geometry: &state.geometry,
             view: &view,
-            ranges: state.source.value_ranges(),
+            ranges,
             cull: &cull,
             budget,
         };

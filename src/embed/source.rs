@@ -174,6 +174,8 @@ pub(crate) struct MixedState {
     pub(super) geometry: BrickGeometry,
     /// The camera-driven residency planner ([`VolumePass::update`]); remembers what it drew.
     pub(super) planner: ResidencyPlanner,
+    /// The ranges the planner gets when the source learns ranges while streaming.
+    pub(super) cull_ranges: super::cull_ranges::CullRanges,
     /// Whether tables were ever staged for the GPU cache (until then even an unchanged
     /// residency must be staged: the GPU tables hold nothing yet).
     tables_staged: bool,
@@ -445,6 +447,7 @@ impl VolumePass {
             rgba_model,
             geometry,
             planner: ResidencyPlanner::new(self.residency.options),
+            cull_ranges: Default::default(),
             tables_staged: false,
             stale_borders: vec![false; grid.brick_count()],
         }));

@@ -10,6 +10,7 @@ use crate::bricks::{BrickGrid, DownsampleFilter, Level, ValueRange};
 use crate::error::Result;
 use crate::volume::ScalarType;
 use glam::Vec3;
+use std::sync::Arc;
 
 /// A supplier of packed brick levels that may block (disk, network): the streamer calls
 /// [`BrickBackend::read_brick_into`] on its loader thread only.
@@ -38,6 +39,14 @@ pub trait BrickBackend: Send + Sync + 'static {
 
     /// Smallest and largest voxel value of the whole volume (conservative).
     fn value_range(&self) -> ValueRange;
+
+    /// The per-brick ranges learned so far (see
+    /// [`BrickSource::learned_value_ranges`](crate::bricks::BrickSource::learned_value_ranges));
+    /// `None` (the default): [`BrickBackend::value_ranges`] are final. Called by the renderer's
+    /// thread once per frame: must not block on I/O.
+    fn learned_value_ranges(&self) -> Option<Arc<[ValueRange]>> {
+        None
+    }
 
     /// Bytes of one brick at `level` (0 for `Absent`).
     fn level_bytes(&self, level: Level) -> usize;

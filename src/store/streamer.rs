@@ -586,6 +586,10 @@ impl<B: BrickBackend> BrickSource for BrickStreamer<B> {
         self.shared.store.value_ranges()
     }
 
+    fn learned_value_ranges(&self) -> Option<Arc<[ValueRange]>> {
+        self.shared.store.learned_value_ranges()
+    }
+
     fn value_range(&self) -> ValueRange {
         self.shared.store.value_range()
     }

@@ -127,49 +127,71 @@ impl ChunkCache {
         source: &ZarrChunks,
         wanted: &[UVec3],
     ) -> Result<Vec<Arc<ZarrChunk>>, StreamError> {
-        let mut got: Vec<Option<Arc<ZarrChunk>>> = vec![None; wanted.len()];
+        self.get_each(source, wanted).into_iter().collect()
+    }
+
+    /// Like [`ChunkCache::get_many`], but one result per chunk of `wanted`: every chunk that
+    /// failed (now or before) is its own [`StreamError::Chunk`], and the others are returned
+    /// (a chunk known to have failed is not fetched again; the others all are).
+    pub fn get_each(
+        &self,
+        source: &ZarrChunks,
+        wanted: &[UVec3],
+    ) -> Vec<Result<Arc<ZarrChunk>, StreamError>> {
+        let mut got: Vec<Option<Result<Arc<ZarrChunk>, StreamError>>> =
+            (0..wanted.len()).map(|_| None).collect();
         let mut missing = Vec::new();
         {
             let mut state = self.lock();
             for (i, c) in wanted.iter().enumerate() {
                 let key = c.to_array();
                 if let Some(e) = state.failed.get(&key) {
-                    return Err(chunk_error(source, *c, e.clone()));
+                    got[i] = Some(Err(chunk_error(source, *c, e.clone())));
+                    continue;
                 }
                 match state.touch(key) {
                     Some(chunk) => {
                         state.stats.hits += 1;
-                        got[i] = Some(chunk);
+                        got[i] = Some(Ok(chunk));
                     }
                     None => missing.push(i),
                 }
             }
         }
         let results = fetch_concurrently(source, wanted, &missing, self.concurrency);
-        let mut first_error = None;
         {
             let mut state = self.lock();
             for (&i, result) in missing.iter().zip(results) {
                 let key = wanted[i].to_array();
-                match result {
+                got[i] = Some(match result {
                     Ok(chunk) => {
                         state.stats.fetches += 1;
                         let chunk = Arc::new(chunk);
                         state.insert(key, chunk.clone());
-                        got[i] = Some(chunk);
+                        Ok(chunk)
                     }
                     Err(e) => {
                         let e = Arc::new(e);
                         state.failed.insert(key, e.clone());
-                        first_error.get_or_insert((i, e));
+                        Err(chunk_error(source, wanted[i], e))
                     }
-                }
+                });
             }
         }
-        if let Some((i, e)) = first_error {
-            return Err(chunk_error(source, wanted[i], e));
-        }
-        Ok(got.into_iter().flatten().collect())
+        got.into_iter()
+            .zip(wanted)
+            .map(|(r, c)| {
+                r.unwrap_or_else(|| {
+                    Err(chunk_error(
+                        source,
+                        *c,
+                        Arc::new(VolumeError::InvalidParameter(
+                            "a chunk was neither cached nor fetched".into(),
+                        )),
+                    ))
+                })
+            })
+            .collect()
     }
 }
 

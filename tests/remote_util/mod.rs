@@ -6,7 +6,7 @@
 #![allow(dead_code)]
 
 #[path = "../python_env/mod.rs"]
-mod python_env;
+pub mod python_env;
 
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Read, Write};

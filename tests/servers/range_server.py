@@ -16,6 +16,8 @@ The first path segment of every request chooses how the objects below it are ser
     stall     chunk responses send their headers, then stall (no body) for 60 s
     truncate  chunk responses declare the full Content-Length, send half the body and close
     longlen   chunk responses declare 16 bytes more than the body, send it and close
+    corrupt   chunk objects are served whole and well-formed (status, length), but as their first
+              half only: a body that arrives intact and does not decode
     meta500   metadata requests answer 500 (chunks are served)
     slow      chunk responses wait 20 ms before answering (an object store's latency)
 
@@ -35,7 +37,7 @@ import threading
 import time
 
 METADATA = {"zarr.json", ".zarray", ".zattrs", ".zgroup"}
-MODES = {"ok", "500", "500once", "stall", "truncate", "longlen", "meta500", "slow"}
+MODES = {"ok", "500", "500once", "stall", "truncate", "longlen", "meta500", "slow", "corrupt"}
 
 counts = {}
 counts_lock = threading.Lock()
@@ -103,6 +105,8 @@ class Handler(http.server.BaseHTTPRequestHandler):
             return
         with open(file, "rb") as f:
             data = f.read()
+        if mode == "corrupt" and not is_meta:
+            data = data[: len(data) // 2]
         size = len(data)
         status, start, end = 200, 0, size
         rng = self.headers.get("Range")

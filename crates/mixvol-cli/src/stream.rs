@@ -51,16 +51,26 @@ impl Streaming for ZarrBrickSource {
     fn summary(&self) -> String {
         let zarr = self.store();
         let c = zarr.cache_stats();
+        let f = zarr.fallback_stats();
+        let fallback = match f.level {
+            Some(level) if f.bricks > 0 => format!(
+                "; {} bricks drawn partly from pyramid level {level} ({} chunks fetched)",
+                f.bricks, f.cache.fetches
+            ),
+            _ => String::new(),
+        };
         format!(
             "{}; fetched {} chunks, {:.2} MB stored bytes ({} cache hits, chunk cache peak \
-             {:.2} MB of {:.2} MB, {} failed chunks)",
+             {:.2} MB of {:.2} MB, {} failed chunks); exact value ranges of {} bricks \
+             learned{fallback}",
             streamer_line(self),
             c.fetches,
             zarr.chunks().bytes_fetched() as f64 / 1e6,
             c.hits,
             c.peak_bytes as f64 / 1e6,
             c.budget_bytes as f64 / 1e6,
-            c.failed_chunks
+            c.failed_chunks,
+            zarr.learned_ranges()
         )
     }
 }

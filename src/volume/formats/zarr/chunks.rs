@@ -36,6 +36,10 @@ impl ZarrChunk {
 /// concurrently).
 pub struct ZarrChunks {
     level: ZarrLevel,
+    /// The level's index in the image's multiscale (0 the finest).
+    index: usize,
+    /// How it was fetched (to open the image's other levels alike).
+    options: RemoteOptions,
     chunk_shape: UVec3,
     grid: UVec3,
     fetched: AtomicU64,
@@ -60,6 +64,7 @@ impl ZarrChunks {
         level: usize,
         options: &RemoteOptions,
     ) -> Result<Self, VolumeError> {
+        let index = level;
         let level = open_level(location, level, options)?;
         level.max_chunk_bytes()?;
         let grid_shape = level.array.chunk_grid_shape().to_vec();
@@ -86,11 +91,28 @@ impl ZarrChunks {
         debug_assert!(grid == UVec3::ZERO || grid == (dims + chunk_shape - 1) / chunk_shape);
         Ok(Self {
             level,
+            index,
+            options: options.clone(),
             chunk_shape,
             grid,
             fetched: AtomicU64::new(0),
             fetches: AtomicU64::new(0),
         })
+    }
+
+    /// Opens level `level` of the same image, fetched with the same options.
+    pub fn open_level(&self, level: usize) -> Result<Self, VolumeError> {
+        Self::open(&self.level.location, level, &self.options)
+    }
+
+    /// This level's index in the image's multiscale (0 the finest).
+    pub fn level(&self) -> usize {
+        self.index
+    }
+
+    /// Levels the image has (its multiscale's datasets; 1 for a plain array).
+    pub fn level_count(&self) -> usize {
+        self.level.levels
     }
 
     /// The image's root as errors name it (its folder or URL).

@@ -158,6 +158,8 @@ pub(super) struct ZarrLevel {
     pub(super) stored: StoredType,
     pub(super) spacing: Vec3,
     pub(super) meta: VolumeMeta,
+    /// Levels of the image (1 for a plain array).
+    pub(super) levels: usize,
 }
 
 /// Opens level `level` of the image at `location` (see [`load_zarr_level`]) without reading a
@@ -195,6 +197,10 @@ pub(super) fn open_level(
         ));
     };
     let group_doc = src.name(version.attributes_file());
+    let levels = match &root_desc {
+        ZarrRoot::Array => 1,
+        ZarrRoot::Multiscales(m) => m.datasets.len(),
+    };
     let (dataset, axes) = match root_desc {
         ZarrRoot::Array => {
             if level != 0 {
@@ -319,5 +325,6 @@ pub(super) fn open_level(
         stored,
         spacing: spacing_f32,
         meta,
+        levels,
     })
 }

@@ -266,7 +266,7 @@ fn an_oblique_file_renders_as_the_aligned_file_seen_by_the_inversely_rotated_cam
     );
     let mut r = renderer(&ctx, mixed(&nii), model);
     let oblique = render(&mut r, &near, &settings);
-    let plan = r.last_plan().unwrap().report.clone();
+    let plan = r.last_plan().unwrap().report;
     assert!(
         plan.drawn_hi > 0 && plan.drawn_lo > 0,
         "the slot budget makes the levels depend on the view: {plan:?}"

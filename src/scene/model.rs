@@ -102,7 +102,7 @@ impl ModelTransform {
         }
         let mut m = DMat3::from_cols(columns[0], columns[1], columns[2]);
         let determinant = m.determinant();
-        if !(determinant > MIN_DETERMINANT) {
+        if determinant.is_nan() || determinant <= MIN_DETERMINANT {
             return Err(ModelTransformError::NotARotation {
                 directions,
                 determinant,

@@ -196,13 +196,9 @@ pub fn is_brick_store(path: &Path) -> bool {
         && magic == MAGIC
 }
 
-/// Opens `--volume`: a brick store when the file is one, else [`load_volume`].
-pub fn open_input(args: &RenderArgs) -> Result<Input> {
-    Ok(open_input_with_meta(args)?.0)
-}
-
-/// [`open_input`], with the metadata of a volume file (`None` for a brick store, a synthetic
-/// field or headerless raw data).
+/// Opens `--volume`: a brick store when the file is one, else [`load_volume`]; with the
+/// metadata of a volume file (`None` for a brick store, a synthetic field or headerless raw
+/// data).
 pub fn open_input_with_meta(args: &RenderArgs) -> Result<(Input, Option<VolumeMeta>)> {
     let path = Path::new(&args.volume);
     if args.stream {

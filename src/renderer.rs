@@ -12,7 +12,7 @@ use crate::gpu::{
 use crate::optics::TransferFunction;
 use crate::plan::FramePlan;
 use crate::scene::Transition;
-use crate::scene::{Camera, RaycastParams, RenderSettings};
+use crate::scene::{Camera, ModelTransform, RaycastParams, RenderSettings};
 use ash::vk;
 use glam::{Vec3, Vec4};
 use gpu_allocator::MemoryLocation;
@@ -252,6 +252,19 @@ impl Renderer {
         self.pass.last_plan()
     }
 
+    /// Places the volume in world space: a rotation about the volume's centre, applied to every
+    /// later frame (see [`VolumePass::set_model_transform`] and [`crate::scene::model`]; e.g.
+    /// [`crate::volume::VolumeMeta::model_transform`] for an oblique NIfTI or DICOM volume). The
+    /// camera and clip planes stay in world space; [`Renderer::params`] is in the volume frame.
+    pub fn set_model_transform(&mut self, model: ModelTransform) {
+        self.pass.set_model_transform(model);
+    }
+
+    /// The model transform frames are drawn with (identity unless set).
+    pub fn model_transform(&self) -> ModelTransform {
+        self.pass.model_transform()
+    }
+
     /// Uploads a new transfer function.
     pub fn set_transfer_function(&mut self, tf: &TransferFunction) -> Result<()> {
         self.pass.set_transfer_function(tf);
@@ -317,7 +330,7 @@ impl Renderer {
     }
 
     /// The parameter block a render with these arguments uses (also what the CPU reference
-    /// needs to reproduce the frame).
+    /// needs to reproduce the frame), in the volume frame (see [`Renderer::set_model_transform`]).
     pub fn params(
         &self,
         camera: &Camera,

@@ -2,11 +2,18 @@
 //! the CPU reference both consume ([`RaycastParams`]).
 //!
 //! World space: the volume box is centred at the origin and scaled so that its longest physical
-//! side (dims * spacing) is 1. Anisotropic spacing therefore renders with the right aspect.
+//! side (dims * spacing) is 1. Anisotropic spacing therefore renders with the right aspect. The
+//! box's axes are the volume's index axes unless the volume has a model transform
+//! ([`ModelTransform`]: a rotation about the box centre, e.g. an oblique NIfTI or DICOM volume in
+//! RAS+ patient space); the camera, clip planes and host depth are always given in world space,
+//! and the pass maps them into the volume frame (see [`model`] for the convention).
+//! [`RaycastParams`] itself is in the volume frame.
 
 mod clip;
+pub mod model;
 
 pub use clip::{ClipPlane, ClipPlaneError, ClipPlanes, MAX_CLIP_PLANES};
+pub use model::{ModelTransform, ModelTransformError};
 
 use crate::error::{Error, Result};
 use crate::optics::SamplingModel;
@@ -363,6 +370,8 @@ impl Default for RenderSettings {
 
 /// The per-frame parameter block, std140-compatible: vec4 fields and one mat4 (368 bytes). Mirrors `RaycastParams`
 /// in `glsl/include/params.glsl`; size and field offsets are checked in [`crate::gpu::shared_defs`].
+/// Positions, directions and planes are in the volume frame (the world, rotated by the inverse
+/// of the volume's [`ModelTransform`]; the world itself when there is none).
 #[repr(C)]
 #[derive(Copy, Clone, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct RaycastParams {
@@ -394,7 +403,8 @@ pub struct RaycastParams {
     pub iso_colour: Vec4,
     /// Clip planes: xyz normal (towards the kept side), w offset; the first `iso_colour.w` count.
     pub clip_planes: [Vec4; MAX_CLIP_PLANES],
-    /// Inverse of the host's `clip_from_world` (used only when rays stop at a host depth buffer).
+    /// Inverse of the host's `clip_from_world` times the model matrix (so clip space to the
+    /// volume frame; used only when rays stop at a host depth buffer).
     pub world_from_clip: Mat4,
 }
 

@@ -14,6 +14,15 @@
 //! host's objects with [`GpuContext::from_host`]). The offscreen [`crate::renderer::Renderer`] is
 //! a small host built on it.
 //!
+//! # World space and the model transform
+//! The camera, the clip planes of [`RenderSettings`] and [`HostDepth::clip_from_world`] are in
+//! world space ([`crate::scene`]). The pass draws the volume rotated into it by its model
+//! transform ([`VolumePass::set_model_transform`]; identity by default, axis-aligned): it maps
+//! the camera and clip planes into the volume frame by the inverse rotation before the frame's
+//! parameters and the residency planner's view are built, and unprojects the host depth through
+//! `(clip_from_world * model)^-1`, so depth-tested rays stop where the host's geometry is in
+//! world space whatever the rotation (see [`crate::scene::model`]).
+//!
 //! # Synchronisation contract
 //! For [`VolumePass::record`] into command buffer `cmd` with frame slot `frame`:
 //! - **Frame slots.** Slot `frame` (`< frames_in_flight`) owns a parameter buffer, staging
@@ -66,7 +75,7 @@ pub use source::{MixedConfig, ResidencyReport, VolumeSource};
 use crate::error::{Error, Result};
 use crate::gpu::{DrawTarget, GpuContext, PipelineCache, RaycastPipeline, RaycastVariant};
 use crate::optics::TransferFunction;
-use crate::scene::{Camera, RaycastParams, RenderSettings};
+use crate::scene::{Camera, ModelTransform, RaycastParams, RenderSettings};
 use ash::vk;
 use frames::{query, FrameSlot};
 use glam::Mat4;
@@ -100,7 +109,9 @@ pub struct HostDepth {
     /// The layout the depth image is in during the pass (a read-only depth layout).
     pub layout: vk::ImageLayout,
     /// The host's world-to-clip transform (Vulkan clip space, depth in [0, 1]) that produced the
-    /// depth buffer, in the crate's world space (see [`crate::scene`]).
+    /// depth buffer, in the crate's world space (see [`crate::scene`]): the host's projection
+    /// times its view. The pass multiplies it by its model matrix
+    /// ([`VolumePass::set_model_transform`]) itself.
     pub clip_from_world: Mat4,
 }
 
@@ -120,7 +131,8 @@ pub struct PassTarget {
 /// What one [`VolumePass::record`] drew with.
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct RecordedFrame {
-    /// The parameter block (what the CPU reference needs to reproduce the frame).
+    /// The parameter block (what the CPU reference needs to reproduce the frame), in the volume
+    /// frame: the camera and clip planes mapped by the inverse model transform.
     pub params: RaycastParams,
     /// The pipeline variant that drew it.
     pub variant: RaycastVariant,
@@ -136,6 +148,7 @@ pub struct VolumePass {
     pipeline_cache: PipelineCache,
     desc: PassDesc,
     residency: ResidencyConfig,
+    model: ModelTransform,
     ctx: GpuContext,
 }
 
@@ -177,8 +190,26 @@ impl VolumePass {
             pipeline_cache: PipelineCache::new(shared, cache_data)?,
             desc,
             residency: ResidencyConfig::default(),
+            model: ModelTransform::IDENTITY,
             ctx: ctx.clone(),
         })
+    }
+
+    /// Places the volume in world space from now on: `model` rotates the volume frame (the
+    /// axis-aligned box the ray-caster works in) about its centre into the world the camera,
+    /// clip planes and host depth are given in (see [`crate::scene::model`]). Every
+    /// [`VolumePass::params`], [`VolumePass::update`] and [`VolumePass::record`] maps its camera
+    /// and clip planes by the inverse rotation, and a [`HostDepth::clip_from_world`] is applied
+    /// as `clip_from_world * model.matrix()`. Kept across [`VolumePass::set_source`]; the
+    /// identity (the default) renders the volume axis-aligned. Needs no wait: the next frame
+    /// uses it.
+    pub fn set_model_transform(&mut self, model: ModelTransform) {
+        self.model = model;
+    }
+
+    /// The model transform frames are drawn with (see [`VolumePass::set_model_transform`]).
+    pub fn model_transform(&self) -> ModelTransform {
+        self.model
     }
 
     /// The pass's set-up.
@@ -260,9 +291,12 @@ impl VolumePass {
     ) -> Result<RecordedFrame> {
         self.check_frame(frame)?;
         let (width, height) = (target.extent.width, target.extent.height);
-        let mut params = self.params(camera, settings, width, height)?;
+        let camera = &self.model.volume_camera(camera);
+        let settings = &self.model.volume_settings(settings);
+        let mut params = self.volume_params(camera, settings, width, height)?;
         if let Some(depth) = &target.depth {
-            let inverse = depth.clip_from_world.inverse();
+            // Rays run in the volume frame: the depth is unprojected into it.
+            let inverse = self.model.clip_from_volume(depth.clip_from_world).inverse();
             if !inverse.is_finite() {
                 return Err(Error::InvalidInput(
                     "host clip_from_world is not invertible".into(),

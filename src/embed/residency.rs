@@ -115,7 +115,8 @@ impl VolumePass {
     /// [`ResidencyConfig`], the drawn levels fetched and staged for the next
     /// [`VolumePass::record`] (a level the source dropped meanwhile falls back), and the
     /// planner's requests given to the source ([`crate::bricks::BrickSource::request_levels`]). Call it once per frame before
-    /// `record`, with the same camera, size and settings. Needs a brick-cache source. Records
+    /// `record`, with the same camera, size and settings (in world space: the pass maps them into
+    /// the volume frame by its [`VolumePass::model_transform`]). Needs a brick-cache source. Records
     /// nothing and needs no wait (the staged bytes go to the frame slot `record` is given).
     pub fn update(
         &mut self,
@@ -125,8 +126,12 @@ impl VolumePass {
         settings: &RenderSettings,
     ) -> Result<FrameReport> {
         let start = Instant::now();
+        // The planner works in the volume frame, as the ray-caster does.
+        let model = self.model_transform();
+        let camera = &model.volume_camera(camera);
+        let settings = &model.volume_settings(settings);
         // Validates camera, size and settings as the frame will.
-        self.params(camera, settings, width, height)?;
+        self.volume_params(camera, settings, width, height)?;
         let config = self.residency;
         let tf = self.tables.transfer_function();
         let Source::Mixed(state) = &mut self.source else {

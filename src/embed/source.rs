@@ -608,8 +608,27 @@ impl VolumePass {
         }
     }
 
-    /// The parameter block a frame with these arguments uses.
+    /// The parameter block a frame with these arguments uses: `camera` and `settings` are in
+    /// world space, the block in the volume frame (both mapped by the inverse of the pass's
+    /// [`VolumePass::model_transform`]).
     pub fn params(
+        &self,
+        camera: &Camera,
+        settings: &RenderSettings,
+        width: u32,
+        height: u32,
+    ) -> Result<RaycastParams> {
+        let model = self.model_transform();
+        self.volume_params(
+            &model.volume_camera(camera),
+            &model.volume_settings(settings),
+            width,
+            height,
+        )
+    }
+
+    /// [`VolumePass::params`] of a camera and settings already in the volume frame.
+    pub(super) fn volume_params(
         &self,
         camera: &Camera,
         settings: &RenderSettings,

@@ -114,6 +114,16 @@ impl ClipPlanes {
         &self.planes[..self.count]
     }
 
+    /// The same planes with each normal replaced by `f(normal)` (offsets kept), for a map that
+    /// keeps normals finite and non-zero (a rotation: [`crate::scene::ModelTransform`]).
+    pub(crate) fn map_normals(&self, f: impl Fn(Vec3) -> Vec3) -> Self {
+        let mut out = *self;
+        for plane in &mut out.planes[..self.count] {
+            plane.normal = f(plane.normal);
+        }
+        out
+    }
+
     /// True when the box `[min, max]` lies entirely on the clipped side of some plane.
     pub fn box_clipped(&self, min: Vec3, max: Vec3) -> bool {
         self.planes().iter().any(|p| p.box_clipped(min, max))

@@ -279,6 +279,13 @@ pub struct RenderArgs {
     /// its SeriesNumber (without it, such a folder is an error listing the series).
     #[arg(long)]
     pub series: Option<String>,
+    /// Render a NIfTI file or DICOM series axis-aligned in its nearest RAS orientation, without
+    /// the residual oblique rotation of its sform / qform / ImageOrientationPatient. By default
+    /// `mixvol render` (and the soak and path bench) applies that rotation as the volume's model
+    /// transform: the volume renders in RAS+ patient space (+x right, +y anterior, +z superior),
+    /// rotated about its centre; --eye, --target, --up and --clip are in that space.
+    #[arg(long)]
+    pub axis_aligned: bool,
     /// Transfer-function preset: grey, fire, bands, constant, ct, mri.
     #[arg(long, default_value = "fire", value_parser = parse_tf)]
     pub tf: TfPreset,

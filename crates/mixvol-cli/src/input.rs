@@ -4,6 +4,7 @@
 use crate::args::RenderArgs;
 use crate::parse::parse_floats;
 use mixvol::gpu::GpuContext;
+use mixvol::scene::ModelTransform;
 use mixvol::store::{BrickStore, MAGIC};
 use mixvol::volume::formats::{
     load_dicom, load_tiff_with, load_zarr_at, load_zarr_level, DicomOptions, FileFormat,
@@ -195,13 +196,9 @@ pub fn is_brick_store(path: &Path) -> bool {
         && magic == MAGIC
 }
 
-/// Opens `--volume`: a brick store when the file is one, else [`load_volume`].
-pub fn open_input(args: &RenderArgs) -> Result<Input> {
-    Ok(open_input_with_meta(args)?.0)
-}
-
-/// [`open_input`], with the metadata of a volume file (`None` for a brick store, a synthetic
-/// field or headerless raw data).
+/// Opens `--volume`: a brick store when the file is one, else [`load_volume`]; with the
+/// metadata of a volume file (`None` for a brick store, a synthetic field or headerless raw
+/// data).
 pub fn open_input_with_meta(args: &RenderArgs) -> Result<(Input, Option<VolumeMeta>)> {
     let path = Path::new(&args.volume);
     if args.stream {
@@ -245,14 +242,44 @@ pub fn open_input_with_meta(args: &RenderArgs) -> Result<(Input, Option<VolumeMe
     Ok((Input::Volume(Arc::new(volume)), meta))
 }
 
+/// The model transform `mixvol render` draws the volume of `meta` with, and what to say about
+/// it: the residual oblique rotation of a NIfTI file or DICOM series
+/// ([`VolumeMeta::model_transform`]), unless `--axis-aligned` or the rotation cannot be made
+/// (then the identity, and why). Identity and no note for other inputs.
+pub fn model_transform(args: &RenderArgs, meta: Option<&VolumeMeta>) -> (ModelTransform, String) {
+    let Some(meta) = meta.filter(|m| m.reorientation.is_some()) else {
+        return (ModelTransform::IDENTITY, String::new());
+    };
+    if args.axis_aligned {
+        return (
+            ModelTransform::IDENTITY,
+            "NOT applied (--axis-aligned: rendered axis-aligned)".into(),
+        );
+    }
+    match meta.model_transform() {
+        Ok(model) => (
+            model,
+            "applied (rendered in RAS+ patient space, rotated about the volume centre)".into(),
+        ),
+        Err(e) => (
+            ModelTransform::IDENTITY,
+            format!("NOT applied (rendered axis-aligned): {e}"),
+        ),
+    }
+}
+
 /// The lines `mixvol render` prints about a NIfTI file's (or DICOM series') orientation, e.g.
 /// `orientation: LAS -> RAS (flipped x), from the sform (RAS+ world: +x right, +y anterior,
-/// +z superior)`; `None` for other inputs.
-pub fn orientation_line(meta: Option<&VolumeMeta>) -> Option<String> {
+/// +z superior)`, with `oblique_note` (from [`model_transform`]) after a residual oblique
+/// rotation: `...; residual oblique rotation of 20.00 deg applied (...)`; `None` for other inputs.
+pub fn orientation_line(meta: Option<&VolumeMeta>, oblique_note: &str) -> Option<String> {
     let r = meta?.reorientation.as_ref()?;
+    let mut what = r.describe();
+    if r.oblique_degrees > 1e-3 && !oblique_note.is_empty() {
+        what = format!("{what} {oblique_note}");
+    }
     Some(format!(
-        "orientation: {} (RAS+ world: +x right, +y anterior, +z superior)",
-        r.describe()
+        "orientation: {what} (RAS+ world: +x right, +y anterior, +z superior)"
     ))
 }
 

@@ -7,7 +7,7 @@
 
 use crate::args::BenchArgs;
 use crate::frame_log::FrameRow;
-use crate::input::open_input;
+use crate::input::{model_transform, open_input_with_meta};
 use crate::render::{set_up_scene, views, Scene};
 use crate::stats::Summary;
 use mixvol::bricks::Level;
@@ -87,7 +87,8 @@ pub fn bench_path(args: &BenchArgs) -> Result<()> {
         ));
     }
     let cameras = views(r)?;
-    let input = open_input(r)?;
+    let (input, meta) = open_input_with_meta(r)?;
+    let (model, _) = model_transform(r, meta.as_ref());
     // Declared before the context: printed on failure too; `finish` reads the message log.
     let mut validation = crate::logging::ValidationSummary::default();
     let ctx = GpuContext::new(&ContextDesc {
@@ -112,6 +113,7 @@ pub fn bench_path(args: &BenchArgs) -> Result<()> {
     for transition in [Transition::Smooth, Transition::Discontinuous] {
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
         renderer.set_transfer_function(&tf)?;
+        renderer.set_model_transform(model);
         let scene = set_up_scene(&mut renderer, r, &input, transition)?;
         if !scene.planned {
             return Err(Error::InvalidInput(

@@ -7,7 +7,9 @@ use crate::camera_path::{dolly, load_path, orbit};
 use crate::compare::Difference;
 use crate::files::create_parent;
 use crate::frame_log::{write_log, FrameRow};
-use crate::input::{open_input_with_meta, orientation_line, window_line, window_of, Input};
+use crate::input::{
+    model_transform, open_input_with_meta, orientation_line, window_line, window_of, Input,
+};
 use crate::levels::level_pattern;
 use crate::stats::{peak_rss_bytes, Summary};
 pub use crate::stream::Streaming;
@@ -353,7 +355,8 @@ pub fn render(args: &RenderArgs) -> Result<()> {
             ""
         }
     );
-    if let Some(line) = orientation_line(meta.as_ref()) {
+    let (model, oblique_note) = model_transform(args, meta.as_ref());
+    if let Some(line) = orientation_line(meta.as_ref(), &oblique_note) {
         println!("{line}");
     }
     let tf = TransferFunction::preset(args.preset.unwrap_or(args.tf));
@@ -369,6 +372,7 @@ pub fn render(args: &RenderArgs) -> Result<()> {
     })?;
     let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     renderer.set_transfer_function(&tf)?;
+    renderer.set_model_transform(model);
     let scene = set_up_scene(
         &mut renderer,
         args,

@@ -22,7 +22,7 @@
 
 use crate::args::BenchArgs;
 use crate::files::write_text;
-use crate::input::{open_input, window_of, Input};
+use crate::input::{model_transform, open_input_with_meta, window_of, Input};
 use crate::render::set_up_scene;
 use glam::{Quat, Vec3};
 use mixvol::gpu::{ContextDesc, GpuContext};
@@ -279,7 +279,8 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
     };
     let base = r.camera();
     soak_camera(&base, 0)?;
-    let input = open_input(r)?;
+    let (input, meta) = open_input_with_meta(r)?;
+    let (model, _) = model_transform(r, meta.as_ref());
     // Declared before the context: printed on failure too; `finish` reads the message log.
     let mut validation = crate::logging::ValidationSummary::default();
     let ctx = GpuContext::new(&ContextDesc {
@@ -302,6 +303,7 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
     })?;
     let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     renderer.set_transfer_function(&TransferFunction::preset(r.preset.unwrap_or(r.tf)))?;
+    renderer.set_model_transform(model);
     let scene = set_up_scene(&mut renderer, r, &input, r.mixed.transition.transition())?;
     drop(input);
     if !scene.planned {

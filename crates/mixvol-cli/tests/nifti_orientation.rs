@@ -122,6 +122,14 @@ fn render(volume: &Path, extra: &[&str]) -> String {
     stdout
 }
 
+/// The RGBA bytes of the PNG `render` wrote for `volume`.
+fn png(volume: &Path) -> Vec<u8> {
+    image::open(volume.with_extension("png"))
+        .unwrap()
+        .to_rgba8()
+        .into_raw()
+}
+
 /// The two numbers of the line starting with `prefix` after its `[`.
 fn numbers_after(text: &str, marker: &str) -> [f64; 2] {
     let at = text
@@ -167,7 +175,7 @@ fn render_prints_the_orientation_of_a_las_file() {
         stdout.contains("orientation: RAS -> RAS (no reordering), no sform or qform"),
         "{stdout}"
     );
-    // An oblique sform: the residual rotation is reported as not applied.
+    // An oblique sform: the residual rotation is applied by default, not with --axis-aligned.
     let (c, s) = (20f32.to_radians().cos(), 20f32.to_radians().sin());
     let oblique = tmp("oblique.nii");
     std::fs::write(
@@ -183,8 +191,41 @@ fn render_prints_the_orientation_of_a_las_file() {
     .unwrap();
     let stdout = render(&oblique, &[]);
     assert!(
-        stdout.contains("residual oblique rotation of 20.00 deg NOT applied"),
+        stdout.contains(
+            "residual oblique rotation of 20.00 deg applied (rendered in RAS+ patient space"
+        ),
         "{stdout}"
+    );
+    let rotated = png(&oblique);
+    let stdout = render(&oblique, &["--axis-aligned"]);
+    assert!(
+        stdout.contains(
+            "residual oblique rotation of 20.00 deg NOT applied (--axis-aligned: rendered \
+             axis-aligned)"
+        ),
+        "{stdout}"
+    );
+    let axis_aligned = png(&oblique);
+    // Axis-aligned, the oblique file draws as the same voxels without a transform; rotated, it
+    // draws as them seen by the camera turned by -20 degrees about z (R^T of eye, target, up).
+    assert_eq!(
+        axis_aligned,
+        png(&plain),
+        "--axis-aligned draws the voxels unrotated"
+    );
+    let turn = |v: [f32; 3]| [c * v[0] + s * v[1], -s * v[0] + c * v[1], v[2]];
+    let text = |v: [f32; 3]| format!("{:.7},{:.7},{:.7}", v[0], v[1], v[2]);
+    let (eye, up) = (turn([1.0, 1.3, 1.4]), turn([0.0, 1.0, 0.0]));
+    render(&plain, &["--eye", &text(eye), "--up", &text(up)]);
+    let expected = png(&plain);
+    let largest = |a: &[u8], b: &[u8]| a.iter().zip(b).map(|(x, y)| x.abs_diff(*y)).max().unwrap();
+    assert!(
+        largest(&rotated, &expected) <= 6,
+        "the rotated render is the camera turned the other way"
+    );
+    assert!(
+        largest(&axis_aligned, &expected) > 40,
+        "the rotation shows in the image"
     );
 
     // convert reads slabs in file order: it refuses the LAS file rather than store it mirrored.

@@ -49,8 +49,13 @@
 //!
 //! NIfTI voxels are reordered to RAS+ (+x right, +y anterior, +z superior; flips and
 //! permutations from the sform, else the qform; see [`load_nifti`] and
-//! [`VolumeMeta::reorientation`]); an oblique residual rotation is not applied. DICOM series are
-//! reordered the same way from their LPS patient geometry (see [`dicom`]). Other formats keep
+//! [`VolumeMeta::reorientation`]). DICOM series are reordered the same way from their LPS patient
+//! geometry (see [`dicom`]). The voxels are never resampled: an oblique residual rotation is left
+//! in [`VolumeMeta::directions`] and rendered as the volume's model transform
+//! ([`VolumeMeta::model_transform`]: a rotation about the volume's centre into RAS+ patient space,
+//! the ray-caster staying in the volume's own axis-aligned frame and the camera mapped into it;
+//! see [`crate::scene::model`]). `mixvol render` applies it by default and `--axis-aligned`
+//! renders without it. Other formats keep
 //! voxels in file order (first axis fastest), never resampled or flipped. Spacing is the
 //! size of a voxel step along each index axis: NIfTI `|pixdim[1..=3]|`, NRRD the norms of the
 //! `space directions` vectors (else `|spacings|`, else 1), the sidecar's `spacing`, 1 for `.den`,
@@ -59,7 +64,7 @@
 //! file's world frame (NIfTI: sform, else qform, else identity; NRRD: `space directions`) is
 //! reported as unit vectors in [`VolumeMeta::directions`], with [`VolumeMeta::origin`]; for NRRD
 //! an axis whose direction points the "wrong" way therefore renders mirrored relative to the
-//! world frame: the renderer works in index space.
+//! world frame: for formats other than NIfTI and DICOM the renderer works in index space.
 
 mod den;
 pub mod dicom;
@@ -89,6 +94,7 @@ pub use zarr::{
 };
 
 use super::{ScalarType, Volume, VolumeError};
+use crate::scene::{ModelTransform, ModelTransformError};
 use read::format_err;
 use std::path::{Path, PathBuf};
 
@@ -287,8 +293,9 @@ pub struct VolumeMeta {
     /// Unit vectors: the world direction of increasing x, y and z index (`directions[i]` for
     /// index axis `i`), in the file's world frame (NIfTI, DICOM: RAS+; NRRD: its `space`).
     /// Identity when the file has no orientation. NIfTI and DICOM voxels are reordered to RAS+ (see
-    /// [`VolumeMeta::reorientation`]), so these are the residual rotation, near identity; other
-    /// formats keep file order and report the file's directions.
+    /// [`VolumeMeta::reorientation`]), so these are the residual rotation, near identity (rendered
+    /// through [`VolumeMeta::model_transform`]); other formats keep file order and report the
+    /// file's directions.
     pub directions: [[f64; 3]; 3],
     /// World position of voxel (0, 0, 0)'s centre; zero when the file has none.
     pub origin: [f64; 3],
@@ -353,6 +360,21 @@ impl VolumeMeta {
             ScalarType::U16 => n * 65535.0 - offset,
             ScalarType::F32 => n - offset,
         }
+    }
+
+    /// The rotation that places the volume in its world frame when rendered
+    /// ([`crate::renderer::Renderer::set_model_transform`]; see [`crate::scene::model`] for the
+    /// convention): for NIfTI and DICOM, whose voxels were reordered to RAS+, the residual
+    /// rotation in [`VolumeMeta::directions`] (identity for an axis-aligned file), so the
+    /// volume renders in RAS+ patient space about its centre; identity for the other formats,
+    /// which keep file order (their directions may hold mirrors, which a rotation cannot apply).
+    /// An error when the residual directions are degenerate or left-handed (a pathological
+    /// affine): render axis-aligned then.
+    pub fn model_transform(&self) -> Result<ModelTransform, ModelTransformError> {
+        if self.reorientation.is_none() {
+            return Ok(ModelTransform::IDENTITY);
+        }
+        ModelTransform::from_directions(self.directions)
     }
 
     /// True for each index axis whose direction has a negative component along its own world

@@ -12,9 +12,12 @@
 //! alike), so a LAS file and a RAS file holding the same anatomy load to identical volumes and
 //! render identically. What was done is in [`VolumeMeta::reorientation`]; after it
 //! [`VolumeMeta::directions`] holds the residual rotation (identity for an axis-aligned file) and
-//! [`VolumeMeta::origin`] the world position of the reordered voxel (0, 0, 0). The renderer has no
-//! model transform, so an oblique residual rotation is **not** applied: an oblique file renders
-//! axis-aligned in its nearest RAS orientation, and the reorientation says by how many degrees.
+//! [`VolumeMeta::origin`] the world position of the reordered voxel (0, 0, 0). The voxels are not
+//! resampled for an oblique residual rotation: it becomes the volume's model transform
+//! ([`VolumeMeta::model_transform`], a rotation about the volume's centre applied by the renderer,
+//! see [`crate::scene::model`]), so an oblique file renders in RAS+ patient space; without it
+//! (`mixvol render --axis-aligned`) it renders axis-aligned in its nearest RAS orientation, and the
+//! reorientation says by how many degrees it is oblique.
 //!
 //! # Values: `scl_slope` / `scl_inter`
 //!

@@ -48,8 +48,9 @@ pub struct Reorientation {
     /// reversed.
     pub flipped: [bool; 3],
     /// The largest angle, in degrees, between a volume axis and its world axis after the
-    /// reordering: the residual oblique rotation, which the renderer does **not** apply (0 for an
-    /// axis-aligned file).
+    /// reordering: the residual oblique rotation (0 for an axis-aligned file). The voxels are
+    /// not resampled for it: the renderer applies it as the volume's model transform
+    /// ([`crate::volume::VolumeMeta::model_transform`], [`crate::scene::model`]) when asked to.
     pub oblique_degrees: f64,
 }
 
@@ -65,7 +66,8 @@ impl Reorientation {
     }
 
     /// One line for logs: `LAS -> RAS (flipped x), from the sform`, plus the residual oblique
-    /// rotation when there is one.
+    /// rotation when there is one (`; residual oblique rotation of 20.00 deg`; whether it is
+    /// rendered is the caller's to say).
     pub fn describe(&self) -> String {
         let mut what = Vec::new();
         if self.permutation != [0, 1, 2] {
@@ -93,7 +95,7 @@ impl Reorientation {
         let mut line = format!("{} -> RAS ({}), {from}", self.file_code(), what.join("; "));
         if self.oblique_degrees > 1e-3 {
             line.push_str(&format!(
-                "; residual oblique rotation of {:.2} deg NOT applied (rendered axis-aligned)",
+                "; residual oblique rotation of {:.2} deg",
                 self.oblique_degrees
             ));
         }

@@ -1,7 +1,8 @@
 //! Fuzzes `mixvol::volume::formats::decode_dicom_slice` (and `parse_dicom_slice`) with arbitrary
 //! bytes standing for a DICOM file after its 128-byte preamble and `DICM` magic (which the target
 //! prepends, so the fuzzer spends its time on the file meta group, the data set and the pixel
-//! data). Both must return `Ok` or a typed `VolumeError` and never panic; slices are capped at
+//! data, including the JPEG-LS frame header that is checked before CharLS sizes its output).
+//! Both must return `Ok` or a typed `VolumeError` and never panic; slices are capped at
 //! `MAX_SLICE_PIXELS` before any pixel buffer is decoded.
 #![no_main]
 

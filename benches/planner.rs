@@ -20,9 +20,10 @@
 //! `cargo bench --bench planner`. Environment: `MIXVOL_BENCH_RUNS` (repeats, default 5); the
 //! per-frame times of all repeats are pooled. `MIXVOL_PLANNER_PATHS` (default
 //! `still,orbit,dolly`) picks the camera rows. The timed call is `timed_frame`, not inlined, so
-//! that `valgrind --tool=callgrind --toggle-collect='planner::timed_frame*'` profiles only it. Prints a Markdown table (median, p95, max and min
-//! milliseconds per frame; the machine's load average is printed with it, as other processes on
-//! the cores inflate the times).
+//! that `valgrind --tool=callgrind --toggle-collect='planner::timed_frame*'` profiles only it.
+//! Prints a Markdown table (thread CPU time per frame: median, p95 and max; wall time: median,
+//! p95 and min; the machine's load average is printed with it, as other processes on the cores
+//! inflate the times).
 //!
 //! Figures (2026-12-02, 2-core Intel Xeon shared with other builds, load average 8-9, three runs
 //! of 60 frames per row, the old and the new planner run interleaved; min / median ms per frame):
@@ -37,10 +38,16 @@
 //! 1e327d6, min ms per frame): still 0.97-1.02 before, 0.38-0.43 after (a settled still camera
 //! skips the ranks and the `Hi` selection; the target pass is an indexed loop with a short path);
 //! orbit 1.91-1.98 / 1.94-2.02 and dolly 1.90-2.01 / 1.90-2.11, unchanged: the 1 ms target holds
-//! for a still camera, not for a moving one (docs/performance.md). A still camera reuses the last frame's errors, dropping and request
-//! order, and over a settled plan its requests; a moving one pays for the errors, one fused pass
-//! for the rank and request keys, the radix selection, a three-pass radix sort of the ~92 000
-//! kept bricks, the per-brick target pass and the requests. The medians swing with the load:
+//! for a still camera, not for a moving one (docs/performance.md). A still camera reuses the
+//! last frame's errors, dropping and request order, and over a settled plan its requests; a
+//! moving one pays for the errors, one pass for the request keys, a three-pass radix sort of the
+//! ~92 000 kept bricks, the `Hi` selection (a merge of two runs of that order, since session 8),
+//! the per-brick target pass and the requests. Session 8 (2026-12-02 07:50 UTC, 2-core AMD EPYC,
+//! load average 1.7-1.8, dae710c and the merge selection interleaved, three rounds of three
+//! runs): min ms per moving frame 1.31-1.35 before, 0.96-1.01 after; medians 1.41-1.91 before,
+//! 1.04-1.61 after (callgrind: 25 % fewer instructions per moving frame). The wall and CPU
+//! columns: the thread's CPU time (`CLOCK_THREAD_CPUTIME_ID`) leaves out time other processes
+//! take on a shared core, not their effect on the caches; the medians swing with the machine:
 //! the `min` column is the comparable one.
 
 mod common;

@@ -31,7 +31,7 @@ use mixvol::embed::{
 };
 use mixvol::gpu::{shaders::compile_source, GpuContext, HostDevice, ShaderStage};
 use mixvol::optics::{TfPreset, TransferFunction};
-use mixvol::scene::{Camera, RenderSettings, Transition};
+use mixvol::scene::{Camera, ModelTransform, RenderSettings, Transition};
 use mixvol::volume::{ScalarType, SyntheticField, Volume, VoxelData};
 use std::ffi::c_void;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -533,7 +533,7 @@ pub fn volume() -> Volume {
 
 /// Creates the host, draws the quad and the volume (a plain 3D texture), reads the image back.
 pub fn run() -> Result<HostReport, BoxError> {
-    run_scene(Scene::Volume)
+    run_scene(Scene::Volume, ModelTransform::default())
 }
 
 /// Creates the host and draws the quad and a brick source larger than its cache along
@@ -541,10 +541,17 @@ pub fn run() -> Result<HostReport, BoxError> {
 /// residency settles; reads that last image back. [`HostReport::frames`] holds every frame's
 /// report.
 pub fn run_bricks() -> Result<HostReport, BoxError> {
-    run_scene(Scene::Bricks)
+    run_scene(Scene::Bricks, ModelTransform::default())
 }
 
-fn run_scene(scene: Scene) -> Result<HostReport, BoxError> {
+/// [`run_bricks`] with the volume turned by `model` in the host's world
+/// ([`VolumePass::set_model_transform`]): the host's camera, clip-from-world matrix and depth
+/// stay in its world; the pass maps them into the volume's frame.
+pub fn run_bricks_with_model(model: ModelTransform) -> Result<HostReport, BoxError> {
+    run_scene(Scene::Bricks, model)
+}
+
+fn run_scene(scene: Scene, model: ModelTransform) -> Result<HostReport, BoxError> {
     PROBLEMS.store(0, Ordering::SeqCst);
     MESSAGES.lock().unwrap_or_else(|e| e.into_inner()).clear();
     // SAFETY: loading the system Vulkan loader.
@@ -746,6 +753,7 @@ fn run_scene(scene: Scene) -> Result<HostReport, BoxError> {
         },
     )?;
     pass.set_transfer_function(&TransferFunction::preset(TfPreset::ConstantWhite));
+    pass.set_model_transform(model);
     match scene {
         Scene::Volume => pass.set_source(VolumeSource::Volume(&volume()))?,
         Scene::Bricks => {

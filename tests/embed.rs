@@ -18,7 +18,7 @@ use mixvol::bricks::Level;
 use mixvol::embed::{MixedConfig, PassDesc, PassTarget, TargetLoad, VolumePass, VolumeSource};
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::reference::{self, ReferenceCache};
-use mixvol::scene::{Camera, RenderSettings};
+use mixvol::scene::{Camera, ModelTransform, RenderSettings};
 use mixvol::volume::{ScalarType, SyntheticField};
 use std::sync::Arc;
 
@@ -555,4 +555,25 @@ fn brick_source_larger_than_its_cache_composites_through_update() {
     embed_host::check_composite(&report.pixels, 32.0).unwrap();
     embed_host::check_bricks(&report.frames).unwrap();
     assert!(report.frames.len() > embed_host::PATH_FRAMES);
+}
+
+/// The brick-cache host with the volume turned 90 degrees about x in the host's world: the cube
+/// maps onto itself and the transfer function is constant, so the composite must be the
+/// axis-aligned one, and it is only when the host's depth (given in its world, through its own
+/// clip-from-world matrix) is mapped into the volume's frame: read as a volume-frame position,
+/// the quad's depth would stop the rays of the rows off the centre at another distance.
+#[test]
+fn a_turned_volume_stops_at_the_host_depth_of_its_world() {
+    let model =
+        ModelTransform::from_directions([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+            .expect("a rotation");
+    assert!((model.angle_degrees() - 90.0).abs() < 1e-3);
+    let report = embed_host::run_bricks_with_model(model).expect("host runs");
+    assert_eq!(
+        report.validation_problems, 0,
+        "validation: {:#?}",
+        report.messages
+    );
+    embed_host::check_composite(&report.pixels, 32.0).unwrap();
+    embed_host::check_bricks(&report.frames).unwrap();
 }

@@ -6,7 +6,7 @@
 //! transparent below 0.25 (about a tenth of the bricks culled), a 1920x1080 perspective camera
 //! that sees the whole volume, a slot budget that holds 1/8 of the bricks hi-res and the rest
 //! low-res, and an upload budget of 4 MiB per frame. Default planner options (budget-driven,
-//! 10 % hysteresis).
+//! 10 % hysteresis). The ranges do not change and say so (`ranges_generation`).
 //!
 //! Rows, each with a source that has every level loaded and with one that has only the `Lo`
 //! levels loaded:
@@ -49,6 +49,10 @@
 //! columns: the thread's CPU time (`CLOCK_THREAD_CPUTIME_ID`) leaves out time other processes
 //! take on a shared core, not their effect on the caches; the medians swing with the machine:
 //! the `min` column is the comparable one.
+//! Session 9 (2026-12-02 11:44 UTC, the same VM, cf176cc and this round interleaved, three rounds
+//! of three runs; the frames pass `ranges_generation`, as `VolumePass::update` does): moving
+//! medians 1.56-1.72 ms before, 1.00-1.28 ms after (minima 0.97-1.39 / 0.74-1.05); still
+//! 0.46-0.48 / 0.14-0.20 ms. docs/performance.md, "Fifth round".
 
 mod common;
 
@@ -255,6 +259,7 @@ fn main() {
                     geometry: &geometry,
                     view: &view,
                     ranges: &ranges,
+                    ranges_generation: Some(0),
                     cull: &cull,
                     budget,
                 };

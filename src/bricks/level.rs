@@ -2,7 +2,11 @@
 //! what a [`BrickSource`](super::BrickSource) packs.
 
 /// The resolution level the LOD selector wants for a brick.
-#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]
+///
+/// One byte (`repr(u8)`: `Hi` 0, `Lo` 1, `Absent` 2), so that slices of levels can be compared
+/// and counted as bytes.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash, bytemuck::NoUninit)]
+#[repr(u8)]
 pub enum Level {
     /// Level 0: the full-resolution brick, `(n+2)^3` texels, one whole slot.
     Hi,

@@ -245,7 +245,8 @@ impl BrickGrid {
 }
 
 /// A closed range `[min, max]` of normalised values.
-#[derive(Copy, Clone, Debug, PartialEq)]
+#[derive(Copy, Clone, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct ValueRange {
     /// Smallest value.
     pub min: f32,

@@ -27,21 +27,36 @@ pub(super) struct CullRanges {
     from: Option<(Arc<[ValueRange]>, CullParams)>,
     merged: Vec<ValueRange>,
     active: Vec<bool>,
+    /// Changed whenever the ranges handed out may have changed
+    /// ([`crate::plan::FrameInput::ranges_generation`]).
+    generation: u64,
+    /// The source's ranges handed out last (address and length), when they were not merged.
+    handed_out: Option<(usize, usize)>,
 }
 
 impl CullRanges {
     /// The ranges for this frame: `source`'s conservative ones, with the learned range of every
-    /// brick that it culls under `cull`.
+    /// brick that it culls under `cull`; and their generation, which changes whenever they may
+    /// have (a rebuild of the merged ranges, or another slice of the source's: a source's
+    /// [`BrickSource::value_ranges`] borrow it immutably, so the same slice holds the same
+    /// ranges).
     pub(super) fn ranges<'a>(
         &'a mut self,
         source: &'a dyn BrickSource,
         geometry: &BrickGeometry,
         cull: &CullParams,
-    ) -> Result<&'a [ValueRange]> {
+    ) -> Result<(&'a [ValueRange], u64)> {
         let Some(learned) = source.learned_value_ranges() else {
             self.from = None;
-            return Ok(source.value_ranges());
+            let ranges = source.value_ranges();
+            let slice = (ranges.as_ptr() as usize, ranges.len());
+            if self.handed_out != Some(slice) {
+                self.handed_out = Some(slice);
+                self.generation += 1;
+            }
+            return Ok((ranges, self.generation));
         };
+        self.handed_out = None;
         let fresh = self
             .from
             .as_ref()
@@ -59,7 +74,8 @@ impl CullRanges {
                     .map(|((&c, &l), &active)| if active { c } else { l }),
             );
             self.from = Some((learned, cull.clone()));
+            self.generation += 1;
         }
-        Ok(&self.merged)
+        Ok((&self.merged, self.generation))
     }
 }

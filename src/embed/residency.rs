@@ -161,13 +161,15 @@ impl VolumePass {
         let plan_start = Instant::now();
         // A streaming source's ranges tighten as its voxels arrive: bricks found empty are
         // culled (see cull_ranges.rs).
-        let ranges = state
-            .cull_ranges
-            .ranges(&*state.source, &state.geometry, &cull)?;
+        let (ranges, ranges_generation) =
+            state
+                .cull_ranges
+                .ranges(&*state.source, &state.geometry, &cull)?;
         let frame = FrameInput {
             geometry: &state.geometry,
             view: &view,
             ranges,
+            ranges_generation: Some(ranges_generation),
             cull: &cull,
             budget,
         };

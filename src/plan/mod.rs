@@ -7,7 +7,8 @@
 //! 1. **Culling** ([`crate::lod::cull_bricks`]) with the [`CullParams`] of the render settings
 //!    ([`cull_params`]): culled bricks are [`Level::Absent`] in every output. The planner keeps
 //!    the culling result with a copy of its inputs (geometry, criteria, value ranges) and culls
-//!    again only when one of them changed.
+//!    again only when one of them changed; a caller that numbers its ranges
+//!    ([`FrameInput::ranges_generation`]) spares the comparison of the ranges.
 //! 2. **Dropping.** When even all-low-res does not fit the slot budget (eight `Lo` bricks per
 //!    slot), only the `8 x slots` most important active bricks are kept; the rest are dropped
 //!    (drawn `Absent`) and counted in [`PlanReport::dropped`]. This is never an error.
@@ -115,9 +116,12 @@ use crate::bricks::request_plan;
 use crate::lod::screen_space_error;
 #[cfg(test)]
 use glam::Vec3;
-use order::{count_key, more_important, radix_sort_by_high_word, Distances, Histograms, BUCKETS};
+use order::{more_important, Distances, OrderKeys};
 use screen_error::{compute_errors, same_bits, width_factor};
-use select::{request_key, select_hi, Ranking, SelectScratch};
+use select::{
+    entry_brick, entry_was_hi, order_entry, refresh_was_hi, request_key, select_hi, Ranking,
+    SelectScratch,
+};
 use targets::{targets, Bricks, Changes, Counts};
 
 pub use frame::{
@@ -144,7 +148,7 @@ pub enum PlanError {
     /// A budget or option is unusable.
     #[error("invalid {field}: {reason}")]
     InvalidInput {
-        /// Which field (`"bytes_per_texel"`, `"error_threshold"`, `"hysteresis"`).
+        /// Which field (`"bytes_per_texel"`, `"error_threshold"`, `"hysteresis"`, `"geometry"`).
         field: &'static str,
         /// What is wrong.
         reason: &'static str,
@@ -168,6 +172,8 @@ struct Work {
     /// What `culled` and `width` were computed from: geometry, culling criteria, value ranges.
     cull_inputs: Option<(BrickGeometry, CullParams)>,
     cull_ranges: Vec<ValueRange>,
+    /// The [`FrameInput::ranges_generation`] of `cull_ranges`.
+    cull_generation: Option<u64>,
     /// The culling result, and how many bricks it keeps.
     culled: Vec<bool>,
     culled_count: usize,
@@ -201,8 +207,9 @@ struct Work {
     /// before it (`None` when they were not, or the plan was reset or replaced): with the
     /// same errors they are this frame's as well.
     settled_hi: Option<usize>,
-    /// The kept bricks by descending error (NaN last), equal errors in brick order:
-    /// `key << 32 | brick` ([`request_key`]).
+    /// The kept bricks by descending error (NaN last), equal errors in brick order: the
+    /// [`order_entry`] of each brick's [`request_key`], with a bit that says whether it was
+    /// wanted `Hi` last frame (the `Hi` selection reads the order alone).
     by_error: Vec<u64>,
     sort_scratch: Vec<u64>,
     coarsen: Vec<u32>,
@@ -344,13 +351,24 @@ impl ResidencyPlanner {
         }
         let geometry = frame.geometry;
         let count = geometry.grid().brick_count();
+        if count >= 1 << 31 {
+            // The order by error keeps a brick index in 31 bits.
+            return Err(PlanError::InvalidInput {
+                field: "geometry",
+                reason: "more than 2^31 - 1 bricks",
+            });
+        }
         let Self { plan, work, .. } = self;
         // Culling (and the range widths) only when its inputs changed.
         let cull_unchanged = work
             .cull_inputs
             .as_ref()
             .is_some_and(|(g, c)| g == geometry && c == frame.cull)
-            && same_bits(&work.cull_ranges, frame.ranges);
+            && work.cull_ranges.len() == frame.ranges.len()
+            && ((frame.ranges_generation.is_some()
+                && frame.ranges_generation == work.cull_generation)
+                || same_bits(&work.cull_ranges, frame.ranges));
+        work.cull_generation = frame.ranges_generation;
         if !cull_unchanged {
             work.cull_inputs = None;
             work.order_inputs = None;
@@ -385,12 +403,17 @@ impl ResidencyPlanner {
 
         let active_count = work.culled_count;
         report.culled = count - active_count;
+        let capacity = budget
+            .slots
+            .saturating_mul(crate::bricks::SUB_SLOTS_PER_SLOT as usize);
         if let (true, Some((_, _, dropped))) = (reuse_order, work.order_inputs) {
             report.dropped = dropped;
         } else {
             work.order_inputs = None;
             work.active.clone_from(&work.culled);
-            // Errors (of every brick; only the active ones are read).
+            // Errors (of every brick; only the active ones are read). A separate loop from the
+            // entries of the order by error: this one vectorizes (writing the entries in it made
+            // the two together cost 60 % more instructions).
             compute_errors(
                 geometry,
                 frame.view,
@@ -401,9 +424,6 @@ impl ResidencyPlanner {
         }
 
         // Dropping: keep the 8 x slots most important active bricks.
-        let capacity = budget
-            .slots
-            .saturating_mul(crate::bricks::SUB_SLOTS_PER_SLOT as usize);
         let Work {
             active,
             error,
@@ -461,21 +481,19 @@ impl ResidencyPlanner {
         } else {
             if !reuse_order {
                 // The kept bricks by descending error (NaN last), equal errors in brick order
-                // (`key << 32 | brick`), sorted with the counts of the keys' radix digits.
-                let mut hist: Histograms = [[0; BUCKETS]; 3];
-                // Every entry up to the last kept brick's is written below.
+                // ([`order_entry`]), sorted with the counts of the keys' radix digits.
+                let mut keys = OrderKeys::new();
                 by_error.resize(count, 0);
-                let mut keys = 0usize;
-                for (i, (&a, &e)) in active.iter().zip(error).enumerate() {
-                    // Written at the next free place, which only an active brick takes.
+                let was_hi = prev_wanted.iter().map(|&w| w == Level::Hi);
+                for (i, ((&a, &e), was_hi)) in active.iter().zip(error).zip(was_hi).enumerate() {
                     let k = request_key(e);
-                    count_key(&mut hist, k, u32::from(a));
-                    by_error[keys] = (u64::from(k) << 32) | i as u64;
-                    keys += usize::from(a);
+                    keys.push(by_error, k, order_entry(k, i as u32, was_hi), a);
                 }
-                by_error.truncate(keys);
-                radix_sort_by_high_word(by_error, sort_scratch, &mut hist);
+                keys.sort(by_error, sort_scratch);
                 *order_inputs = Some((*frame.view, budget.slots, report.dropped));
+            } else {
+                // The last frame's order, with this frame's previous wanted levels.
+                refresh_was_hi(by_error, prev_wanted);
             }
             // Every kept brick is at least `Lo`; the best-ranked candidates become `Hi`.
             for (w, &a) in wanted.iter_mut().zip(active.iter()) {
@@ -486,8 +504,7 @@ impl ResidencyPlanner {
             } else {
                 by_error
                     .iter()
-                    .map(|&k| k as u32 as usize)
-                    .filter(|&i| is_candidate(error[i], prev_wanted[i] == Level::Hi))
+                    .filter(|&&k| is_candidate(error[entry_brick(k) as usize], entry_was_hi(k)))
                     .count()
             };
             let hi = max_hi_bricks(kept, candidate_count, budget.slots).unwrap_or(0);
@@ -733,12 +750,12 @@ impl ResidencyPlanner {
                 by_error[..fit_lo]
                     .iter()
                     .enumerate()
-                    .map(|(pos, &k)| (k as u32, Level::Lo, (total - pos) as f32)),
+                    .map(|(pos, &k)| (entry_brick(k), Level::Lo, (total - pos) as f32)),
             );
             if fit_hi > 0 {
                 let hi_levels = by_error
                     .iter()
-                    .map(|&k| k as u32)
+                    .map(|&k| entry_brick(k))
                     .filter(|&i| wanted[i as usize] == Level::Hi)
                     .take(report.wanted_hi)
                     .chain(extra.iter().copied())

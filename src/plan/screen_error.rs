@@ -84,10 +84,8 @@ pub(super) fn compute_errors(
     }
 }
 
-/// True when `a` and `b` hold the same bits.
+/// True when `a` and `b` hold the same bits (compared as bytes: one `memcmp`).
 pub(super) fn same_bits(a: &[ValueRange], b: &[ValueRange]) -> bool {
-    a.len() == b.len()
-        && a.iter().zip(b).fold(0u32, |acc, (x, y)| {
-            acc | (x.min.to_bits() ^ y.min.to_bits()) | (x.max.to_bits() ^ y.max.to_bits())
-        }) == 0
+    let (a, b): (&[u32], &[u32]) = (bytemuck::cast_slice(a), bytemuck::cast_slice(b));
+    a == b
 }

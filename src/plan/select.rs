@@ -11,8 +11,13 @@
 //! of equal ranking key within one run (consecutive in it) are taken whole, or, at the
 //! boundary, the most important of them. NaN errors, which rank by their bits (a positive NaN
 //! before every number, a negative one after), are ranked among themselves by sorting.
+//!
+//! Each entry of the order carries its brick's error (its key is a bijection of the error's
+//! bits) and a bit saying whether the brick was wanted `Hi` last frame ([`order_entry`]), so
+//! the merge reads the order alone, front to back, instead of looking up two per-brick arrays at
+//! random for every brick it visits.
 
-use super::order::{descending_key, more_important, Distances};
+use super::order::{descending_key, more_important, value_of_descending_key, Distances};
 use crate::bricks::Level;
 use std::cmp::Ordering;
 
@@ -27,10 +32,51 @@ pub(super) fn request_key(e: f32) -> u32 {
     }
 }
 
+/// The bit of an entry of the order by error that says the brick was wanted `Hi` last frame.
+const WAS_HI: u64 = 1 << 31;
+
+/// An entry of the order by error: `key << 32`, bit 31 set when the brick was wanted `Hi`
+/// last frame (so that the selection reads the order alone, not the per-brick arrays), and the
+/// brick (below 2^31) in the low bits. Sorted by the upper word, the entries are in the order
+/// by error.
+#[inline]
+pub(super) fn order_entry(key: u32, brick: u32, was_hi: bool) -> u64 {
+    debug_assert!(u64::from(brick) < WAS_HI);
+    (u64::from(key) << 32) | (u64::from(was_hi) << 31) | u64::from(brick)
+}
+
+/// The brick of an entry of the order by error.
+#[inline]
+pub(super) fn entry_brick(entry: u64) -> u32 {
+    (entry & (WAS_HI - 1)) as u32
+}
+
+/// Whether an entry's brick was wanted `Hi` last frame.
+#[inline]
+pub(super) fn entry_was_hi(entry: u64) -> bool {
+    entry & WAS_HI != 0
+}
+
+/// Sets the `WAS_HI` bit of every entry from `prev_wanted` (for an order kept from the last
+/// frame, whose wanted levels have changed since).
+pub(super) fn refresh_was_hi(by_error: &mut [u64], prev_wanted: &[Level]) {
+    for entry in by_error {
+        let was_hi = prev_wanted[entry_brick(*entry) as usize] == Level::Hi;
+        *entry = (*entry & !WAS_HI) | (u64::from(was_hi) << 31);
+    }
+}
+
+/// The error of an entry whose key is not NaN's (`u32::MAX`): the same bits as the brick's.
+#[inline]
+fn entry_error(entry: u64) -> f32 {
+    value_of_descending_key((entry >> 32) as u32)
+}
+
 /// What the selection reads.
 #[derive(Copy, Clone)]
 pub(super) struct Ranking<'a> {
-    /// The kept bricks by descending error: `request_key << 32 | brick`, ascending.
+    /// The kept bricks by descending error ([`order_entry`] of their [`request_key`]),
+    /// ascending.
     pub by_error: &'a [u64],
     /// Per brick, the screen-space error.
     pub error: &'a [f32],
@@ -50,8 +96,13 @@ impl Ranking<'_> {
     /// The ranking key of brick `i` (smaller first), as a radix key of the boosted error.
     #[inline]
     fn key(&self, i: u32) -> u32 {
-        let e = self.error[i as usize];
-        let e = if self.was_hi(i) { e * self.boost } else { e };
+        self.key_of(self.error[i as usize], self.was_hi(i))
+    }
+
+    /// The ranking key of a brick of error `e` that was or was not wanted `Hi` last frame.
+    #[inline]
+    fn key_of(&self, e: f32, was_hi: bool) -> u32 {
+        let e = if was_hi { e * self.boost } else { e };
         descending_key(e).min(u32::MAX - 1)
     }
 
@@ -108,14 +159,15 @@ impl Run {
         finite: &[u64],
         is_candidate: &impl Fn(f32, bool) -> bool,
     ) {
+        // Reads the order alone: the brick, its `WAS_HI` bit and (from the key) its error.
         while let Some(&entry) = finite.get(self.next) {
             self.next += 1;
-            let i = entry as u32;
-            if ranking.was_hi(i) == self.was_hi
-                && is_candidate(ranking.error[i as usize], self.was_hi)
-            {
-                self.head = Some((i, ranking.key(i)));
-                return;
+            if entry_was_hi(entry) == self.was_hi {
+                let e = entry_error(entry);
+                if is_candidate(e, self.was_hi) {
+                    self.head = Some((entry_brick(entry), ranking.key_of(e, self.was_hi)));
+                    return;
+                }
             }
         }
         self.head = None;
@@ -140,7 +192,7 @@ pub(super) fn select_hi(
     nan.clear();
     nan.extend(
         nans.iter()
-            .map(|&k| k as u32)
+            .map(|&k| entry_brick(k))
             .filter(|&i| is_candidate(ranking.error[i as usize], ranking.was_hi(i))),
     );
     nan.sort_unstable_by(|&a, &b| ranking.order(a, b));
@@ -164,10 +216,16 @@ pub(super) fn select_hi(
         let Some((first, key)) = run.head else {
             break;
         };
+        run.advance(&ranking, finite, &is_candidate);
+        if run.head.is_none_or(|(_, k)| k != key) {
+            // The only brick of its key in its run (the common case).
+            wanted[first as usize] = Level::Hi;
+            remaining -= 1;
+            continue;
+        }
         // The run's bricks of this key (consecutive in the run).
         group.clear();
         group.push(first);
-        run.advance(&ranking, finite, &is_candidate);
         while let Some((i, k)) = run.head {
             if k != key {
                 break;
@@ -209,7 +267,7 @@ mod tests {
         let mut all: Vec<u32> = ranking
             .by_error
             .iter()
-            .map(|&k| k as u32)
+            .map(|&k| entry_brick(k))
             .filter(|&i| is_candidate(ranking.error[i as usize], ranking.was_hi(i)))
             .collect();
         all.sort_by(|&a, &b| ranking.order(a, b));
@@ -249,7 +307,10 @@ mod tests {
             // The kept bricks (about 3 in 4) by descending error, NaN last, equal in brick order.
             let mut by_error: Vec<u64> = (0..n as u32)
                 .filter(|_| next() % 4 != 0)
-                .map(|i| (u64::from(request_key(error[i as usize])) << 32) | u64::from(i))
+                .map(|i| {
+                    let was_hi = prev_wanted[i as usize] == Level::Hi;
+                    order_entry(request_key(error[i as usize]), i, was_hi)
+                })
                 .collect();
             by_error.sort_unstable();
             let sq: [Vec<f32>; 3] = [

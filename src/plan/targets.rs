@@ -50,8 +50,10 @@ pub(super) struct Counts {
 
 /// Fills the targets of the wanted levels and collects the changes, in one pass over the
 /// bricks. `is_loaded` is asked about the wanted level of every wanted brick first, and then
-/// only as the fallback rules need. The common case (a brick drawn at its wanted level, which
-/// is loaded) takes a short branch-light path.
+/// only as the fallback rules need. The targets start as a copy of the wanted levels; the pass
+/// skips, with two byte comparisons and one `is_loaded` call, a brick drawn at its wanted level
+/// when that level is loaded (or when both are `Absent`): nothing to stage. The counts that
+/// such bricks contribute to are taken afterwards from the level bytes (`count_levels`).
 pub(super) fn targets(
     bricks: Bricks<'_>,
     changes: Changes<'_>,
@@ -71,39 +73,24 @@ pub(super) fn targets(
         refine,
     } = changes;
     let mut c = Counts::default();
-    // Bricks drawn and targeted at their wanted level; `hi` of them `Hi`.
-    let (mut settled, mut settled_hi) = (0usize, 0usize);
-    let mut max_lo = 0.0f32;
-    // Indexed (the lengths checked once) rather than zipped: the zipped loop compiled to
-    // several times the instructions.
     let count = wanted.len();
     let (target, draw, error) = (&mut target[..count], &mut draw[..count], &error[..count]);
-    let prev_wanted = &prev_wanted[..count];
-    let mut changed = 0u8;
+    target.copy_from_slice(wanted);
+    c.wanted_changed = level_bytes(wanted) != level_bytes(&prev_wanted[..count]);
+    // Indexed (the lengths checked once) rather than zipped: the zipped loop compiled to
+    // several times the instructions.
     for i in 0..count {
-        let (w, e) = (wanted[i], error[i]);
-        changed |= u8::from(w != prev_wanted[i]);
-        let (t, d) = (&mut target[i], &mut draw[i]);
+        let (w, drawn) = (wanted[i], draw[i]);
         let b = i as u32;
-        let drawn = *d;
-        let first = w != Level::Absent && is_loaded(b, w);
-        if first && drawn == w {
-            // Nothing to stage.
-            *t = w;
-            let hi = w == Level::Hi;
-            settled += 1;
-            settled_hi += usize::from(hi);
-            // As `max`, NaN ignored.
-            let e = if hi { 0.0 } else { e };
-            if e > max_lo {
-                max_lo = e;
+        let first = if w == drawn {
+            // Drawn at the wanted level (or both `Absent`): nothing to stage when it is loaded.
+            if w == Level::Absent || is_loaded(b, w) {
+                continue;
             }
-            continue;
-        }
-        if w == Level::Absent && drawn == Level::Absent {
-            *t = Level::Absent;
-            continue;
-        }
+            false
+        } else {
+            w != Level::Absent && is_loaded(b, w)
+        };
         let mut keep = false;
         let to = match w {
             Level::Absent => Level::Absent,
@@ -115,8 +102,9 @@ pub(super) fn targets(
             }
             _ => Level::Absent,
         };
-        *t = to;
+        target[i] = to;
         c.waiting += usize::from(to != w);
+        let d = &mut draw[i];
         match (drawn, to) {
             _ if keep => keep_hi.push(b),
             (_, Level::Absent) => *d = Level::Absent,
@@ -125,28 +113,73 @@ pub(super) fn targets(
             (Level::Lo, Level::Hi) => refine.push(b),
             _ => {}
         }
-        match to {
-            Level::Hi => c.target_hi += 1,
-            Level::Lo => c.target_lo += 1,
-            Level::Absent => {}
-        }
-        match *d {
-            Level::Hi => c.drawn_hi += 1,
-            Level::Lo => c.drawn_lo += 1,
-            Level::Absent => {}
-        }
         if !keep {
             c.deferred += usize::from(*d != to);
-            if (*d, to) == (Level::Lo, Level::Lo) {
-                max_lo = max_lo.max(e);
-            }
         }
     }
-    c.max_lo_error = max_lo;
-    c.wanted_changed = changed != 0;
-    c.target_hi += settled_hi;
-    c.target_lo += settled - settled_hi;
-    c.drawn_hi += settled_hi;
-    c.drawn_lo += settled - settled_hi;
+    (c.target_hi, c.target_lo) = count_levels(target);
+    (c.drawn_hi, c.drawn_lo) = count_levels(draw);
+    c.max_lo_error = max_lo_error(draw, target, error);
     c
+}
+
+/// The levels as their bytes (`Level` is `repr(u8)`).
+fn level_bytes(levels: &[Level]) -> &[u8] {
+    bytemuck::cast_slice(levels)
+}
+
+/// How many of `levels` are `Hi` and how many `Lo`, counted over the bytes in blocks the
+/// compiler can vectorize.
+fn count_levels(levels: &[Level]) -> (usize, usize) {
+    const HI: u8 = Level::Hi as u8;
+    const LO: u8 = Level::Lo as u8;
+    let bytes = level_bytes(levels);
+    let (mut hi, mut lo) = (0usize, 0usize);
+    // Blocks of at most 255 bytes, so that the per-lane byte counters cannot overflow.
+    for block in bytes.chunks(255) {
+        let (mut h, mut l) = (0u8, 0u8);
+        for &b in block {
+            h += u8::from(b == HI);
+            l += u8::from(b == LO);
+        }
+        hi += usize::from(h);
+        lo += usize::from(l);
+    }
+    (hi, lo)
+}
+
+/// The largest error of a brick drawn and targeted `Lo`, at least 0, NaN ignored. For errors
+/// that are not negative (and not NaN) the order of the bit patterns is the order of the values,
+/// so the maximum is taken over the bits, which the compiler can vectorize; negative values and
+/// NaNs (bit patterns above that of `+inf`) are left out, as `max` with 0 would leave them.
+fn max_lo_error(draw: &[Level], target: &[Level], error: &[f32]) -> f32 {
+    const INF: u32 = 0x7F80_0000;
+    const LO: u8 = Level::Lo as u8;
+    let (draw, target) = (level_bytes(draw), level_bytes(target));
+    // The bits of the counted errors are at most those of `+inf`, below 2^31: compared as
+    // `i32`, which the baseline x86-64 vector instructions can do.
+    let counted = |e: f32, d: u8, t: u8| {
+        let bits = e.to_bits();
+        let mask = 0u32.wrapping_sub(u32::from((d == LO) & (t == LO) & (bits <= INF)));
+        (bits & mask) as i32
+    };
+    const LANES: usize = 16;
+    let mut lanes = [0i32; LANES];
+    let blocks = error
+        .chunks_exact(LANES)
+        .zip(draw.chunks_exact(LANES))
+        .zip(target.chunks_exact(LANES));
+    for ((e, d), t) in blocks {
+        for j in 0..LANES {
+            lanes[j] = lanes[j].max(counted(e[j], d[j], t[j]));
+        }
+    }
+    let tail = error.len() / LANES * LANES;
+    let rest = error[tail..]
+        .iter()
+        .zip(&draw[tail.min(draw.len())..])
+        .zip(&target[tail.min(target.len())..])
+        .map(|((&e, &d), &t)| counted(e, d, t));
+    let max = lanes.into_iter().chain(rest).max().unwrap_or(0) as u32;
+    f32::from_bits(max)
 }

@@ -148,6 +148,7 @@ fn frame<'a>(
         geometry,
         view,
         ranges,
+        ranges_generation: None,
         cull,
         budget,
     }
@@ -838,3 +839,56 @@ fn a_brick_source_drives_the_plan_like_fallback_levels() {
 
 mod fallback;
 mod frozen;
+
+#[test]
+fn a_kept_ranges_generation_skips_the_comparison_and_a_new_one_culls_again() {
+    // Iso-surface at 0.3: of the ranges below only brick 2 holds it.
+    let (geometry, view) = row(8);
+    let ranges: Vec<_> = (0..8)
+        .map(|i| range(i as f32 / 8.0, (i as f32 + 0.9) / 8.0))
+        .collect();
+    let iso = RenderSettings {
+        mode: RenderMode::Iso {
+            value: 0.3,
+            colour: Vec3::ONE,
+        },
+        ..RenderSettings::default()
+    };
+    let tf = TransferFunction::preset(TfPreset::ConstantWhite);
+    let cull = cull_params(&iso, &tf, (0.0, 1.0)).unwrap();
+    // Brick 5 now holds the iso-value too.
+    let mut widened = ranges.clone();
+    widened[5] = range(0.0, 1.0);
+    let culled = |planner: &mut ResidencyPlanner, ranges: &[ValueRange], generation| {
+        let input = FrameInput {
+            ranges_generation: generation,
+            ..frame(&geometry, &view, ranges, &cull, budget(8, 100 * HI8))
+        };
+        planner
+            .plan_frame(&input, all_loaded)
+            .unwrap()
+            .report
+            .culled
+    };
+    let mut planner = ResidencyPlanner::new(PlanOptions::default());
+    assert_eq!(culled(&mut planner, &ranges, Some(1)), 7);
+    // The caller said the ranges did not change: the last culling holds.
+    assert_eq!(culled(&mut planner, &widened, Some(1)), 7);
+    // A new generation, or none, compares and culls again.
+    assert_eq!(culled(&mut planner, &widened, Some(2)), 6);
+    assert_eq!(culled(&mut planner, &ranges, None), 7);
+    assert_eq!(culled(&mut planner, &widened, None), 6);
+    // A generation equal to the last one but another count of ranges is not trusted.
+    let mut planner = ResidencyPlanner::new(PlanOptions::default());
+    assert_eq!(culled(&mut planner, &ranges, Some(3)), 7);
+    assert!(matches!(
+        planner.plan_frame(
+            &FrameInput {
+                ranges_generation: Some(3),
+                ..frame(&geometry, &view, &ranges[..7], &cull, budget(8, 100 * HI8))
+            },
+            all_loaded
+        ),
+        Err(PlanError::Lod(_))
+    ));
+}

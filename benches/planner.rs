@@ -52,7 +52,8 @@
 //! Session 9 (2026-12-02 11:44 UTC, the same VM, cf176cc and this round interleaved, three rounds
 //! of three runs; the frames pass `ranges_generation`, as `VolumePass::update` does): moving
 //! medians 1.56-1.72 ms before, 1.00-1.28 ms after (minima 0.97-1.39 / 0.74-1.05); still
-//! 0.46-0.48 / 0.14-0.20 ms. docs/performance.md, "Fifth round".
+//! 0.46-0.48 / 0.14-0.20 ms. Again at 12:13 UTC, the VM faster (load average 0.4): moving
+//! medians 0.91-1.46 ms before, 0.73-1.02 ms after. docs/performance.md, "Fifth round".
 
 mod common;
 

@@ -413,7 +413,7 @@ impl ResidencyPlanner {
             work.active.clone_from(&work.culled);
             // Errors (of every brick; only the active ones are read). A separate loop from the
             // entries of the order by error: this one vectorizes (writing the entries in it made
-            // the two together cost 60 % more instructions).
+            // the two together cost 2.7 times the instructions, the frame 27 % more).
             compute_errors(
                 geometry,
                 frame.view,

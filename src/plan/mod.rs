@@ -481,13 +481,14 @@ impl ResidencyPlanner {
         } else {
             if !reuse_order {
                 // The kept bricks by descending error (NaN last), equal errors in brick order
-                // ([`order_entry`]), sorted with the counts of the keys' radix digits.
+                // ([`order_entry`]), sorted with the counts of the keys' top digits.
                 let mut keys = OrderKeys::new();
                 by_error.resize(count, 0);
+                let entries = by_error.as_mut_slice();
                 let was_hi = prev_wanted.iter().map(|&w| w == Level::Hi);
                 for (i, ((&a, &e), was_hi)) in active.iter().zip(error).zip(was_hi).enumerate() {
                     let k = request_key(e);
-                    keys.push(by_error, k, order_entry(k, i as u32, was_hi), a);
+                    keys.push(entries, k, order_entry(k, i as u32, was_hi), a);
                 }
                 keys.sort(by_error, sort_scratch);
                 *order_inputs = Some((*frame.view, budget.slots, report.dropped));

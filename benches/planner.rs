@@ -54,6 +54,10 @@
 //! medians 1.56-1.72 ms before, 1.00-1.28 ms after (minima 0.97-1.39 / 0.74-1.05); still
 //! 0.46-0.48 / 0.14-0.20 ms. Again at 12:13 UTC, the VM faster (load average 0.4): moving
 //! medians 0.91-1.46 ms before, 0.73-1.02 ms after. docs/performance.md, "Fifth round".
+//! Session 10 (2026-12-02 18:25 UTC, a 2-core Intel Xeon with 2 MiB of L2 per core, d3a6034
+//! and the bucketed sort interleaved, three rounds of three runs): moving medians 1.06-1.22 ms
+//! before, 0.94-1.03 ms after with every level loaded; 1.19-1.38 / 1.05-1.15 ms with only `Lo`
+//! loaded. docs/performance.md, "Sixth round".
 
 mod common;
 

@@ -56,9 +56,9 @@
 //!    not wanted (a pending coarsening keeps its `Hi` bytes in RAM for re-uploads), re-ranked so
 //!    that the priorities are `len - position`. With a RAM budget
 //!    ([`PlanBudget::ram_bytes`]) the list is cut to the longest prefix whose bytes fit. The
-//!    order by error comes from one radix sort of the kept bricks (equal errors in brick order,
-//!    as `request_plan` keeps them), the one sort of a moving frame: the `Hi` selection of
-//!    step 3 reads it too.
+//!    order by error comes from one sort of the kept bricks (by the top radix digit of the
+//!    key, then bucket by bucket; equal errors in brick order, as `request_plan` keeps them),
+//!    the one sort of a moving frame: the `Hi` selection of step 3 reads it too.
 //!
 //! Errors and box distances are computed from per-axis squared distance components (the same
 //! floating-point operations as [`screen_space_error`], so the same values; the distances, only

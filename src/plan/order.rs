@@ -1,6 +1,6 @@
-//! The orders the planner ranks bricks by: f32 keys for radix passes, the stable radix sort of
-//! the order by error, and the importance order (error, then box distance, then index) with
-//! distances computed on demand.
+//! The orders the planner ranks bricks by: f32 keys for radix passes, the sort of the order by
+//! error (by the top digit, then bucket by bucket), and the importance order (error, then box
+//! distance, then index) with distances computed on demand.
 
 use std::cmp::Ordering;
 

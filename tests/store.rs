@@ -603,6 +603,40 @@ fn streamer_loads_everything_in_priority_order_with_a_large_budget() {
 }
 
 #[test]
+fn streamer_reports_its_loaded_levels_in_one_call() {
+    let (path, _) = streaming_store("stream-loaded-levels");
+    // 100 hi-res bricks of 1000 bytes and 100 low-res ones of 125.
+    let streamer = BrickStreamer::open(&path, config(112_500)).unwrap();
+    let count = streamer.store().brick_count();
+    let p = shuffled_priorities(count as usize, 4);
+    let mut request: Vec<(u32, Level, f32)> =
+        (0..count).map(|b| (b, Level::Hi, p[b as usize])).collect();
+    request.extend((0..count).map(|b| (b, Level::Lo, p[b as usize] - 0.5)));
+    streamer.request(&request).unwrap();
+    settle(&streamer);
+    let resident: std::collections::HashSet<(u32, Level)> =
+        streamer.resident().into_iter().collect();
+    assert!(resident.len() > 100, "{}", resident.len());
+    let mut loaded = Vec::new();
+    streamer.loaded_levels(&mut loaded);
+    assert_eq!(loaded.len(), count as usize);
+    for b in 0..count {
+        for level in [Level::Hi, Level::Lo] {
+            let held = resident.contains(&(b, level));
+            assert_eq!(
+                loaded[b as usize].contains(level),
+                held,
+                "brick {b} {level:?}"
+            );
+            assert_eq!(streamer.is_loaded(b, level), held, "brick {b} {level:?}");
+        }
+        assert!(!loaded[b as usize].contains(Level::Absent));
+    }
+    drop(streamer);
+    std::fs::remove_file(&path).unwrap();
+}
+
+#[test]
 fn streamer_keeps_the_highest_priority_prefix_within_the_budget() {
     let (path, _) = streaming_store("stream-budget");
     let budget = 100_500; // 100 hi-res bricks of 1000 bytes

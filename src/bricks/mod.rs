@@ -30,7 +30,8 @@ pub use build::{
 pub use kernel::{BrickBox, BrickKernel, PackOutputs, TexelsMut, VoxelWindow};
 pub use level::Level;
 pub use source::{
-    fallback_levels, request_plan, BrickSource, RgbaBrickSource, SourceError, VolumeBrickSource,
+    fallback_levels, request_plan, BrickSource, LoadedLevels, RgbaBrickSource, SourceError,
+    VolumeBrickSource,
 };
 pub use taps::DownsampleFilter;
 

@@ -16,6 +16,43 @@ use crate::volume::{RgbaVolume, ScalarType, Volume, VoxelData};
 use glam::Vec3;
 use std::sync::Arc;
 
+/// Which levels of one brick a source has loaded (one bit per level), as
+/// [`BrickSource::loaded_levels`] reports them.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]
+pub struct LoadedLevels(u8);
+
+impl LoadedLevels {
+    /// No level loaded.
+    pub const NONE: Self = Self(0);
+    /// Both levels loaded.
+    pub const BOTH: Self = Self(Self::bit(Level::Hi) | Self::bit(Level::Lo));
+
+    const fn bit(level: Level) -> u8 {
+        match level {
+            Level::Hi => 1,
+            Level::Lo => 2,
+            Level::Absent => 0,
+        }
+    }
+
+    /// These levels with `level` loaded too when `loaded` (`Level::Absent` changes nothing).
+    #[must_use]
+    pub const fn with(self, level: Level, loaded: bool) -> Self {
+        Self(self.0 | if loaded { Self::bit(level) } else { 0 })
+    }
+
+    /// True when `level` is loaded (never for `Level::Absent`, which has no bytes).
+    pub const fn contains(self, level: Level) -> bool {
+        self.0 & Self::bit(level) != 0
+    }
+
+    /// The levels loaded in both `self` and `other`.
+    #[must_use]
+    pub const fn intersection(self, other: Self) -> Self {
+        Self(self.0 & other.0)
+    }
+}
+
 /// Why a [`BrickSource`] cannot deliver a brick, or an in-memory source cannot be built.
 #[derive(Debug, Clone, thiserror::Error)]
 pub enum SourceError {
@@ -113,6 +150,21 @@ pub trait BrickSource: Send + Sync {
     /// True when [`BrickSource::brick_bytes`] would return bytes now.
     fn is_loaded(&self, brick: u32, level: Level) -> bool {
         matches!(self.brick_bytes(brick, level), Ok(Some(_)))
+    }
+
+    /// Fills `loaded` with one entry per brick of the grid: which of its levels
+    /// [`BrickSource::is_loaded`] would call loaded now, all in one call (what the residency
+    /// planner asks about every brick every frame). A streaming source keeps what it reports
+    /// here until its next [`BrickSource::request_levels`], as it keeps the levels `is_loaded`
+    /// answered. The default asks `is_loaded` about both levels of every brick.
+    fn loaded_levels(&self, loaded: &mut Vec<LoadedLevels>) {
+        let count = self.grid().brick_count() as u32;
+        loaded.clear();
+        loaded.extend((0..count).map(|b| {
+            LoadedLevels::NONE
+                .with(Level::Hi, self.is_loaded(b, Level::Hi))
+                .with(Level::Lo, self.is_loaded(b, Level::Lo))
+        }));
     }
 
     /// Tells a streaming source what to load next: `(brick, level, priority)`, higher priority
@@ -301,6 +353,20 @@ impl BrickSource for RgbaBrickSource {
     fn is_loaded(&self, brick: u32, level: Level) -> bool {
         self.channels.iter().all(|c| c.is_loaded(brick, level))
     }
+
+    fn loaded_levels(&self, loaded: &mut Vec<LoadedLevels>) {
+        let mut channel = Vec::new();
+        for (i, c) in self.channels.iter().enumerate() {
+            if i == 0 {
+                c.loaded_levels(loaded);
+            } else {
+                c.loaded_levels(&mut channel);
+                for (l, &c) in loaded.iter_mut().zip(&channel) {
+                    *l = l.intersection(c);
+                }
+            }
+        }
+    }
 }
 
 /// An in-memory volume as a [`BrickSource`]: every brick is always available, packed on demand
@@ -398,6 +464,11 @@ impl BrickSource for VolumeBrickSource {
 
     fn is_loaded(&self, brick: u32, level: Level) -> bool {
         (brick as usize) < self.ranges.len() && level != Level::Absent
+    }
+
+    fn loaded_levels(&self, loaded: &mut Vec<LoadedLevels>) {
+        loaded.clear();
+        loaded.resize(self.ranges.len(), LoadedLevels::BOTH);
     }
 }
 

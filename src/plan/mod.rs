@@ -97,7 +97,7 @@
 //!
 //! Everything here is CPU-only bookkeeping; wiring it into the pass is the host's job.
 
-use crate::bricks::{BrickSource, Level, ValueRange};
+use crate::bricks::{BrickSource, Level, LoadedLevels, ValueRange};
 use crate::cache::CacheError;
 use crate::lod::{
     cull_bricks_into, max_hi_bricks, slots_needed, BrickGeometry, CullParams, LodError, LodView,
@@ -163,6 +163,8 @@ pub struct ResidencyPlanner {
     plan: FramePlan,
     /// Reused per-frame buffers.
     work: Work,
+    /// What the source has loaded, per brick ([`ResidencyPlanner::plan_frame_with_source`]).
+    loaded: Vec<LoadedLevels>,
 }
 
 /// Buffers the planner reuses from frame to frame, so that a frame allocates nothing once they
@@ -313,7 +315,19 @@ impl ResidencyPlanner {
         frame: &FrameInput<'_>,
         source: &dyn BrickSource,
     ) -> Result<&FramePlan, PlanError> {
-        self.plan_frame(frame, |brick, level| source.is_loaded(brick, level))
+        // One call for every brick ([`BrickSource::loaded_levels`]) rather than one per brick
+        // and level: a streaming source answers it under one lock.
+        let mut loaded = std::mem::take(&mut self.loaded);
+        source.loaded_levels(&mut loaded);
+        let planned = self
+            .plan_frame(frame, |brick, level| {
+                loaded
+                    .get(brick as usize)
+                    .is_some_and(|l| l.contains(level))
+            })
+            .map(|_| ());
+        self.loaded = loaded;
+        planned.map(|()| &self.plan)
     }
 
     /// Plans one frame (see the module documentation); `is_loaded(brick, level)` says whether the

@@ -30,6 +30,8 @@
 //!   [`fallback_levels`](crate::bricks::fallback_levels), then the cache update and its uploads — every
 //!   level the fallback chose still has its bytes when the upload asks for them. Pinned levels
 //!   count against the budget like any other; the loader waits rather than evict them.
+//!   [`BrickSource::loaded_levels`] (one call for every brick, what the residency planner asks
+//!   each frame) holds every cached level so, until the next request, without pinning each.
 //! - **Lowering the budget** ([`BrickStreamer::set_ram_budget`]) evicts at once, in the same
 //!   order and then pinned levels too; only a read already in flight can then push the total over
 //!   the new budget, once.
@@ -42,7 +44,9 @@
 //! stays allocated until the caller drops it (the budget counts the cache's own references).
 
 use super::{BrickBackend, BrickStore, StoreError};
-use crate::bricks::{BrickGrid, BrickSource, DownsampleFilter, Level, SourceError, ValueRange};
+use crate::bricks::{
+    BrickGrid, BrickSource, DownsampleFilter, Level, LoadedLevels, SourceError, ValueRange,
+};
 use crate::error::Result;
 use crate::volume::ScalarType;
 use glam::Vec3;
@@ -134,6 +138,9 @@ struct State {
     unwanted_free_bytes: usize,
     /// Pinned cached levels.
     pinned: Vec<Key>,
+    /// Every cached level is held (as if pinned) until the next request: set when
+    /// [`BrickSource::loaded_levels`] reported them.
+    all_held: bool,
     tick: u64,
     /// Bytes of cached levels plus the read in flight.
     used: usize,
@@ -160,6 +167,7 @@ impl State {
             unwanted_lru: BTreeMap::new(),
             unwanted_free_bytes: 0,
             pinned: Vec::new(),
+            all_held: false,
             tick: 0,
             used: 0,
             peak: 0,
@@ -205,6 +213,7 @@ impl State {
 
     /// Releases every pin (a new request starts a new frame).
     fn unpin_all(&mut self) {
+        self.all_held = false;
         for key in std::mem::take(&mut self.pinned) {
             if let Some(entry) = self.cache.get_mut(&key) {
                 entry.pinned = false;
@@ -282,6 +291,9 @@ impl State {
     /// level, else the lowest-priority unpinned wanted level ranked after `rank` (`None` allows
     /// unwanted levels only).
     fn victim(&self, rank: Option<usize>) -> Option<Key> {
+        if self.all_held {
+            return None;
+        }
         if let Some((_, &key)) = self.unwanted_lru.first_key_value() {
             return Some(key);
         }
@@ -293,6 +305,9 @@ impl State {
     fn can_fit(&self, extra: usize, rank: usize) -> bool {
         if extra > self.budget {
             return false;
+        }
+        if self.all_held {
+            return self.used + extra <= self.budget;
         }
         if self.used + extra <= self.budget + self.unwanted_free_bytes {
             return true;
@@ -621,6 +636,21 @@ impl<B: BrickBackend> BrickSource for BrickStreamer<B> {
         state.touch((brick, level)).is_some()
     }
 
+    /// One lock for every brick (rather than one [`BrickSource::is_loaded`] call, lock and pin
+    /// per brick and level): every cached level is held until the next request.
+    fn loaded_levels(&self, loaded: &mut Vec<LoadedLevels>) {
+        let count = self.shared.store.grid().brick_count();
+        loaded.clear();
+        loaded.resize(count, LoadedLevels::NONE);
+        let mut state = self.shared.lock();
+        state.all_held = true;
+        for &(brick, level) in state.cache.keys() {
+            if let Some(l) = loaded.get_mut(brick as usize) {
+                *l = l.with(level, true);
+            }
+        }
+    }
+
     fn request_levels(&self, requests: &[(u32, Level, f32)]) -> Result<(), SourceError> {
         self.request(requests).map_err(|e| match e {
             StoreError::BrickOutOfRange { brick, count } => {
@@ -758,6 +788,32 @@ mod tests {
         assert_eq!(state.next_job(|_| 100), Some(((9, Level::Hi), 100)));
         assert!(state.make_room(100, Some(0)));
         assert!(!state.cache.contains_key(&(3, Level::Hi)));
+    }
+
+    #[test]
+    fn levels_reported_loaded_are_held_until_the_next_request() {
+        let keys: Vec<Key> = (0..4).map(|b| (b, Level::Lo)).collect();
+        let mut state = state_with(400, &keys);
+        state.touch((0, Level::Lo));
+        state.unpin_all();
+        let mut wanted = vec![(9, Level::Hi)];
+        wanted.extend(&keys[..2]);
+        let rank = wanted.iter().enumerate().map(|(i, &k)| (k, i)).collect();
+        state.set_wanted(wanted, rank);
+        // Unheld, 3 (unwanted, least recently used) would make room for the new level.
+        assert_eq!(state.victim(Some(0)), Some((2, Level::Lo)));
+        assert!(state.can_fit(100, 0));
+        // Reported loaded (what `loaded_levels` does): nothing goes until the next request.
+        state.all_held = true;
+        assert_eq!(state.victim(Some(0)), None);
+        assert!(!state.can_fit(100, 0));
+        assert!(!state.make_room(100, Some(0)));
+        assert_eq!(state.next_job(|_| 100), None, "waits instead of evicting");
+        assert_eq!(state.cache.len(), 4);
+        state.unpin_all();
+        assert_eq!(state.next_job(|_| 100), Some(((9, Level::Hi), 100)));
+        assert!(state.make_room(100, Some(0)));
+        assert_eq!(state.cache.len(), 3);
     }
 
     #[test]

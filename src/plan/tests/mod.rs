@@ -876,8 +876,8 @@ fn planning_with_a_source_plans_as_with_its_is_loaded() {
         fn is_loaded(&self, brick: u32, level: Level) -> bool {
             let f = self.frame.load(Ordering::Relaxed);
             match level {
-                Level::Hi => (brick * 7 + f) % 5 != 0,
-                Level::Lo => (brick * 3 + f) % 4 != 0,
+                Level::Hi => !(brick * 7 + f).is_multiple_of(5),
+                Level::Lo => !(brick * 3 + f).is_multiple_of(4),
                 Level::Absent => false,
             }
         }

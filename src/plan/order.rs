@@ -217,13 +217,7 @@ mod tests {
 
     #[test]
     fn the_order_sort_matches_a_stable_sort_for_every_bucket_shape() {
-        let mut seed = 0x9E37_79B9_7F4A_7C15u64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut next = crate::plan::tests::xorshift(0x9E37_79B9_7F4A_7C15u64);
         // Every key in one top bucket (both radix passes), one bucket with the low digits
         // varying only (one pass), many small buckets (comparison), ties and NaN (`u32::MAX`).
         let one_bucket: Vec<u32> = (0..5000)

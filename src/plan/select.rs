@@ -280,13 +280,7 @@ mod tests {
 
     #[test]
     fn the_merge_selects_what_a_full_sort_of_the_ranking_selects() {
-        let mut seed = 0x2545_F491_4F6C_DD1Du64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut next = crate::plan::tests::xorshift(0x2545_F491_4F6C_DD1Du64);
         let mut scratch = SelectScratch::default();
         for case in 0..400 {
             let n = 1 + (next() % 300) as usize;
@@ -306,7 +300,7 @@ mod tests {
                 .collect();
             // The kept bricks (about 3 in 4) by descending error, NaN last, equal in brick order.
             let mut by_error: Vec<u64> = (0..n as u32)
-                .filter(|_| next() % 4 != 0)
+                .filter(|_| !next().is_multiple_of(4))
                 .map(|i| {
                     let was_hi = prev_wanted[i as usize] == Level::Hi;
                     order_entry(request_key(error[i as usize]), i, was_hi)

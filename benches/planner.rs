@@ -63,7 +63,7 @@ mod common;
 
 use common::env_u32;
 use glam::{Quat, UVec3, Vec3, Vec4};
-use mixvol::bricks::{BrickGrid, Level, ValueRange};
+use mixvol::bricks::{BrickGrid, Level, LoadedLevels, ValueRange};
 use mixvol::lod::{BrickGeometry, CullParams, LodView, TfCullTable};
 use mixvol::optics::{TransferFunction, TF_SIZE};
 use mixvol::plan::{upload_bytes, FrameInput, PlanBudget, PlanOptions, ResidencyPlanner};
@@ -182,13 +182,40 @@ fn thread_cpu_ms() -> f64 {
     t.tv_sec as f64 * 1e3 + t.tv_nsec as f64 * 1e-6
 }
 
+/// How the planner learns what is loaded.
+#[derive(Copy, Clone)]
+enum Query {
+    /// One `LoadedLevels` per brick (`plan_frame_with_loaded`, as `plan_frame_with_source`
+    /// and so `VolumePass::update` plan).
+    PerBrick,
+    /// A closure asked brick by brick (`plan_frame`).
+    Closure,
+}
+
+impl Query {
+    fn name(self) -> &'static str {
+        match self {
+            Query::PerBrick => "plan_frame_with_loaded",
+            Query::Closure => "plan_frame (closure)",
+        }
+    }
+}
+
+/// One planned frame, asking as `query` says: `levels` (one per brick) or `loaded` (the same
+/// answers as a closure).
 #[inline(never)]
 fn timed_frame<'p>(
     planner: &'p mut ResidencyPlanner,
     input: &FrameInput<'_>,
+    query: Query,
+    levels: &[LoadedLevels],
     loaded: impl Fn(u32, Level) -> bool,
 ) -> &'p mixvol::plan::FramePlan {
-    planner.plan_frame(input, loaded).expect("plan")
+    match query {
+        Query::PerBrick => planner.plan_frame_with_loaded(input, levels),
+        Query::Closure => planner.plan_frame(input, loaded),
+    }
+    .expect("plan")
 }
 
 fn main() {
@@ -240,15 +267,26 @@ fn main() {
         load_average()
     );
     println!();
-    println!("| source | camera | frames | CPU median ms | CPU p95 ms | CPU max ms | wall median ms | wall p95 ms | wall min ms | culled | drawn hi | drawn lo | uploads/frame |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| query | source | camera | frames | CPU median ms | CPU p95 ms | CPU max ms | wall median ms | wall p95 ms | wall min ms | culled | drawn hi | drawn lo | uploads/frame |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
 
-    for (source, lo_only) in [("all loaded", false), ("only Lo loaded", true)] {
+    let sources = [("all loaded", false), ("only Lo loaded", true)];
+    let queries = [Query::PerBrick, Query::Closure];
+    for (query, (source, lo_only)) in queries
+        .into_iter()
+        .flat_map(|q| sources.into_iter().map(move |s| (q, s)))
+    {
         let loaded = move |_: u32, level: Level| match level {
             Level::Hi => !lo_only,
             Level::Lo => true,
             Level::Absent => false,
         };
+        let levels = vec![
+            LoadedLevels::NONE
+                .with(Level::Hi, !lo_only)
+                .with(Level::Lo, true);
+            bricks
+        ];
         for path in [Path::Still, Path::Orbit, Path::Dolly] {
             if !rows.split(',').any(|r| r.trim() == path.key()) {
                 continue;
@@ -284,7 +322,7 @@ fn main() {
                         ..input
                     };
                     let (t, cpu) = (Instant::now(), thread_cpu_ms());
-                    let plan = timed_frame(&mut planner, &input, loaded);
+                    let plan = timed_frame(&mut planner, &input, query, &levels, loaded);
                     cpu_times.push(thread_cpu_ms() - cpu);
                     times.push(t.elapsed().as_secs_f64() * 1e3);
                     uploads += plan.uploads.len();
@@ -296,7 +334,8 @@ fn main() {
             cpu_times.sort_by(f64::total_cmp);
             let r = last.expect("one run");
             println!(
-                "| {source} | {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {} | {} | {} | {:.0} |",
+                "| {} | {source} | {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {} | {} | {} | {:.0} |",
+                query.name(),
                 path.name(),
                 times.len(),
                 percentile(&cpu_times, 0.5),

@@ -18,7 +18,9 @@ use std::sync::Arc;
 
 /// Which levels of one brick a source has loaded (one bit per level), as
 /// [`BrickSource::loaded_levels`] reports them.
-#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash)]
+/// One byte (`repr(transparent)`): a slice of them is as compact as a byte array.
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Hash, bytemuck::NoUninit)]
+#[repr(transparent)]
 pub struct LoadedLevels(u8);
 
 impl LoadedLevels {
@@ -44,6 +46,17 @@ impl LoadedLevels {
     /// True when `level` is loaded (never for `Level::Absent`, which has no bytes).
     pub const fn contains(self, level: Level) -> bool {
         self.0 & Self::bit(level) != 0
+    }
+
+    /// The bits of `levels` (bit 0: `Hi` loaded, bit 1: `Lo` loaded; the others 0), for code
+    /// that reads them in blocks.
+    pub(crate) fn bits(levels: &[Self]) -> &[u8] {
+        bytemuck::cast_slice(levels)
+    }
+
+    /// The bits of one brick's levels, as [`LoadedLevels::bits`] gives them.
+    pub(crate) const fn bits_of(self) -> u8 {
+        self.0
     }
 
     /// The levels loaded in both `self` and `other`.

@@ -116,6 +116,7 @@ use crate::bricks::request_plan;
 use crate::lod::screen_space_error;
 #[cfg(test)]
 use glam::Vec3;
+use loaded::{Asked, Loaded, PerBrick};
 use order::{more_important, Distances, OrderKeys};
 use screen_error::{compute_errors, same_bits, width_factor};
 use select::{
@@ -129,6 +130,7 @@ pub use frame::{
 };
 
 mod frame;
+mod loaded;
 mod order;
 mod screen_error;
 mod select;
@@ -319,15 +321,21 @@ impl ResidencyPlanner {
         // and level: a streaming source answers it under one lock.
         let mut loaded = std::mem::take(&mut self.loaded);
         source.loaded_levels(&mut loaded);
-        let planned = self
-            .plan_frame(frame, |brick, level| {
-                loaded
-                    .get(brick as usize)
-                    .is_some_and(|l| l.contains(level))
-            })
-            .map(|_| ());
+        let planned = self.plan(frame, &PerBrick(&loaded)).map(|_| ());
         self.loaded = loaded;
         planned.map(|()| &self.plan)
+    }
+
+    /// [`ResidencyPlanner::plan_frame`] with what the source has loaded given as one
+    /// [`LoadedLevels`] per brick (bricks past the end of `loaded` have nothing loaded), as
+    /// [`BrickSource::loaded_levels`] fills them. The same plan as asking brick by brick, found
+    /// faster: the planner reads the levels in blocks.
+    pub fn plan_frame_with_loaded(
+        &mut self,
+        frame: &FrameInput<'_>,
+        loaded: &[LoadedLevels],
+    ) -> Result<&FramePlan, PlanError> {
+        self.plan(frame, &PerBrick(loaded))
     }
 
     /// Plans one frame (see the module documentation); `is_loaded(brick, level)` says whether the
@@ -340,6 +348,16 @@ impl ResidencyPlanner {
         frame: &FrameInput<'_>,
         is_loaded: impl Fn(u32, Level) -> bool,
     ) -> Result<&FramePlan, PlanError> {
+        self.plan(frame, &Asked(is_loaded))
+    }
+
+    /// [`ResidencyPlanner::plan_frame`] with the source's answers as a [`Loaded`].
+    fn plan(
+        &mut self,
+        frame: &FrameInput<'_>,
+        loaded: &impl Loaded,
+    ) -> Result<&FramePlan, PlanError> {
+        let is_loaded = |brick, level| loaded.is_loaded(brick, level);
         let PlanOptions {
             error_threshold,
             hysteresis,
@@ -560,7 +578,7 @@ impl ResidencyPlanner {
                 holes,
                 refine,
             },
-            &is_loaded,
+            loaded,
         );
         let Counts {
             target_hi,

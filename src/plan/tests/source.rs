@@ -97,6 +97,78 @@ fn planning_with_a_source_plans_as_with_its_is_loaded() {
 }
 
 #[test]
+fn planning_with_loaded_levels_plans_as_asking_and_a_short_slice_has_nothing_past_its_end() {
+    // Random loaded levels that change every frame, along a turning camera with a binding slot
+    // and upload budget: `plan_frame_with_loaded` (the pass over bytes) and `plan_frame` (asking
+    // brick by brick) give the same plans. A slice shorter than the grid plans as if the bricks
+    // past its end had nothing loaded.
+    use crate::bricks::LoadedLevels;
+    use glam::Quat;
+    let mut next = xorshift(0x5DEE_CE66_D1CE_4E5B);
+    let count = 300u32;
+    let (geometry, _) = row(count);
+    let ranges: Vec<ValueRange> = (0..count)
+        .map(|i| range(0.1 * (i % 7) as f32, 1.0))
+        .collect();
+    let cull = NO_CULLING;
+    let b = budget(count as usize / 4, 12 * upload_bytes(Level::Hi, 8, 1));
+    for short in [false, true] {
+        let mut by_bytes = ResidencyPlanner::new(PlanOptions::default());
+        let mut asking = ResidencyPlanner::new(PlanOptions::default());
+        let mut loaded: Vec<LoadedLevels> = Vec::new();
+        let mut camera = Camera::perspective(Vec3::new(0.1, 0.1, -0.4), Vec3::ZERO, 50.0);
+        let mut changes = 0;
+        for f in 0..40 {
+            // Mostly loaded, with some levels of some bricks coming and going.
+            loaded.resize(count as usize, LoadedLevels::BOTH);
+            for l in loaded.iter_mut() {
+                if next().is_multiple_of(6) {
+                    let bits = next();
+                    *l = LoadedLevels::NONE
+                        .with(Level::Hi, bits & 1 != 0)
+                        .with(Level::Lo, bits & 2 != 0);
+                }
+            }
+            if short {
+                loaded.truncate(count as usize - 37);
+            }
+            camera.eye = Quat::from_rotation_y(0.08) * camera.eye;
+            let view = LodView::new(&camera, 320, 200).unwrap();
+            let input = frame(&geometry, &view, &ranges, &cull, b);
+            let a = by_bytes
+                .plan_frame_with_loaded(&input, &loaded)
+                .unwrap()
+                .clone();
+            let c = asking
+                .plan_frame(&input, |brick, level| {
+                    loaded
+                        .get(brick as usize)
+                        .is_some_and(|l| l.contains(level))
+                })
+                .unwrap();
+            assert_eq!(a.draw, c.draw, "frame {f}");
+            assert_eq!(a.wanted, c.wanted, "frame {f}");
+            assert_eq!(a.uploads, c.uploads, "frame {f}");
+            assert_eq!(a.requests, c.requests, "frame {f}");
+            assert_eq!(a.report, c.report, "frame {f}");
+            changes += a.uploads.len();
+            if short {
+                assert!(
+                    a.draw[count as usize - 37..]
+                        .iter()
+                        .all(|&d| d == Level::Absent),
+                    "frame {f}: nothing loaded past the slice, nothing drawn"
+                );
+            }
+        }
+        assert!(
+            changes > 40,
+            "the plans changed along the path ({changes} uploads)"
+        );
+    }
+}
+
+#[test]
 fn a_brick_source_drives_the_plan_like_fallback_levels() {
     // An in-memory source has every level loaded: once settled the drawn levels are what
     // `fallback_levels` makes of the wanted ones (here: the wanted levels themselves).

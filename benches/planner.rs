@@ -1,4 +1,4 @@
-//! CPU time of the residency planner (`plan::ResidencyPlanner::plan_frame`) per frame, for about
+//! CPU time of the residency planner (`plan::ResidencyPlanner`) per frame, for about
 //! 10^5 bricks.
 //!
 //! Setup: a 64 x 64 x 25 grid of 16^3 bricks (102 400 bricks, a 1024 x 1024 x 400 volume of u16
@@ -16,48 +16,24 @@
 //! - dolly: from the settled plan, the eye moves towards the target, 1 % of the start distance
 //!   per frame, for 60 frames.
 //!
-//! Only `plan_frame` is timed. Every run starts from a fresh planner. Run:
-//! `cargo bench --bench planner`. Environment: `MIXVOL_BENCH_RUNS` (repeats, default 5); the
-//! per-frame times of all repeats are pooled. `MIXVOL_PLANNER_PATHS` (default
-//! `still,orbit,dolly`) picks the camera rows. The timed call is `timed_frame`, not inlined, so
-//! that `valgrind --tool=callgrind --toggle-collect='planner::timed_frame*'` profiles only it.
-//! Prints a Markdown table (thread CPU time per frame: median, p95 and max; wall time: median,
-//! p95 and min; the machine's load average is printed with it, as other processes on the cores
-//! inflate the times).
+//! Rows for each way of telling the planner what is loaded: `plan_frame_with_loaded` (one
+//! `LoadedLevels` per brick, as `plan_frame_with_source`, and so `VolumePass::update`, plans;
+//! filling the slice is the source's work and is not timed) and `plan_frame` (a closure asked
+//! brick by brick). Only the planning call is timed (`timed_frame`, not inlined, so that
+//! `valgrind --tool=callgrind --toggle-collect='planner::timed_frame*'` profiles only it).
+//! Every run starts from a fresh planner. Run: `cargo bench --bench planner`. Environment:
+//! `MIXVOL_BENCH_RUNS` (repeats, default 5; the per-frame times of all repeats are pooled) and
+//! `MIXVOL_PLANNER_PATHS` (default `still,orbit,dolly`). Prints a Markdown table: thread CPU
+//! time per frame (median, p95, max) and wall time (median, p95, min), with the machine's load
+//! average, as other processes on the cores inflate the times; compare versions only when run
+//! interleaved in the same minutes.
 //!
-//! Figures (2026-12-02, 2-core Intel Xeon shared with other builds, load average 8-9, three runs
-//! of 60 frames per row, the old and the new planner run interleaved; min / median ms per frame):
-//!
-//! | camera | before (f938c94) | after |
-//! |---|---|---|
-//! | still (settled) | 2.12-2.37 / 2.4-6.6 | 1.01-1.03 / 1.09-1.12 |
-//! | orbit 1 deg/frame | 2.24-2.37 / 2.5-6.7 | 1.93-2.03 / 2.2-6.2 |
-//! | dolly in 1 %/frame | 2.18-2.32 / 2.5-6.6 | 1.95-2.05 / 2.2-6.2 |
-//!
-//! (both sources alike). A second round (04:01 UTC, load average 4.3-4.9, interleaved with
-//! 1e327d6, min ms per frame): still 0.97-1.02 before, 0.38-0.43 after (a settled still camera
-//! skips the ranks and the `Hi` selection; the target pass is an indexed loop with a short path);
-//! orbit 1.91-1.98 / 1.94-2.02 and dolly 1.90-2.01 / 1.90-2.11, unchanged: the 1 ms target holds
-//! for a still camera, not for a moving one (docs/performance.md). A still camera reuses the
-//! last frame's errors, dropping and request order, and over a settled plan its requests; a
-//! moving one pays for the errors, one pass for the request keys, a three-pass radix sort of the
-//! ~92 000 kept bricks, the `Hi` selection (a merge of two runs of that order, since session 8),
-//! the per-brick target pass and the requests. Session 8 (2026-12-02 07:50 UTC, 2-core AMD EPYC,
-//! load average 1.7-1.8, dae710c and the merge selection interleaved, three rounds of three
-//! runs): min ms per moving frame 1.31-1.35 before, 0.96-1.01 after; medians 1.41-1.91 before,
-//! 1.04-1.61 after (callgrind: 25 % fewer instructions per moving frame). The wall and CPU
-//! columns: the thread's CPU time (`CLOCK_THREAD_CPUTIME_ID`) leaves out time other processes
-//! take on a shared core, not their effect on the caches; the medians swing with the machine:
-//! the `min` column is the comparable one.
-//! Session 9 (2026-12-02 11:44 UTC, the same VM, cf176cc and this round interleaved, three rounds
-//! of three runs; the frames pass `ranges_generation`, as `VolumePass::update` does): moving
-//! medians 1.56-1.72 ms before, 1.00-1.28 ms after (minima 0.97-1.39 / 0.74-1.05); still
-//! 0.46-0.48 / 0.14-0.20 ms. Again at 12:13 UTC, the VM faster (load average 0.4): moving
-//! medians 0.91-1.46 ms before, 0.73-1.02 ms after. docs/performance.md, "Fifth round".
-//! Session 10 (2026-12-02 18:25 UTC, a 2-core Intel Xeon with 2 MiB of L2 per core, d3a6034
-//! and the bucketed sort interleaved, three rounds of three runs): moving medians 1.06-1.22 ms
-//! before, 0.94-1.03 ms after with every level loaded; 1.19-1.38 / 1.05-1.15 ms with only `Lo`
-//! loaded. docs/performance.md, "Sixth round".
+//! Figures (2026-12-02 21:40 UTC, 2-core Intel Xeon VM, load average 1.1-1.2, three rounds of
+//! three runs, median ms per frame): `plan_frame_with_loaded` still 0.065-0.070, orbit and
+//! dolly 0.86-0.95 with every level loaded or only `Lo` loaded; `plan_frame` still
+//! 0.09 / 0.18-0.19, moving 0.90-0.97 / 0.98-1.03 (all loaded / only `Lo`). The history of
+//! each change, and what was tried and dropped: docs/performance.md, "The residency planner's
+//! CPU time".
 
 mod common;
 

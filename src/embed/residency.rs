@@ -173,20 +173,24 @@ impl VolumePass {
             cull: &cull,
             budget,
         };
-        let plan = state
+        state
             .planner
             .plan_frame_with_source(&frame, &*state.source)?;
+        let plan = state.planner.last_plan();
         let plan_ms = plan_start.elapsed().as_secs_f64() * 1e3;
         let report = plan.report;
         let draw = plan.draw.clone();
         let requests = plan.requests.clone();
         let (mut source_errors, mut first_source_error) = (0, None);
+        // What the source said it had loaded when it was planned for (one query, not one per
+        // brick).
+        let loaded = state.planner.source_loaded();
         for (brick, (&wanted, &drawn)) in plan.wanted.iter().zip(&plan.draw).enumerate() {
             // A loaded level has no error to report (and fetching it would pack a deferred brick
             // of an in-memory source for nothing): only a level the source lacks is asked about.
             if wanted == drawn
                 || wanted == Level::Absent
-                || state.source.is_loaded(brick as u32, wanted)
+                || loaded.get(brick).is_some_and(|l| l.contains(wanted))
             {
                 continue;
             }

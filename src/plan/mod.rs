@@ -70,9 +70,12 @@
 //! the drawn-but-not-wanted `Hi` levels are the last frame's too, so are the requests. When
 //! the last frame's wanted levels were those of the frame before it (a settled still camera),
 //! the `Hi` selection is skipped as well: its inputs are the last frame's, so
-//! the wanted levels are. The per-brick target pass (`targets.rs`) takes a short path for a
-//! brick drawn at its wanted level with that level loaded. `benches/planner.rs` times a frame
-//! of about 10^5 bricks.
+//! the wanted levels are. Given what the source has loaded as one byte per brick
+//! ([`ResidencyPlanner::plan_frame_with_loaded`], [`ResidencyPlanner::plan_frame_with_source`]),
+//! the per-brick target pass (`targets.rs`) decides every brick without a branch on its state,
+//! in blocks the compiler vectorizes; asking a closure ([`ResidencyPlanner::plan_frame`]), it
+//! takes a short path for a brick drawn at its wanted level with that level loaded. Both give
+//! the same plan. `benches/planner.rs` times a frame of about 10^5 bricks both ways.
 //!
 //! # Guarantees
 //!
@@ -324,6 +327,12 @@ impl ResidencyPlanner {
         let planned = self.plan(frame, &PerBrick(&loaded)).map(|_| ());
         self.loaded = loaded;
         planned.map(|()| &self.plan)
+    }
+
+    /// What the source had loaded when [`ResidencyPlanner::plan_frame_with_source`] last asked
+    /// it (one entry per brick; empty before the first call).
+    pub fn source_loaded(&self) -> &[LoadedLevels] {
+        &self.loaded
     }
 
     /// [`ResidencyPlanner::plan_frame`] with what the source has loaded given as one

@@ -190,6 +190,29 @@ fn decide_lane(w: Level, drawn: Level, bits: u8) -> Lane {
     }
 }
 
+/// [`decide_lane`] for the bricks of one block (at most 255), the targets and drawn levels
+/// written; returns the counts of waiting and deferred bricks (byte counters, so that the lanes
+/// stay bytes wide) and whether a brick joins a change list.
+#[inline(always)]
+fn decide_block(
+    wanted: &[Level],
+    draw: &mut [Level],
+    target: &mut [Level],
+    bits: &[u8],
+) -> (u8, u8, bool) {
+    let (mut waiting, mut deferred, mut changed) = (0u8, 0u8, false);
+    let n = wanted.len();
+    let (draw, target, bits) = (&mut draw[..n], &mut target[..n], &bits[..n]);
+    for j in 0..n {
+        let lane = decide_lane(wanted[j], draw[j], bits[j]);
+        (target[j], draw[j]) = (lane.to, lane.draw);
+        waiting += u8::from(lane.waiting);
+        deferred += u8::from(lane.deferred);
+        changed |= lane.change;
+    }
+    (waiting, deferred, changed)
+}
+
 /// `a` when `c`, else `b`.
 #[inline(always)]
 fn select(c: bool, a: Level, b: Level) -> Level {
@@ -265,31 +288,17 @@ impl Pass<'_> {
                 &mut target[start..end],
                 &bits[start..end],
             );
-            // Byte counters (a block is below 256 bricks), so that the lanes stay bytes wide.
-            let (mut waiting, mut deferred, mut changed) = (0u8, 0u8, false);
-            if let (Ok(w), Ok(d), Ok(t), Ok(l)) = (
+            let (waiting, deferred, changed) = if let (Ok(w), Ok(d), Ok(t), Ok(l)) = (
                 <&[Level; BLOCK]>::try_from(w),
                 <&mut [Level; BLOCK]>::try_from(&mut *d),
                 <&mut [Level; BLOCK]>::try_from(&mut *t),
                 <&[u8; BLOCK]>::try_from(l),
             ) {
                 // A whole block: fixed bounds, so that the lanes vectorize.
-                for j in 0..BLOCK {
-                    let lane = decide_lane(w[j], d[j], l[j]);
-                    (t[j], d[j]) = (lane.to, lane.draw);
-                    waiting += u8::from(lane.waiting);
-                    deferred += u8::from(lane.deferred);
-                    changed |= lane.change;
-                }
+                decide_block(w, d, t, l)
             } else {
-                for j in 0..w.len() {
-                    let lane = decide_lane(w[j], d[j], l[j]);
-                    (t[j], d[j]) = (lane.to, lane.draw);
-                    waiting += u8::from(lane.waiting);
-                    deferred += u8::from(lane.deferred);
-                    changed |= lane.change;
-                }
-            }
+                decide_block(w, d, t, l)
+            };
             self.waiting += usize::from(waiting);
             self.deferred += usize::from(deferred);
             if changed {

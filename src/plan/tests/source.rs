@@ -4,6 +4,15 @@
 
 use super::*;
 
+/// Asserts that two plans of frame `f` are the same, output by output.
+fn assert_same_plan(a: &FramePlan, c: &FramePlan, f: u32) {
+    assert_eq!(a.draw, c.draw, "frame {f}");
+    assert_eq!(a.wanted, c.wanted, "frame {f}");
+    assert_eq!(a.uploads, c.uploads, "frame {f}");
+    assert_eq!(a.requests, c.requests, "frame {f}");
+    assert_eq!(a.report, c.report, "frame {f}");
+}
+
 #[test]
 fn planning_with_a_source_plans_as_with_its_is_loaded() {
     // A source with some levels not loaded (a pattern that changes every frame), which reports
@@ -84,11 +93,7 @@ fn planning_with_a_source_plans_as_with_its_is_loaded() {
         let c = with_closure
             .plan_frame(&input, |brick, level| source.is_loaded(brick, level))
             .unwrap();
-        assert_eq!(a.draw, c.draw, "frame {f}");
-        assert_eq!(a.wanted, c.wanted, "frame {f}");
-        assert_eq!(a.uploads, c.uploads, "frame {f}");
-        assert_eq!(a.requests, c.requests, "frame {f}");
-        assert_eq!(a.report, c.report, "frame {f}");
+        assert_same_plan(&a, c, f);
         assert!(
             a.report.waiting_for_source > 0,
             "frame {f}: some levels are missing"
@@ -146,11 +151,7 @@ fn planning_with_loaded_levels_plans_as_asking_and_a_short_slice_has_nothing_pas
                         .is_some_and(|l| l.contains(level))
                 })
                 .unwrap();
-            assert_eq!(a.draw, c.draw, "frame {f}");
-            assert_eq!(a.wanted, c.wanted, "frame {f}");
-            assert_eq!(a.uploads, c.uploads, "frame {f}");
-            assert_eq!(a.requests, c.requests, "frame {f}");
-            assert_eq!(a.report, c.report, "frame {f}");
+            assert_same_plan(&a, c, f);
             changes += a.uploads.len();
             if short {
                 assert!(

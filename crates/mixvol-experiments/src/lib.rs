@@ -11,10 +11,13 @@
 //!   the seam measure).
 //! - [`scenes`]: the accuracy report over several scenes (Marschner-Lobb, MNI152, the VolPack
 //!   head), each from an orbit of views, mean and worst over the views.
+//! - [`capacity`]: how large a volume each level scheme can draw in a given cache (texels per
+//!   voxel per level, the largest volume at the coarsest level), `docs/report/capacity.md`.
 //! - [`plot`]: the charts of both reports (plotters, PNG and SVG).
 #![warn(missing_docs)]
 
 pub mod accuracy;
+pub mod capacity;
 pub mod junction;
 pub mod kraus;
 pub mod metrics;

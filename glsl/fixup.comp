@@ -20,6 +20,13 @@ layout(push_constant) uniform FixupParams {
     ivec4 slots_per_axis;  // xyz: cache slots per axis; w: number of jobs
 } pc;
 
+// Border texels per side of a slot: 1 in the two-level cache ((n+2)^3 slots), 2 in the
+// three-level packing ((n+4)^3 slots, src/cache/three_level.rs), whose inner (n+2)^3 box is the
+// two-level brick: its inner border layer is fixed up, the outer one keeps the duplicated voxels.
+#ifndef SLOT_BORDER
+#define SLOT_BORDER 1
+#endif
+
 const uint PRECEDENCE[7] = uint[7](1u, 2u, 4u, 3u, 5u, 6u, 7u);
 
 ivec3 unflatten(uint index, ivec3 dims) {
@@ -48,7 +55,8 @@ void main() {
     uint slot = fixup_slots[job];
     uint brick_index = reverse_entries[slot * uint(SUB_SLOTS_PER_SLOT)];
     ivec3 brick = unflatten(brick_index, pc.bricks.xyz);
-    ivec3 slot_origin = unflatten(slot, pc.slots_per_axis.xyz) * extent;
+    ivec3 slot_origin = unflatten(slot, pc.slots_per_axis.xyz) * (n + 2 * SLOT_BORDER)
+        + ivec3(SLOT_BORDER - 1);
     uint bits = neighbour_bits[brick_index];
 
     uint border_mask = 0u;

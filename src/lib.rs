@@ -27,6 +27,7 @@ pub mod cache;
 pub mod embed;
 pub mod error;
 pub mod gpu;
+pub mod levels;
 pub mod lod;
 pub mod optics;
 pub mod output;

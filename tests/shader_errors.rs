@@ -72,5 +72,8 @@ fn the_shipped_shaders_compile() {
     for format in ["r8", "r16", "r32f"] {
         let d = [("CACHE_IMAGE_FORMAT", format.to_string())];
         compile("fixup.comp", ShaderStage::Compute, &d).unwrap();
+        compile("skeleton_fixup.comp", ShaderStage::Compute, &d).unwrap();
+        let three_level = [d[0].clone(), ("SLOT_BORDER", "2".to_string())];
+        compile("fixup.comp", ShaderStage::Compute, &three_level).unwrap();
     }
 }

@@ -62,6 +62,7 @@
 mod geometry;
 mod residency;
 pub mod tables;
+mod three_level;
 
 #[cfg(test)]
 mod translation_tests;
@@ -72,6 +73,7 @@ pub use tables::{
     compute_neighbour_bits, layout_entry, neighbour_bit, neighbour_bit_index, neighbour_offset,
     EMPTY, NEIGHBOUR_COUNT,
 };
+pub use three_level::{LevelSlot, ThreeLevelGeometry, THREE_LEVELS};
 
 use crate::bricks::Level;
 

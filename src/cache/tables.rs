@@ -65,16 +65,35 @@ pub fn layout_entry(geometry: &CacheGeometry, brick: UVec3, residency: Residency
 /// [`neighbour_offset`]`(k)` lies inside the grid and is `Lo`; zero for `Lo` and `Absent` bricks.
 /// `level(i)` gives the level of linear brick `i`.
 pub fn brick_neighbour_bits(grid: &BrickGrid, brick: UVec3, level: impl Fn(usize) -> Level) -> u32 {
-    if level(grid.linear_index(brick)) != Level::Hi {
+    let number = |i: usize| match level(i) {
+        Level::Hi => Some(0),
+        Level::Lo => Some(1),
+        Level::Absent => None,
+    };
+    coarser_neighbour_bits(grid, brick, number)
+}
+
+/// Neighbour bits for any number of levels: bit `k` set when the neighbour at offset
+/// [`neighbour_offset`]`(k)` lies inside the grid and is drawn exactly one level coarser than
+/// `brick`; zero for a brick that is not drawn. `level_of(i)` is the level number of linear brick
+/// `i` (0 = full resolution), `None` when it is not drawn. With levels `Hi` = 0 and `Lo` = 1 these
+/// are [`brick_neighbour_bits`]: a brick's transition looks only at the next coarser level, since
+/// neighbours differ by at most one level (`crate::reference::LevelField`).
+pub fn coarser_neighbour_bits(
+    grid: &BrickGrid,
+    brick: UVec3,
+    level_of: impl Fn(usize) -> Option<u32>,
+) -> u32 {
+    let Some(own) = level_of(grid.linear_index(brick)) else {
         return 0;
-    }
+    };
     let size = grid.bricks_per_axis().as_ivec3();
     let mut bits = 0;
     for k in 0..NEIGHBOUR_COUNT {
         let nb = brick.as_ivec3() + neighbour_offset(k);
         if nb.cmpge(IVec3::ZERO).all()
             && nb.cmplt(size).all()
-            && level(grid.linear_index(nb.as_uvec3())) == Level::Lo
+            && level_of(grid.linear_index(nb.as_uvec3())) == own.checked_add(1)
         {
             bits |= 1 << k;
         }

@@ -9,7 +9,9 @@ use crate::bricks::{
 use crate::cache::{BrickCache, CacheGeometry};
 use crate::error::{Error, Result};
 use crate::gpu::{Access, TimestampPool};
-use crate::gpu::{CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image, ImageDesc};
+use crate::gpu::{
+    CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image, ImageDesc, SlotPacking,
+};
 use crate::gpu::{RaycastVariant, StagingUpload};
 use crate::lod::BrickGeometry;
 use crate::optics::SamplingModel;
@@ -431,6 +433,7 @@ impl VolumePass {
             cache.geometry().slot_count() as usize,
             self.desc.frames_in_flight,
             config.transition == Transition::Smooth,
+            SlotPacking::TwoLevel,
         )?;
         let range = source.value_range();
         let geometry = BrickGeometry::new(grid, source.spacing())?;
@@ -547,6 +550,7 @@ impl MixedState {
             neighbours: &neighbours,
             reverse: &reverse,
             fixup_slots: &stale_slots,
+            skeleton_bricks: &[],
             bricks: grid.bricks_per_axis(),
             brick_size: grid.brick_size(),
             slots_per_axis: state.cache.geometry().slots_per_axis(),

@@ -1,6 +1,8 @@
 //! The brick cache on the GPU: one 3D image (copy destination, storage image in GENERAL layout for
 //! the fixup, sampled read-only by the ray-caster), the layout / neighbour / reverse tables and the fixup
 //! job list as storage buffers, and the fixup compute pass. Conventions: `docs/cache-layout.md`.
+//! A cache of the three-level packing ([`SlotPacking::ThreeLevel`]) also runs the skeleton fixup
+//! (`skeleton_fixup.comp`) over its level-1 and level-2 bricks.
 
 use super::commands::{image_barrier, Access, Submitter, TimestampPool};
 use super::compute::{ComputePipeline, ComputeResource};
@@ -42,6 +44,28 @@ pub(crate) fn cache_format(
     })
 }
 
+/// How a cache packs its slots.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub(crate) enum SlotPacking {
+    /// `(n+2)^3` slots holding a level-0 brick or eight level-1 bricks
+    /// ([`crate::cache::CacheGeometry`]).
+    TwoLevel,
+    /// `(n+4)^3` slots of the three-level packing ([`crate::cache::ThreeLevelGeometry`]): the
+    /// border fixup works on the inner `(n+2)^3` box of a level-0 slot, and the skeleton fixup
+    /// runs over the bricks of the coarser levels.
+    ThreeLevel,
+}
+
+impl SlotPacking {
+    /// Border texels per side of a level-0 slot (`SLOT_BORDER` in fixup.comp).
+    fn slot_border(self) -> u32 {
+        match self {
+            SlotPacking::TwoLevel => 1,
+            SlotPacking::ThreeLevel => 2,
+        }
+    }
+}
+
 /// One reverse-table entry: the bricks in a cache slot (`SUB_SLOTS_PER_SLOT` words in GLSL).
 type ReverseEntry = [u32; SUB_SLOTS_PER_SLOT as usize];
 
@@ -61,6 +85,8 @@ pub(crate) struct CacheTables<'a> {
     pub(crate) neighbours: &'a [u32],
     pub(crate) reverse: &'a [ReverseEntry],
     pub(crate) fixup_slots: &'a [u32],
+    /// Bricks of the coarser levels with a coarser neighbour (three-level packing only).
+    pub(crate) skeleton_bricks: &'a [u32],
     pub(crate) bricks: UVec3,
     pub(crate) brick_size: u32,
     pub(crate) slots_per_axis: UVec3,
@@ -98,6 +124,7 @@ struct SlotTables {
     neighbours: Buffer,
     reverse: Buffer,
     jobs: Buffer,
+    skeleton_jobs: Buffer,
     version: u64,
 }
 
@@ -108,6 +135,7 @@ struct OwnedTables {
     neighbours: Vec<u32>,
     reverse: Vec<ReverseEntry>,
     fixup_slots: Vec<u32>,
+    skeleton_bricks: Vec<u32>,
 }
 
 /// Brick bytes and copy regions waiting to be recorded.
@@ -115,6 +143,7 @@ struct PendingUpdate {
     bytes: Vec<u8>,
     copies: Vec<CopyRegion>,
     jobs: u32,
+    skeleton_jobs: u32,
     push: FixupPush,
 }
 
@@ -128,6 +157,7 @@ pub(crate) struct GpuBrickCache {
     version: u64,
     pending: Option<PendingUpdate>,
     fixup: ComputePipeline,
+    skeleton: Option<ComputePipeline>,
     smooth: bool,
     initialized: bool,
     shared: Arc<DeviceShared>,
@@ -135,7 +165,7 @@ pub(crate) struct GpuBrickCache {
 
 impl GpuBrickCache {
     /// Creates the cache image (`extent` texels) for `scalar` data, per-frame tables for
-    /// `brick_count` bricks and `slot_count` cache slots, and the fixup pipeline.
+    /// `brick_count` bricks and `slot_count` cache slots, and the fixup pipelines of `packing`.
     #[allow(clippy::too_many_arguments)] // reason: one argument per property of the cache.
     pub(crate) fn new(
         shared: &Arc<DeviceShared>,
@@ -146,6 +176,7 @@ impl GpuBrickCache {
         slot_count: usize,
         frames: u32,
         smooth: bool,
+        packing: SlotPacking,
     ) -> Result<Self> {
         let (format, glsl_format) = cache_format(scalar, channels)?;
         if scalar != ScalarType::F32 && !shared.info.storage_image_extended_formats {
@@ -178,7 +209,10 @@ impl GpuBrickCache {
         let fixup = ComputePipeline::new(
             shared,
             "fixup.comp",
-            &[("CACHE_IMAGE_FORMAT", glsl_format.to_string())],
+            &[
+                ("CACHE_IMAGE_FORMAT", glsl_format.to_string()),
+                ("SLOT_BORDER", packing.slot_border().to_string()),
+            ],
             &[
                 (FIXUP_BINDING_CACHE, vk::DescriptorType::STORAGE_IMAGE),
                 (
@@ -198,6 +232,29 @@ impl GpuBrickCache {
             std::mem::size_of::<FixupPush>() as u32,
             frames,
         )?;
+        let skeleton = match packing {
+            SlotPacking::TwoLevel => None,
+            SlotPacking::ThreeLevel => Some(ComputePipeline::new(
+                shared,
+                "skeleton_fixup.comp",
+                &[("CACHE_IMAGE_FORMAT", glsl_format.to_string())],
+                &[
+                    (FIXUP_BINDING_CACHE, vk::DescriptorType::STORAGE_IMAGE),
+                    (
+                        FIXUP_BINDING_LAYOUT_TABLE,
+                        vk::DescriptorType::STORAGE_BUFFER,
+                    ),
+                    (
+                        FIXUP_BINDING_NEIGHBOUR_TABLE,
+                        vk::DescriptorType::STORAGE_BUFFER,
+                    ),
+                    (FIXUP_BINDING_JOBS, vk::DescriptorType::STORAGE_BUFFER),
+                ],
+                std::mem::size_of::<FixupPush>() as u32,
+                frames,
+            )?),
+        };
+        let skeleton_capacity = if skeleton.is_some() { brick_count } else { 0 };
         let slots = (0..frames)
             .map(|_| {
                 Ok(SlotTables {
@@ -209,6 +266,7 @@ impl GpuBrickCache {
                         slot_count * std::mem::size_of::<ReverseEntry>(),
                     )?,
                     jobs: host_buffer(shared, "fixup jobs", slot_count * 4)?,
+                    skeleton_jobs: host_buffer(shared, "skeleton jobs", skeleton_capacity * 4)?,
                     version: 0,
                 })
             })
@@ -222,6 +280,7 @@ impl GpuBrickCache {
             version: 0,
             pending: None,
             fixup,
+            skeleton,
             smooth,
             initialized: false,
             shared: shared.clone(),
@@ -235,6 +294,7 @@ impl GpuBrickCache {
             bytes: Vec::new(),
             copies: Vec::new(),
             jobs: 0,
+            skeleton_jobs: 0,
             push: FixupPush::zeroed(),
         });
         for r in regions {
@@ -259,13 +319,21 @@ impl GpuBrickCache {
             pending.bytes.extend_from_slice(r.bytes);
         }
         let jobs = tables.fixup_slots.len() as u32;
+        let skeleton_jobs = tables.skeleton_bricks.len() as u32;
+        if skeleton_jobs > 0 && self.skeleton.is_none() {
+            return Err(Error::InvalidInput(
+                "skeleton fixup jobs for a cache without the three-level packing".into(),
+            ));
+        }
         let max_groups = self.shared.info.limits.max_compute_work_group_count[2];
-        if jobs.saturating_mul(FIXUP_FACES_PER_JOB) > max_groups {
+        if jobs.max(skeleton_jobs).saturating_mul(FIXUP_FACES_PER_JOB) > max_groups {
             return Err(Error::Unsupported(format!(
-                "{jobs} fixup jobs exceed maxComputeWorkGroupCount[2] = {max_groups}"
+                "{} fixup jobs exceed maxComputeWorkGroupCount[2] = {max_groups}",
+                jobs.max(skeleton_jobs)
             )));
         }
         pending.jobs = jobs;
+        pending.skeleton_jobs = skeleton_jobs;
         pending.push = FixupPush {
             bricks: [
                 tables.bricks.x as i32,
@@ -285,6 +353,7 @@ impl GpuBrickCache {
             neighbours: tables.neighbours.to_vec(),
             reverse: tables.reverse.to_vec(),
             fixup_slots: tables.fixup_slots.to_vec(),
+            skeleton_bricks: tables.skeleton_bricks.to_vec(),
         };
         self.version += 1;
         self.pending = Some(pending);
@@ -307,6 +376,10 @@ impl GpuBrickCache {
             write_buffer(
                 &mut slot.jobs,
                 bytemuck::cast_slice(&self.tables.fixup_slots),
+            )?;
+            write_buffer(
+                &mut slot.skeleton_jobs,
+                bytemuck::cast_slice(&self.tables.skeleton_bricks),
             )?;
             slot.version = self.version;
         }
@@ -347,7 +420,7 @@ impl GpuBrickCache {
         } else {
             Access::Nothing
         };
-        let fixup = self.smooth && pending.jobs > 0;
+        let fixup = self.smooth && (pending.jobs > 0 || pending.skeleton_jobs > 0);
         let after_copy = if fixup {
             Access::CacheComputeReadWrite
         } else {
@@ -367,7 +440,7 @@ impl GpuBrickCache {
             }
         };
         write_timestamp(0);
-        if fixup {
+        if fixup && pending.jobs > 0 {
             let slot = &self.slots[frame];
             self.fixup.write_descriptors(
                 frame,
@@ -402,6 +475,57 @@ impl GpuBrickCache {
                 bytemuck::bytes_of(&pending.push),
                 [groups_xy, groups_xy, pending.jobs * FIXUP_FACES_PER_JOB],
             );
+        }
+        if let (true, Some(skeleton)) = (fixup && pending.skeleton_jobs > 0, &self.skeleton) {
+            if pending.jobs > 0 {
+                // The passes touch disjoint texels (`reference::level_cache`), but both write the
+                // image: order them.
+                image_barrier(
+                    &self.shared.device,
+                    cmd,
+                    self.image.raw,
+                    Access::CacheComputeReadWrite,
+                    Access::CacheComputeReadWrite,
+                );
+            }
+            let slot = &self.slots[frame];
+            skeleton.write_descriptors(
+                frame,
+                &[
+                    (
+                        FIXUP_BINDING_CACHE,
+                        ComputeResource::StorageImage(self.image.view),
+                    ),
+                    (
+                        FIXUP_BINDING_LAYOUT_TABLE,
+                        ComputeResource::StorageBuffer(slot.layout.raw),
+                    ),
+                    (
+                        FIXUP_BINDING_NEIGHBOUR_TABLE,
+                        ComputeResource::StorageBuffer(slot.neighbours.raw),
+                    ),
+                    (
+                        FIXUP_BINDING_JOBS,
+                        ComputeResource::StorageBuffer(slot.skeleton_jobs.raw),
+                    ),
+                ],
+            );
+            // A level-1 brick face: n/2 + 1 samples a side (level-2 jobs use fewer).
+            let groups_xy = (pending.push.bricks[3] as u32 / 2 + 1).div_ceil(FIXUP_GROUP_SIZE);
+            let mut push = pending.push;
+            push.slots_per_axis[3] = pending.skeleton_jobs as i32;
+            skeleton.record_dispatch(
+                cmd,
+                frame,
+                bytemuck::bytes_of(&push),
+                [
+                    groups_xy,
+                    groups_xy,
+                    pending.skeleton_jobs * FIXUP_FACES_PER_JOB,
+                ],
+            );
+        }
+        if fixup {
             image_barrier(
                 &self.shared.device,
                 cmd,

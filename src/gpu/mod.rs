@@ -25,7 +25,7 @@ pub use context::{
 pub use shaders::ShaderStage;
 pub use validation::{DebugMessage, MessageLog, Severity, INVALID_CALL_ENV};
 
-pub(crate) use brick_cache::{CacheRegion, CacheTables, FieldProbe, GpuBrickCache};
+pub(crate) use brick_cache::{CacheRegion, CacheTables, FieldProbe, GpuBrickCache, SlotPacking};
 pub use commands::GPU_TIMEOUT_ENV;
 #[cfg(test)]
 pub(crate) use commands::INJECT_WAIT_RESULT;

@@ -24,6 +24,7 @@ static SOURCES: &[Source] = glsl_sources!(
     "raycast.vert",
     "raycast.frag",
     "fixup.comp",
+    "skeleton_fixup.comp",
     "probe.comp",
     "include/params.glsl",
     "include/neighbours.glsl",

@@ -129,7 +129,7 @@ pub fn brick_of(x: Vec3, brick_size: u32, bricks: UVec3) -> IVec3 {
 }
 
 /// The neighbour offset that selects axes `mask` (bit a = axis a) on sides `side`.
-fn offset_of(mask: u32, side: IVec3) -> IVec3 {
+pub(super) fn offset_of(mask: u32, side: IVec3) -> IVec3 {
     IVec3::new(
         if mask & 1 != 0 { side.x } else { 0 },
         if mask & 2 != 0 { side.y } else { 0 },

@@ -2,6 +2,8 @@
 //! validation warning/error or leaked allocation, and image comparison with diagnostics.
 #![allow(dead_code)] // reason: each test binary uses a different subset of these helpers.
 
+pub mod levels;
+
 use glam::{Vec3, Vec4};
 use mixvol::gpu::{ContextDesc, GpuContext, MessageLog};
 use std::path::PathBuf;

@@ -1,0 +1,245 @@
+//! The paper's three-level packing (Beyer et al. §3.1; issue 19): cache slots of edge `n + 4`
+//! texels, each holding one level-0 brick with two duplicated border texels per side, eight
+//! level-1 bricks in `(n/2 + 2)^3` sub-slots, or sixty-four level-2 bricks in `(n/4 + 1)^3`
+//! sub-slots. A slot holds bricks of one level only.
+//!
+//! Levels and what a brick stores (`crate::reference::LevelGrid::vertex_pyramid`):
+//! - level 0: hi-res voxels at cell centres; texel `origin + t` (t in `0..n+4`) holds voxel
+//!   `n*b - 2 + t`, clamped to the volume. The ray-caster's band reads the inner border layer
+//!   (slot-local texels 1 and `n + 2`), which the border fixup rewrites exactly as in the
+//!   two-level cache; the outer layer keeps the duplicated voxels.
+//! - level `k` in 1..=2: samples on vertices every `2^k` voxels; texel `origin + t` (t in
+//!   `0..=n/2^k`) holds level-`k` sample `n*b/2^k + t`, both faces included. A level-1 sub-slot
+//!   has one texel more per axis than its `n/2 + 1` samples; it is left unwritten.
+//!
+//! Layout entries use the two-level cache's convention, `x_tex = x * t_w + t_xyz`:
+//! - level 0: `t_w = 1`, `t_xyz = origin + 2 - n*b`;
+//! - level `k >= 1`: `t_w = 2^-k`, `t_xyz = origin + 0.5 - n*b/2^k`.
+//!
+//! `t_w` is exact in `f32`, and the ray-caster's test `t_w == 1` still singles out level 0.
+
+use super::{CacheError, MIN_BRICK_SIZE};
+use crate::bricks::MAX_BRICK_SIZE;
+use glam::UVec3;
+
+/// Levels of the three-level packing.
+pub const THREE_LEVELS: u32 = 3;
+
+/// Where a brick of the three-level packing lives: slot `slot`, holding bricks of level `level`,
+/// at sub-slot `index` (`0` for level 0, `0..8` for level 1, `0..64` for level 2).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct LevelSlot {
+    /// Linear slot index.
+    pub slot: u32,
+    /// The level the slot holds.
+    pub level: u32,
+    /// The sub-slot inside the slot, x fastest over `2^level` per axis.
+    pub index: u32,
+}
+
+/// The geometry of a three-level brick cache image: slot edge `n + 4`, whole slots only
+/// (`floor(C / (n + 4))` per axis), slot `s` at texel `s * (n + 4)`, linear index x fastest.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct ThreeLevelGeometry {
+    brick_size: u32,
+    extent: UVec3,
+    slots_per_axis: UVec3,
+}
+
+impl ThreeLevelGeometry {
+    /// A cache of `extent` texels for bricks of `brick_size` voxels: `brick_size` a power of two
+    /// in `MIN_BRICK_SIZE..=MAX_BRICK_SIZE` (a level-2 brick then has whole cells), every axis of
+    /// `extent` a power of two holding at least one slot, and fewer slots than `u32::MAX`.
+    pub fn new(brick_size: u32, extent: UVec3) -> Result<Self, CacheError> {
+        if !brick_size.is_power_of_two() || !(MIN_BRICK_SIZE..=MAX_BRICK_SIZE).contains(&brick_size)
+        {
+            return Err(CacheError::InvalidBrickSize { size: brick_size });
+        }
+        let slot_edge = brick_size + 4;
+        if extent
+            .to_array()
+            .iter()
+            .any(|&c| !c.is_power_of_two() || c < slot_edge)
+        {
+            return Err(CacheError::InvalidExtent {
+                extent: extent.to_array(),
+                slot_edge,
+            });
+        }
+        let slots_per_axis = extent / slot_edge;
+        let slots = slots_per_axis.as_u64vec3().element_product();
+        if slots >= u64::from(super::EMPTY) {
+            return Err(CacheError::TooManySlots { slots });
+        }
+        Ok(Self {
+            brick_size,
+            extent,
+            slots_per_axis,
+        })
+    }
+
+    /// Brick size `n` in hi-res voxels.
+    pub fn brick_size(&self) -> u32 {
+        self.brick_size
+    }
+
+    /// Slot edge `n + 4` texels.
+    pub fn slot_edge(&self) -> u32 {
+        self.brick_size + 4
+    }
+
+    /// Cache extent in texels.
+    pub fn extent(&self) -> UVec3 {
+        self.extent
+    }
+
+    /// Whole slots per axis.
+    pub fn slots_per_axis(&self) -> UVec3 {
+        self.slots_per_axis
+    }
+
+    /// Total number of slots.
+    pub fn slot_count(&self) -> u32 {
+        // `new` checked that the product fits in a u32.
+        self.slots_per_axis.element_product()
+    }
+
+    /// Bricks of `level` one slot holds: 1, 8, 64 (`8^level`); 0 for a level past the third.
+    pub fn bricks_per_slot(level: u32) -> u32 {
+        if level < THREE_LEVELS {
+            1 << (3 * level)
+        } else {
+            0
+        }
+    }
+
+    /// Sub-slot edge of `level` in texels: `n + 4`, `n/2 + 2`, `n/4 + 1` (`(n + 4) / 2^level`).
+    pub fn sub_slot_edge(&self, level: u32) -> u32 {
+        self.slot_edge() >> level.min(THREE_LEVELS - 1)
+    }
+
+    /// Texels per axis a brick of `level` stores: `n + 4` at level 0 (two border texels per
+    /// side), `n / 2^level + 1` vertex samples above.
+    pub fn stored_edge(&self, level: u32) -> u32 {
+        match level {
+            0 => self.slot_edge(),
+            k => (self.brick_size >> k.min(THREE_LEVELS - 1)) + 1,
+        }
+    }
+
+    /// Slot coordinates of linear slot index `slot` (x fastest).
+    pub fn slot_coords(&self, slot: u32) -> UVec3 {
+        let s = self.slots_per_axis;
+        UVec3::new(slot % s.x, (slot / s.x) % s.y, slot / (s.x * s.y))
+    }
+
+    /// Texel origin of slot `slot`.
+    pub fn slot_origin(&self, slot: u32) -> UVec3 {
+        self.slot_coords(slot) * self.slot_edge()
+    }
+
+    /// Texel origin of `place`: the slot origin plus the sub-slot's coordinates (x fastest over
+    /// `2^level` per axis) times the sub-slot edge. `None` when the level or the index is out of
+    /// range, or the slot is not in the cache.
+    pub fn origin(&self, place: LevelSlot) -> Option<UVec3> {
+        if place.level >= THREE_LEVELS
+            || place.index >= Self::bricks_per_slot(place.level)
+            || place.slot >= self.slot_count()
+        {
+            return None;
+        }
+        let per_axis = 1 << place.level;
+        let sub = UVec3::new(
+            place.index % per_axis,
+            (place.index / per_axis) % per_axis,
+            place.index / (per_axis * per_axis),
+        );
+        Some(self.slot_origin(place.slot) + sub * self.sub_slot_edge(place.level))
+    }
+
+    /// Layout entry `(t_x, t_y, t_z, t_w)` of brick `brick` stored at `place` (module docs);
+    /// all zero (a skipped brick) when `place` is out of range.
+    pub fn layout_entry(&self, brick: UVec3, place: LevelSlot) -> [f32; 4] {
+        let Some(origin) = self.origin(place) else {
+            return [0.0; 4];
+        };
+        let n = i64::from(self.brick_size);
+        let b = brick.as_i64vec3();
+        let o = origin.as_i64vec3();
+        if place.level == 0 {
+            let t = o + 2 - n * b;
+            [t.x as f32, t.y as f32, t.z as f32, 1.0]
+        } else {
+            let t = o - (n >> place.level) * b;
+            let scale = 1.0 / (1u32 << place.level) as f32;
+            [t.x as f32 + 0.5, t.y as f32 + 0.5, t.z as f32 + 0.5, scale]
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sub_slots_tile_the_slot_without_overlap() {
+        for n in [4, 8, 16, 32, 64] {
+            let geometry = ThreeLevelGeometry::new(n, UVec3::splat(256)).unwrap();
+            let s = geometry.slot_edge();
+            for level in 0..THREE_LEVELS {
+                let edge = geometry.sub_slot_edge(level);
+                assert!(geometry.stored_edge(level) <= edge, "n {n} level {level}");
+                let mut covered = vec![0u8; (s * s * s) as usize];
+                for index in 0..ThreeLevelGeometry::bricks_per_slot(level) {
+                    let place = LevelSlot {
+                        slot: 1,
+                        level,
+                        index,
+                    };
+                    let o = geometry.origin(place).unwrap() - geometry.slot_origin(1);
+                    for z in 0..edge {
+                        for y in 0..edge {
+                            for x in 0..edge {
+                                let t = o + UVec3::new(x, y, z);
+                                assert!(t.cmplt(UVec3::splat(s)).all(), "n {n} level {level}");
+                                covered[(t.x + s * (t.y + s * t.z)) as usize] += 1;
+                            }
+                        }
+                    }
+                }
+                // Every level's sub-slots fill the slot exactly, once.
+                assert_eq!(edge << level, s, "n {n} level {level}");
+                assert!(covered.iter().all(|&c| c == 1), "n {n} level {level}");
+            }
+        }
+    }
+
+    #[test]
+    fn bad_geometry_and_places_are_refused() {
+        assert_eq!(
+            ThreeLevelGeometry::new(12, UVec3::splat(64)),
+            Err(CacheError::InvalidBrickSize { size: 12 })
+        );
+        assert_eq!(
+            ThreeLevelGeometry::new(32, UVec3::new(64, 32, 64)),
+            Err(CacheError::InvalidExtent {
+                extent: [64, 32, 64],
+                slot_edge: 36
+            })
+        );
+        let geometry = ThreeLevelGeometry::new(8, UVec3::splat(32)).unwrap();
+        assert_eq!(geometry.slot_count(), 8);
+        let place = |slot, level, index| LevelSlot { slot, level, index };
+        assert_eq!(geometry.origin(place(8, 0, 0)), None);
+        assert_eq!(geometry.origin(place(0, 1, 8)), None);
+        assert_eq!(geometry.origin(place(0, 3, 0)), None);
+        assert_eq!(
+            geometry.layout_entry(UVec3::ZERO, place(0, 2, 64)),
+            [0.0; 4]
+        );
+        assert_eq!(
+            geometry.origin(place(7, 2, 63)),
+            Some(UVec3::splat(12 + 3 * 3))
+        );
+    }
+}

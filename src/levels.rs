@@ -1,0 +1,154 @@
+//! The three-level brick cache on the GPU (issue 19, item 1), filled from the levels of a
+//! [`LevelField`]: every drawn brick packed into its slot or sub-slot of a
+//! [`ThreeLevelGeometry`] cache and uploaded with one `vkCmdCopyBufferToImage` (one region per
+//! brick), the border fixup (level 0 towards level 1, `fixup.comp` on the inner box of a
+//! `(n+4)^3` slot) and the skeleton fixup (`skeleton_fixup.comp`, level 1 towards level 2) as
+//! compute dispatches, and the field read with the ray-caster's own functions (`probe.comp`
+//! includes `mixed.glsl`, unchanged: a level-0 brick blends, a coarser one is a plain fetch).
+//!
+//! The residency planner does not drive three levels yet (issue 19, item 4); this type lets the
+//! tests check the GPU cache, its fixups and its sampling against
+//! [`crate::reference::LevelReferenceCache`] and the field of the levels.
+
+use crate::cache::{ThreeLevelGeometry, EMPTY};
+use crate::error::{Error, Result};
+use crate::gpu::{
+    CacheRegion, CacheTables, FieldProbe, GpuBrickCache, GpuContext, SlotPacking, StagingUpload,
+    Submitter,
+};
+use crate::reference::{LevelField, LevelReferenceCache};
+use crate::scene::Transition;
+use crate::volume::ScalarType;
+use glam::{UVec3, Vec3};
+
+/// A three-level brick cache (f32 texels) on the GPU, filled and fixed up once.
+pub struct GpuLevelCache {
+    gpu: GpuBrickCache,
+    probe: FieldProbe,
+    submitter: Submitter,
+    // Kept until the cache is dropped: its buffer held the uploaded bricks.
+    _staging: StagingUpload,
+    dims: UVec3,
+    brick_size: u32,
+}
+
+impl GpuLevelCache {
+    /// Packs the drawn bricks of `field` into a cache of `geometry`, uploads them and, for
+    /// [`Transition::Smooth`], runs the border and skeleton fixups on the GPU; waits for the
+    /// GPU. The volume's extent is level 0's.
+    ///
+    /// Errors: what [`LevelReferenceCache::build`] refuses (more than three levels, other sample
+    /// placements, another brick size, more slots than the cache has), a cache image the device
+    /// cannot create, or a failed submission.
+    pub fn new(
+        ctx: &GpuContext,
+        field: &LevelField,
+        geometry: &ThreeLevelGeometry,
+        transition: Transition,
+    ) -> Result<Self> {
+        let shared = &ctx.shared;
+        // The cache as uploaded: packed, no fixup (the GPU runs it).
+        let packed = LevelReferenceCache::build(field, geometry, Transition::Discontinuous)
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        let smooth = transition == Transition::Smooth;
+        let brick_count = packed.places.len();
+        let slot_count = geometry.slot_count() as usize;
+        let mut gpu = GpuBrickCache::new(
+            shared,
+            ScalarType::F32,
+            1,
+            geometry.extent(),
+            brick_count,
+            slot_count,
+            1,
+            smooth,
+            SlotPacking::ThreeLevel,
+        )?;
+
+        let mut boxes = Vec::new();
+        let mut reverse = vec![[EMPTY; crate::bricks::SUB_SLOTS_PER_SLOT as usize]; slot_count];
+        let mut fixup_slots = Vec::new();
+        let mut skeleton_bricks = Vec::new();
+        for (brick, place) in packed.places.iter().enumerate() {
+            let Some(place) = *place else {
+                continue;
+            };
+            let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
+            let extent = UVec3::splat(geometry.stored_edge(place.level));
+            let mut texels = Vec::with_capacity(extent.element_product() as usize);
+            for z in 0..extent.z {
+                for y in 0..extent.y {
+                    for x in 0..extent.x {
+                        let t = (origin + UVec3::new(x, y, z)).as_ivec3();
+                        texels.push(packed.image.texel(t));
+                    }
+                }
+            }
+            boxes.push((
+                origin,
+                extent,
+                bytemuck::cast_slice::<f32, u8>(&texels).to_vec(),
+            ));
+            let index = brick as u32;
+            let has_coarser = packed.neighbours[brick] != 0;
+            if place.level == 0 {
+                reverse[place.slot as usize][0] = index;
+                if has_coarser {
+                    fixup_slots.push(place.slot);
+                }
+            } else if has_coarser {
+                skeleton_bricks.push(index);
+            }
+        }
+        let regions: Vec<CacheRegion> = boxes
+            .iter()
+            .map(|(origin, extent, bytes)| CacheRegion {
+                origin: *origin,
+                extent: *extent,
+                bytes,
+            })
+            .collect();
+        let tables = CacheTables {
+            layout: &packed.layout,
+            neighbours: &packed.neighbours,
+            reverse: &reverse,
+            fixup_slots: &fixup_slots,
+            skeleton_bricks: &skeleton_bricks,
+            bricks: packed.bricks,
+            brick_size: packed.brick_size,
+            slots_per_axis: geometry.slots_per_axis(),
+        };
+        gpu.stage(&regions, &tables)?;
+        let mut submitter = Submitter::new(shared)?;
+        let mut staging = StagingUpload::new(shared, "three-level bricks");
+        submitter.run(|_, cmd| gpu.record(cmd, 0, &mut staging, None).map(|_| ()))?;
+        let probe = FieldProbe::new(shared, smooth)?;
+        Ok(Self {
+            gpu,
+            probe,
+            submitter,
+            _staging: staging,
+            dims: field.grids()[0].dims(),
+            brick_size: packed.brick_size,
+        })
+    }
+
+    /// The field at volume points (hi-res voxel units), read with the ray-caster's functions;
+    /// `None` where a point lies in a brick that is not drawn.
+    pub fn sample(&mut self, points: &[Vec3]) -> Result<Vec<Option<f32>>> {
+        self.probe.sample(
+            &mut self.submitter,
+            &mut self.gpu,
+            0,
+            self.dims,
+            self.brick_size,
+            points,
+        )
+    }
+
+    /// The cache image read back (texels, x fastest).
+    pub fn read_back(&mut self) -> Result<Vec<f32>> {
+        let bytes = self.gpu.read_back(&mut self.submitter)?;
+        Ok(crate::bricks::dequantize(&bytes, ScalarType::F32))
+    }
+}

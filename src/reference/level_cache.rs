@@ -1,0 +1,325 @@
+//! The CPU mirror of a three-level brick cache (issue 19): the levels of a [`LevelField`] packed
+//! into a [`ThreeLevelGeometry`] cache image, the two fixups, and the tables the ray-caster
+//! reads. Sampled through [`sample_mixed`](super::sample_mixed) unchanged: a level-0 brick blends
+//! towards level-1 neighbours through its fixed-up inner border exactly as a hi-res brick of the
+//! two-level cache does, and a brick of level 1 or 2 is a plain fetch of its fixed-up samples.
+//!
+//! # The fixups (Smooth only)
+//! - **Border fixup** of every level-0 brick with a level-1 neighbour: the inner border layer
+//!   (slot-local texels 1 and `n + 2`) gets the nearest level-1 sample of the first level-1
+//!   neighbour in [`FIXUP_PRECEDENCE`], as `reference::mixed::fixup_value` computes it for the
+//!   two-level cache.
+//! - **Skeleton fixup** of every level-`k` brick (`k` = 1, 2) with a level-`k + 1` neighbour
+//!   ([`skeleton_fixup_value`]): each stored sample on a face, edge or corner that touches a
+//!   level-`k + 1` brick becomes that brick's field at the sample's position, one trilinear fetch
+//!   through its layout entry (the position is a level-`k` vertex, so the fetch weights are 0 or
+//!   1/2: the exact mean of one, two or four coarser samples). This is
+//!   [`LevelField::fixed_up_sample`] read from the cache.
+//!
+//! The fixups never read what they write (`reference::level_field`, "The scheme the cache
+//! builds"), so the order of bricks does not matter; this mirror runs them in brick order, in
+//! place, as one dispatch would. A brick whose coarser neighbours change must be uploaded again
+//! before the skeleton fixup: the fixup overwrites the brick's own samples and cannot restore them.
+
+use super::level_field::{LevelField, SamplePlacement};
+use super::mixed::{fixup_value, offset_of, touching, CacheImage, MixedVolume, FIXUP_PRECEDENCE};
+use crate::cache::tables::neighbour_bit;
+use crate::cache::{LevelSlot, ThreeLevelGeometry, THREE_LEVELS};
+use crate::scene::Transition;
+use glam::{IVec3, UVec3};
+
+/// Why a [`LevelReferenceCache`] cannot be built.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum LevelCacheError {
+    /// The field has more levels than the packing holds.
+    #[error("the three-level packing holds levels 0..{THREE_LEVELS}; the field has {levels}")]
+    TooManyLevels {
+        /// Levels of the field.
+        levels: usize,
+    },
+    /// A level's samples are not placed as the packing stores them.
+    #[error("level {level} is {found:?}; the packing stores level 0 cell-centred and levels 1-2 on vertices")]
+    Placement {
+        /// The level.
+        level: u32,
+        /// Its placement.
+        found: SamplePlacement,
+    },
+    /// The field's bricks and the cache's differ in size.
+    #[error("the field has bricks of {field} voxels, the cache of {cache}")]
+    BrickSize {
+        /// Brick size of the field.
+        field: u32,
+        /// Brick size of the cache.
+        cache: u32,
+    },
+    /// The drawn bricks need more slots than the cache has.
+    #[error(
+        "the plan needs {needed} slots ({per_level:?} bricks of levels 0, 1, 2 at 1, 8, 64 per \
+         slot) but the cache has {slots}"
+    )]
+    OverBudget {
+        /// Slots needed.
+        needed: u64,
+        /// Drawn bricks per level.
+        per_level: [usize; 3],
+        /// Slots in the cache.
+        slots: u32,
+    },
+}
+
+/// A three-level cache image filled from a [`LevelField`]'s levels, with its tables.
+#[derive(Clone, Debug)]
+pub struct LevelReferenceCache {
+    /// The cache image.
+    pub image: CacheImage,
+    /// Layout entry per brick ([`ThreeLevelGeometry::layout_entry`]).
+    pub layout: Vec<[f32; 4]>,
+    /// Coarser bits per brick ([`LevelField::coarser_bits`]): for a level-0 brick the 26
+    /// neighbour bits of the two-level cache.
+    pub neighbours: Vec<u32>,
+    /// Where each brick lives, `None` when not drawn.
+    pub places: Vec<Option<LevelSlot>>,
+    /// Bricks per axis.
+    pub bricks: UVec3,
+    /// Brick size.
+    pub brick_size: u32,
+}
+
+impl LevelReferenceCache {
+    /// Packs every drawn brick of `field` into a cache of `geometry` (slots filled level by
+    /// level, in brick order) and, for [`Transition::Smooth`], runs both fixups.
+    ///
+    /// Errors: more than three levels, a level placed other than level 0 cell-centred and levels
+    /// 1-2 on vertices, a brick size other than the cache's, or more slots needed than the cache
+    /// has.
+    pub fn build(
+        field: &LevelField,
+        geometry: &ThreeLevelGeometry,
+        transition: Transition,
+    ) -> Result<Self, LevelCacheError> {
+        let grids = field.grids();
+        if grids.len() > THREE_LEVELS as usize {
+            return Err(LevelCacheError::TooManyLevels {
+                levels: grids.len(),
+            });
+        }
+        for g in grids {
+            let expected = if g.level() == 0 {
+                SamplePlacement::CellCentred
+            } else {
+                SamplePlacement::Vertex
+            };
+            if g.placement() != expected {
+                return Err(LevelCacheError::Placement {
+                    level: g.level(),
+                    found: g.placement(),
+                });
+            }
+        }
+        let n = field.brick_size();
+        if n != geometry.brick_size() {
+            return Err(LevelCacheError::BrickSize {
+                field: n,
+                cache: geometry.brick_size(),
+            });
+        }
+        let bricks = field.bricks_per_axis();
+        let count = bricks.element_product() as usize;
+        let mut per_level = [0usize; 3];
+        for i in 0..count {
+            if let Some(level) = field.brick_level(i) {
+                per_level[level as usize] += 1;
+            }
+        }
+        let needed: u64 = (0..THREE_LEVELS)
+            .map(|k| {
+                let per_slot = u64::from(ThreeLevelGeometry::bricks_per_slot(k));
+                (per_level[k as usize] as u64).div_ceil(per_slot)
+            })
+            .sum();
+        if needed > u64::from(geometry.slot_count()) {
+            return Err(LevelCacheError::OverBudget {
+                needed,
+                per_level,
+                slots: geometry.slot_count(),
+            });
+        }
+
+        let brick_coords = |i: usize| {
+            let i = i as u32;
+            UVec3::new(
+                i % bricks.x,
+                (i / bricks.x) % bricks.y,
+                i / (bricks.x * bricks.y),
+            )
+        };
+        let mut image = CacheImage::new(geometry.extent());
+        let mut places = vec![None; count];
+        let mut layout = vec![[0.0; 4]; count];
+        let mut next_slot = 0;
+        for level in 0..THREE_LEVELS {
+            let per_slot = ThreeLevelGeometry::bricks_per_slot(level);
+            let mut filled = 0;
+            for i in (0..count).filter(|&i| field.brick_level(i) == Some(level)) {
+                let place = LevelSlot {
+                    slot: next_slot,
+                    level,
+                    index: filled,
+                };
+                filled += 1;
+                if filled == per_slot {
+                    (next_slot, filled) = (next_slot + 1, 0);
+                }
+                let brick = brick_coords(i);
+                places[i] = Some(place);
+                layout[i] = geometry.layout_entry(brick, place);
+                let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
+                let edge = geometry.stored_edge(level);
+                // Level 0: voxel n*b - 2 + t; level k: sample n*b/2^k + t (module docs of
+                // `cache::three_level`); the grids clamp to their extent.
+                let first = if level == 0 {
+                    (brick * n).as_ivec3() - IVec3::splat(2)
+                } else {
+                    (brick * (n >> level)).as_ivec3()
+                };
+                let g = &grids[level as usize];
+                let mut values = Vec::with_capacity(edge.pow(3) as usize);
+                for z in 0..edge as i32 {
+                    for y in 0..edge as i32 {
+                        for x in 0..edge as i32 {
+                            values.push(g.value(first + IVec3::new(x, y, z)));
+                        }
+                    }
+                }
+                image.write_box(origin, UVec3::splat(edge), &values);
+            }
+            if filled > 0 {
+                next_slot += 1;
+            }
+        }
+        let neighbours: Vec<u32> = (0..count).map(|i| field.coarser_bits(i)).collect();
+
+        if transition == Transition::Smooth {
+            for i in 0..count {
+                let (Some(place), bits) = (places[i], neighbours[i]) else {
+                    continue;
+                };
+                if bits == 0 {
+                    continue;
+                }
+                let brick = brick_coords(i);
+                let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
+                if place.level == 0 {
+                    // The inner (n+2)^3 box of the slot is the two-level cache's hi-res brick.
+                    let inner = origin + UVec3::ONE;
+                    for t in boundary_texels(n + 2, |t| t == 0 || t == n + 1) {
+                        if let Some(v) =
+                            fixup_value(&image, &layout, bits, bricks, n, brick.as_ivec3(), t)
+                        {
+                            image.set_texel((inner + t).as_ivec3(), v);
+                        }
+                    }
+                } else {
+                    let last = n >> place.level;
+                    for t in boundary_texels(last + 1, |t| t == 0 || t == last) {
+                        if let Some(v) = skeleton_fixup_value(
+                            &image,
+                            &layout,
+                            bits,
+                            bricks,
+                            n,
+                            brick.as_ivec3(),
+                            place.level,
+                            t,
+                        ) {
+                            image.set_texel((origin + t).as_ivec3(), v);
+                        }
+                    }
+                }
+            }
+        }
+        Ok(Self {
+            image,
+            layout,
+            neighbours,
+            places,
+            bricks,
+            brick_size: n,
+        })
+    }
+
+    /// The view [`sample_mixed`](super::sample_mixed) takes.
+    pub fn view(&self) -> MixedVolume<'_> {
+        MixedVolume {
+            cache: &self.image,
+            layout: &self.layout,
+            neighbours: &self.neighbours,
+            bricks: self.bricks,
+            brick_size: self.brick_size,
+        }
+    }
+}
+
+/// The texels `t` of a box of `edge` per axis for which `on_boundary(t_a)` holds on some axis.
+fn boundary_texels(edge: u32, on_boundary: impl Fn(u32) -> bool) -> Vec<UVec3> {
+    let mut out = Vec::new();
+    for z in 0..edge {
+        for y in 0..edge {
+            for x in 0..edge {
+                if on_boundary(x) || on_boundary(y) || on_boundary(z) {
+                    out.push(UVec3::new(x, y, z));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The skeleton-fixed value of stored sample `t` (brick-local sample index, `0..=n/2^level` per
+/// axis) of the brick `brick` of vertex level `level` with coarser bits `bits`, or `None` when the
+/// sample touches no brick of level `level + 1` (it keeps its value): the field of the first
+/// touching coarser brick in [`FIXUP_PRECEDENCE`] at the sample's position, one trilinear fetch
+/// through that brick's layout entry. Mirrors the skeleton pass the GPU fixup will run.
+#[allow(clippy::too_many_arguments)] // reason: mirrors a shader's per-texel inputs.
+pub fn skeleton_fixup_value(
+    cache: &CacheImage,
+    layout: &[[f32; 4]],
+    bits: u32,
+    bricks: UVec3,
+    brick_size: u32,
+    brick: IVec3,
+    level: u32,
+    t: UVec3,
+) -> Option<f32> {
+    let last = brick_size >> level;
+    let mut mask = 0;
+    let mut side = IVec3::ZERO;
+    for a in 0..3 {
+        if t[a] == 0 {
+            mask |= 1 << a;
+            side[a] = -1;
+        } else if t[a] == last {
+            mask |= 1 << a;
+            side[a] = 1;
+        }
+    }
+    if mask == 0 || bits & touching(mask, side) == 0 {
+        return None;
+    }
+    let position = (brick * brick_size as i32 + (t << level).as_ivec3()).as_vec3();
+    for candidate in FIXUP_PRECEDENCE {
+        if candidate & !mask != 0 {
+            continue;
+        }
+        let d = offset_of(candidate, side);
+        if bits & neighbour_bit(d) == 0 {
+            continue;
+        }
+        let nb = brick + d;
+        let ni = (nb.x as u32 + bricks.x * (nb.y as u32 + bricks.y * nb.z as u32)) as usize;
+        let [tx, ty, tz, tw] = layout[ni];
+        return Some(cache.fetch(position * tw + glam::Vec3::new(tx, ty, tz)));
+    }
+    None
+}

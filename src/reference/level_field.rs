@@ -1,0 +1,626 @@
+//! The mixed-resolution field for any number of levels, defined directly from each level's samples
+//! (no cache image): the construction the brick cache, its fixup and the ray-caster must reproduce
+//! when they hold more than two levels (issue 19). With two levels it is what
+//! [`sample_mixed`](super::sample_mixed) computes from the cache, which a test checks.
+//!
+//! # Levels
+//! Level `k` samples the volume every `s_k = 2^k` hi-res voxels on one global grid, either
+//! *cell-centred* (sample `j` at `s_k * (j + 1/2)`, as the hi-res voxels, and the paper's
+//! `(n/2+2)^3` level-1 bricks of its three-level packing) or on *vertices* (sample `j` at
+//! `s_k * j`, as today's `(n/2+1)^3` low-res bricks and the paper's `(n/4+1)^3` level-2 bricks).
+//! Each level alone is the trilinear (clamp-to-edge) interpolation of its own samples
+//! ([`LevelGrid::trilinear`]), continuous across bricks of that level because the grid is global.
+//! Bricks of size `n` (a power of two) hold whole cells of every level up to `2^k <= n`.
+//!
+//! # The construction: one pair of levels at a time
+//! The planner keeps face-, edge- and corner-adjacent drawn bricks within one level of each other
+//! ([`check_level_rule_with`]). A brick `B` of level `k` then blends towards the next coarser level
+//! only, exactly as a hi-res brick blends towards low-res ones in the two-level scheme
+//! (`reference::mixed`), with three changes of scale:
+//!
+//! - its *coarser bits* mark the neighbours of level `k + 1` ([`coarser_neighbour_bits`]; with two
+//!   levels, the 26 neighbour bits);
+//! - its *band* along axis `a` is the strip between a face and the nearest plane of its own
+//!   samples: `w_k = s_k / 2` for cell-centred samples (half a voxel at level 0, one hi-res voxel
+//!   at a cell-centred level 1), `w_k = s_k` for vertex samples (one level-`k` voxel: the samples
+//!   on the face are the ones the coarser level replaces), with `beta_a = 1 - distance / w_k`;
+//! - the skeleton value `G(P)` on a face, edge or corner that touches a brick of level `k + 1` is
+//!   the plain trilinear field of level `k + 1`, elsewhere the plain field of level `k`.
+//!
+//! With active axes `A` (band axes across which a touching brick is coarser),
+//! `f(q) = sum over S ⊆ A of prod_{a in S} beta_a prod_{a in A\S} (1 - beta_a) G(P_S)`, where `P_S`
+//! puts the axes of `S` on the face and those of `A \ S` on the sample plane.
+//!
+//! **Why it is C0 for every level pair.** (1) Along a blended axis both `G` terms are linear over
+//! the band, so `f` is the multilinear interpolation of the skeleton values over the band box: the
+//! band ends on a knot of level `k` (its sample plane), and the nearest knot of level `k + 1` is no
+//! closer to the face than the band is wide (`s_k` away when cell-centred, on the face and `2 s_k`
+//! away on vertices), so on the face `f` equals the coarser field, and on the plane the brick's
+//! own. (2) Neighbours of the same level see the same touching bricks (the touching set includes
+//! the diagonal ones), hence the same blend. (3) The coarser brick `C` of level `k + 1` needs no
+//! knowledge of `B`: what `B` reads of it is `C`'s *plain* field, because `C`'s own band (towards
+//! level `k + 2`) never reaches a point `B` touches: a level-`k + 2` brick next to `C` is not a
+//! neighbour of `B` (the rule), so it lies at least one brick (`n`) away from `B`, farther than
+//! `C`'s band (`w_{k+1} <= n / 2`). So a *middle* level is the fine side towards its coarser
+//! neighbours and, unchanged, the coarse side towards its finer ones, and the two roles never
+//! meet in one point: no new boundary class appears at three or more levels, and the 26 bits,
+//! the fixup (nearest samples of level `k + 1` into the borders of level-`k` bricks) and the
+//! blend extend to any number of levels with only `w_k`, `s_k` and the coarser level's grid per
+//! brick.
+//!
+//! [`Transition::Discontinuous`] draws every brick with the plain field of its own level: the
+//! baseline that jumps at every level change.
+//!
+//! # The scheme the cache builds: level 0 cell-centred, every coarser level on vertices
+//! [`LevelGrid::vertex_pyramid`] keeps level 0 at voxel centres and puts every level `k >= 1` on
+//! vertices (level 1 is today's low-res level; the paper's `(n/2+2)^3` and `(n/4+1)^3` slots of its
+//! three-level packing hold `n/2 + 1` and `n/4 + 1` vertex samples per axis). Then a transition
+//! between two vertex levels costs the ray-caster nothing: the band of a level-`k` brick (`k >= 1`)
+//! is exactly its outermost cell, whose outer samples lie on the skeleton, so the blend equals
+//! the plain trilinear interpolation of the brick's samples once every sample on a face, edge or
+//! corner that touches a drawn level-`k + 1` brick holds the coarser field there
+//! ([`LevelField::fixed_up_sample`]; the coarser field is piecewise linear between its own
+//! samples, which are level-`k` samples too, so interpolating it at level-`k` spacing is exact).
+//! A fixed-up value depends on the sample's position alone (every brick holding a copy sees the
+//! same touching bricks), so the copies agree. [`LevelField::sample_fixed_up`] is that field; a
+//! test checks it equals [`LevelField::sample`]. Only the level-0 transition needs the blend of
+//! `reference::mixed` (cell-centred samples never lie on a face). Reads and writes of the fixup
+//! never meet: a level-`k` brick writes only samples that touch a level-`k + 1` brick, and a
+//! level-`k - 1` brick reads only the level-`k` samples it touches, which touch no level-`k + 1`
+//! brick (the rule).
+
+use crate::bricks::BrickGrid;
+use crate::cache::tables::coarser_neighbour_bits;
+use crate::lod::check_level_rule_with;
+use crate::scene::Transition;
+use glam::{BVec3, IVec3, UVec3, Vec3};
+
+use super::mixed::{active_axes, brick_of, feature_touches_low_res};
+
+/// Where a level's samples sit in its cells.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
+pub enum SamplePlacement {
+    /// Sample `j` at `s * (j + 1/2)`: cell centres, as hi-res voxels.
+    CellCentred,
+    /// Sample `j` at `s * j`: cell corners, on brick faces, as today's low-res samples.
+    Vertex,
+}
+
+/// Why a [`LevelGrid`] or a [`LevelField`] cannot be built.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum LevelFieldError {
+    /// The sample values do not match the grid's extent.
+    #[error("level {level}: {values} sample values for a {dims:?} grid (expected {expected})")]
+    SampleCount {
+        /// The level.
+        level: u32,
+        /// Samples per axis.
+        dims: [u32; 3],
+        /// Values given.
+        values: usize,
+        /// Values expected (`dims.x * dims.y * dims.z`).
+        expected: usize,
+    },
+    /// A grid with no samples on some axis, or a level too deep for `2^level` to be a spacing.
+    #[error("level {level}: invalid grid {dims:?} (every axis needs a sample, level below 31)")]
+    InvalidGrid {
+        /// The level.
+        level: u32,
+        /// Samples per axis.
+        dims: [u32; 3],
+    },
+    /// The grids are not levels `0, 1, 2, ...` in order.
+    #[error("grid {index} is level {level}; the grids must be levels 0, 1, 2, ... in order")]
+    LevelOrder {
+        /// Position in the list.
+        index: usize,
+        /// Its level.
+        level: u32,
+    },
+    /// No level grid at all.
+    #[error("no level grids")]
+    NoLevels,
+    /// A brick holds fewer than one cell of the coarsest level.
+    #[error("{levels} levels need bricks of at least 2^{} voxels; the bricks have {brick_size}", levels - 1)]
+    TooManyLevels {
+        /// Levels given.
+        levels: usize,
+        /// Brick size.
+        brick_size: u32,
+    },
+    /// The per-brick levels do not have one entry per brick.
+    #[error("{given} brick levels for a grid of {bricks} bricks")]
+    BrickLevelCount {
+        /// Entries given.
+        given: usize,
+        /// Bricks in the grid.
+        bricks: usize,
+    },
+    /// A brick names a level with no grid.
+    #[error("brick {brick} is level {level}, but only levels 0..{levels} have grids")]
+    UnknownLevel {
+        /// Linear brick index.
+        brick: usize,
+        /// Its level.
+        level: u32,
+        /// Grids given.
+        levels: usize,
+    },
+    /// Two adjacent drawn bricks differ by more than one level.
+    #[error("adjacent bricks differ by more than one level (face, edge or corner neighbours)")]
+    LevelRule,
+}
+
+/// One level's samples on the global grid (values normalised, x fastest).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LevelGrid {
+    level: u32,
+    placement: SamplePlacement,
+    dims: UVec3,
+    values: Vec<f32>,
+}
+
+impl LevelGrid {
+    /// Level `level`'s samples: `dims` per axis at the positions `placement` gives for spacing
+    /// `2^level` (module docs), x fastest.
+    pub fn new(
+        level: u32,
+        placement: SamplePlacement,
+        dims: UVec3,
+        values: Vec<f32>,
+    ) -> Result<Self, LevelFieldError> {
+        if dims.min_element() == 0 || level >= 31 {
+            return Err(LevelFieldError::InvalidGrid {
+                level,
+                dims: dims.to_array(),
+            });
+        }
+        let expected = dims.x as usize * dims.y as usize * dims.z as usize;
+        if values.len() != expected {
+            return Err(LevelFieldError::SampleCount {
+                level,
+                dims: dims.to_array(),
+                values: values.len(),
+                expected,
+            });
+        }
+        Ok(Self {
+            level,
+            placement,
+            dims,
+            values,
+        })
+    }
+
+    /// Samples per axis that cover a volume of `volume_dims` hi-res voxels at `level` with
+    /// `placement`: `ceil(d / s)` cell-centred, `ceil(d / s) + 1` on vertices (as
+    /// [`crate::bricks::low_res_dims`] for level 1).
+    pub fn covering_dims(level: u32, placement: SamplePlacement, volume_dims: UVec3) -> UVec3 {
+        let s = 1u32 << level.min(30);
+        let cells = (volume_dims + UVec3::splat(s - 1)) / s;
+        match placement {
+            SamplePlacement::CellCentred => cells.max(UVec3::ONE),
+            SamplePlacement::Vertex => cells + UVec3::ONE,
+        }
+    }
+
+    /// Level 0 of `volume`: its normalised voxel values, cell-centred.
+    pub fn from_volume(volume: &crate::volume::Volume) -> Self {
+        let dims = volume.dims();
+        let count = dims.x as usize * dims.y as usize * dims.z as usize;
+        let values = (0..count).map(|i| volume.data().normalized(i)).collect();
+        Self {
+            level: 0,
+            placement: SamplePlacement::CellCentred,
+            dims,
+            values,
+        }
+    }
+
+    /// The levels `0..levels` of `volume` as the cache builds them (module docs): level 0 its
+    /// voxels, each coarser level on vertices, downsampled from the one before
+    /// ([`LevelGrid::downsampled`]; level 1 is the `Mean2` low-res level). `levels` is at least 1.
+    pub fn vertex_pyramid(volume: &crate::volume::Volume, levels: u32) -> Vec<Self> {
+        let mut grids = vec![Self::from_volume(volume)];
+        for _ in 1..levels.max(1) {
+            let next = grids[grids.len() - 1].downsampled(SamplePlacement::Vertex, volume.dims());
+            grids.push(next);
+        }
+        grids
+    }
+
+    /// The level number.
+    pub fn level(&self) -> u32 {
+        self.level
+    }
+
+    /// Where the samples sit.
+    pub fn placement(&self) -> SamplePlacement {
+        self.placement
+    }
+
+    /// Samples per axis.
+    pub fn dims(&self) -> UVec3 {
+        self.dims
+    }
+
+    /// The sample values, x fastest.
+    pub fn values(&self) -> &[f32] {
+        &self.values
+    }
+
+    /// Sample spacing `2^level` in hi-res voxels.
+    pub fn spacing(&self) -> f32 {
+        (1u32 << self.level) as f32
+    }
+
+    /// Hi-res position of sample index `j` on one axis.
+    pub fn position(&self, j: i32) -> f32 {
+        let s = self.spacing();
+        match self.placement {
+            SamplePlacement::CellCentred => s * (j as f32 + 0.5),
+            SamplePlacement::Vertex => s * j as f32,
+        }
+    }
+
+    /// Width of a brick's transition band at this level: the distance from a brick face to the
+    /// nearest plane of samples inside (`s / 2` cell-centred), or one cell when the samples lie on
+    /// the face (`s` on vertices).
+    pub fn band_width(&self) -> f32 {
+        match self.placement {
+            SamplePlacement::CellCentred => 0.5 * self.spacing(),
+            SamplePlacement::Vertex => self.spacing(),
+        }
+    }
+
+    /// Sample `k`, clamped to the grid (clamp-to-edge).
+    pub fn value(&self, k: IVec3) -> f32 {
+        let c = k
+            .clamp(IVec3::ZERO, self.dims.as_ivec3() - IVec3::ONE)
+            .as_uvec3();
+        self.values[(c.x + self.dims.x * (c.y + self.dims.y * c.z)) as usize]
+    }
+
+    /// The plain trilinear field of this level at hi-res point `x`, clamp-to-edge.
+    pub fn trilinear(&self, x: Vec3) -> f32 {
+        let u = match self.placement {
+            SamplePlacement::CellCentred => x / self.spacing() - Vec3::splat(0.5),
+            SamplePlacement::Vertex => x / self.spacing(),
+        };
+        trilinear(u, |k| self.value(k))
+    }
+
+    /// The next coarser level (`level + 1`) with `placement`, covering a volume of `volume_dims`
+    /// hi-res voxels: per axis, a new sample that coincides with one of this level's samples is
+    /// the tent `1/4, 1/2, 1/4` over it and its two neighbours, one that lies halfway between two
+    /// of them their mean (the paper's average of the eight finer samples around a cell centre),
+    /// separably, clamp-to-edge. Both reproduce a linear function exactly.
+    pub fn downsampled(&self, placement: SamplePlacement, volume_dims: UVec3) -> Self {
+        let next_level = self.level + 1;
+        let dims = Self::covering_dims(next_level, placement, volume_dims);
+        let s = self.spacing();
+        let next_position = |j: i32| match placement {
+            SamplePlacement::CellCentred => 2.0 * s * (j as f32 + 0.5),
+            SamplePlacement::Vertex => 2.0 * s * j as f32,
+        };
+        // Per axis and new index: (this level's index, weight) taps.
+        let taps = |j: i32| -> Vec<(i32, f32)> {
+            let p = next_position(j);
+            let u = match self.placement {
+                SamplePlacement::CellCentred => p / s - 0.5,
+                SamplePlacement::Vertex => p / s,
+            };
+            if u.fract() == 0.0 {
+                let c = u as i32;
+                vec![(c - 1, 0.25), (c, 0.5), (c + 1, 0.25)]
+            } else {
+                let c = u.floor() as i32;
+                vec![(c, 0.5), (c + 1, 0.5)]
+            }
+        };
+        let taps_x: Vec<Vec<(i32, f32)>> = (0..dims.x as i32).map(taps).collect();
+        let mut values = Vec::with_capacity(dims.x as usize * dims.y as usize * dims.z as usize);
+        for z in 0..dims.z as i32 {
+            let tz = taps(z);
+            for y in 0..dims.y as i32 {
+                let ty = taps(y);
+                for tx in &taps_x {
+                    let mut sum = 0.0f64;
+                    for &(kz, wz) in &tz {
+                        for &(ky, wy) in &ty {
+                            for &(kx, wx) in tx {
+                                sum += f64::from(wx * wy * wz)
+                                    * f64::from(self.value(IVec3::new(kx, ky, kz)));
+                            }
+                        }
+                    }
+                    values.push(sum as f32);
+                }
+            }
+        }
+        Self {
+            level: next_level,
+            placement,
+            dims,
+            values,
+        }
+    }
+}
+
+/// A brick grid whose bricks are drawn at different levels, with every level's samples: the
+/// field of the module docs.
+#[derive(Clone, Debug)]
+pub struct LevelField<'a> {
+    brick_size: u32,
+    bricks: UVec3,
+    grids: &'a [LevelGrid],
+    brick_levels: &'a [Option<u32>],
+    coarser_bits: Vec<u32>,
+}
+
+impl<'a> LevelField<'a> {
+    /// The field of `grid`'s bricks at `brick_levels` (one per brick, linear index; `None` for a
+    /// brick that is not drawn) over the level grids `grids` (levels 0, 1, ... in order).
+    ///
+    /// Errors: no grids, grids out of order, more levels than the brick size allows
+    /// (`2^(levels - 1) <= n`), a brick-level count other than the brick count, a brick at a level
+    /// with no grid, or adjacent drawn bricks more than one level apart.
+    pub fn new(
+        grid: &BrickGrid,
+        grids: &'a [LevelGrid],
+        brick_levels: &'a [Option<u32>],
+    ) -> Result<Self, LevelFieldError> {
+        if grids.is_empty() {
+            return Err(LevelFieldError::NoLevels);
+        }
+        if let Some((index, g)) = grids
+            .iter()
+            .enumerate()
+            .find(|(i, g)| g.level as usize != *i)
+        {
+            return Err(LevelFieldError::LevelOrder {
+                index,
+                level: g.level,
+            });
+        }
+        let n = grid.brick_size();
+        if grids.len() > 31 || (1u32 << (grids.len() - 1)) > n {
+            return Err(LevelFieldError::TooManyLevels {
+                levels: grids.len(),
+                brick_size: n,
+            });
+        }
+        if brick_levels.len() != grid.brick_count() {
+            return Err(LevelFieldError::BrickLevelCount {
+                given: brick_levels.len(),
+                bricks: grid.brick_count(),
+            });
+        }
+        if let Some((brick, level)) = brick_levels
+            .iter()
+            .enumerate()
+            .find_map(|(i, l)| l.filter(|&l| l as usize >= grids.len()).map(|l| (i, l)))
+        {
+            return Err(LevelFieldError::UnknownLevel {
+                brick,
+                level,
+                levels: grids.len(),
+            });
+        }
+        if !check_level_rule_with(grid, |i| brick_levels[i]) {
+            return Err(LevelFieldError::LevelRule);
+        }
+        let coarser_bits = grid
+            .bricks()
+            .map(|b| coarser_neighbour_bits(grid, b, |i| brick_levels[i]))
+            .collect();
+        Ok(Self {
+            brick_size: n,
+            bricks: grid.bricks_per_axis(),
+            grids,
+            brick_levels,
+            coarser_bits,
+        })
+    }
+
+    /// The coarser bits of linear brick `i` (see [`coarser_neighbour_bits`]).
+    pub fn coarser_bits(&self, brick: usize) -> u32 {
+        self.coarser_bits[brick]
+    }
+
+    /// The level grids, levels 0, 1, ... in order.
+    pub fn grids(&self) -> &'a [LevelGrid] {
+        self.grids
+    }
+
+    /// Brick size `n` in hi-res voxels.
+    pub fn brick_size(&self) -> u32 {
+        self.brick_size
+    }
+
+    /// Bricks per axis.
+    pub fn bricks_per_axis(&self) -> UVec3 {
+        self.bricks
+    }
+
+    /// The level of linear brick `brick`, `None` when it is not drawn.
+    pub fn brick_level(&self, brick: usize) -> Option<u32> {
+        self.brick_levels[brick]
+    }
+
+    /// Whether a drawn brick of level `level` has hi-res point `p` in its closed box.
+    fn level_touches(&self, p: Vec3, level: u32) -> bool {
+        let n = self.brick_size as f32;
+        let last = self.bricks.as_ivec3() - IVec3::ONE;
+        // Per axis, the bricks whose closed span [n b, n (b + 1)] holds p.
+        let low = ((p / n).ceil().as_ivec3() - IVec3::ONE).clamp(IVec3::ZERO, last);
+        let high = (p / n).floor().as_ivec3().clamp(IVec3::ZERO, last);
+        for z in low.z..=high.z {
+            for y in low.y..=high.y {
+                for x in low.x..=high.x {
+                    let i =
+                        (x as u32 + self.bricks.x * (y as u32 + self.bricks.y * z as u32)) as usize;
+                    if self.brick_levels[i] == Some(level) {
+                        return true;
+                    }
+                }
+            }
+        }
+        false
+    }
+
+    /// Sample `j` of vertex level `level` after the skeleton fixup (module docs): the plain field
+    /// of level `level + 1` where a drawn brick of that level touches the sample's position, the
+    /// sample itself elsewhere. For a cell-centred level, or the coarsest, the sample itself.
+    pub fn fixed_up_sample(&self, level: u32, j: IVec3) -> f32 {
+        let own = &self.grids[level as usize];
+        let Some(coarser) = self.grids.get(level as usize + 1) else {
+            return own.value(j);
+        };
+        if own.placement != SamplePlacement::Vertex {
+            return own.value(j);
+        }
+        let p = j.as_vec3() * own.spacing();
+        if self.level_touches(p, level + 1) {
+            coarser.trilinear(p)
+        } else {
+            own.value(j)
+        }
+    }
+
+    /// The field as the cache draws it (module docs), or `None` in a brick that is not drawn: in
+    /// a brick of a vertex level the plain trilinear interpolation of the fixed-up samples
+    /// ([`LevelField::fixed_up_sample`]), in a brick of a cell-centred level the blend of
+    /// [`LevelField::sample`]. Equal to `sample(x, Transition::Smooth)` when every level above 0
+    /// is on vertices.
+    pub fn sample_fixed_up(&self, x: Vec3) -> Option<f32> {
+        let b = brick_of(x, self.brick_size, self.bricks);
+        let bi = (b.x as u32 + self.bricks.x * (b.y as u32 + self.bricks.y * b.z as u32)) as usize;
+        let level = self.brick_levels[bi]?;
+        let own = &self.grids[level as usize];
+        if own.placement != SamplePlacement::Vertex {
+            return self.sample(x, Transition::Smooth);
+        }
+        Some(trilinear(x / own.spacing(), |k| {
+            self.fixed_up_sample(level, k)
+        }))
+    }
+
+    /// The field at hi-res point `x`, or `None` in a brick that is not drawn.
+    pub fn sample(&self, x: Vec3, transition: Transition) -> Option<f32> {
+        let b = brick_of(x, self.brick_size, self.bricks);
+        let bi = (b.x as u32 + self.bricks.x * (b.y as u32 + self.bricks.y * b.z as u32)) as usize;
+        let level = self.brick_levels[bi]? as usize;
+        let own = &self.grids[level];
+        let bits = self.coarser_bits[bi];
+        if transition == Transition::Discontinuous || bits == 0 {
+            return Some(own.trilinear(x));
+        }
+        // bits != 0: a level-(k+1) neighbour exists, so its grid does too (checked in new).
+        let coarser = &self.grids[level + 1];
+        let origin = b.as_vec3() * self.brick_size as f32;
+        Some(blend_towards_coarser(
+            own,
+            coarser,
+            x - origin,
+            origin,
+            bits,
+            self.brick_size as f32,
+        ))
+    }
+}
+
+/// Trilinear interpolation at grid coordinate `u` (samples at integer coordinates) of the
+/// samples `value(k)`, in f64 with one rounding at the end.
+fn trilinear(u: Vec3, value: impl Fn(IVec3) -> f32) -> f32 {
+    let base = u.floor();
+    let f = (u - base).as_dvec3();
+    let b = base.as_ivec3();
+    let v = |d: IVec3| f64::from(value(b + d));
+    let lerp = |a: f64, c: f64, t: f64| a + (c - a) * t;
+    let c00 = lerp(v(IVec3::new(0, 0, 0)), v(IVec3::new(1, 0, 0)), f.x);
+    let c10 = lerp(v(IVec3::new(0, 1, 0)), v(IVec3::new(1, 1, 0)), f.x);
+    let c01 = lerp(v(IVec3::new(0, 0, 1)), v(IVec3::new(1, 0, 1)), f.x);
+    let c11 = lerp(v(IVec3::new(0, 1, 1)), v(IVec3::new(1, 1, 1)), f.x);
+    lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z) as f32
+}
+
+/// Band axes of local point `q` for a band of width `w` in a brick of size `n`: (band mask,
+/// sides, betas); `beta = 1` on the face, 0 on the sample plane `w` inside.
+pub fn level_band(q: Vec3, w: f32, n: f32) -> (u32, IVec3, Vec3) {
+    let mut mask = 0;
+    let mut side = IVec3::ZERO;
+    let mut beta = Vec3::ZERO;
+    for a in 0..3 {
+        if q[a] < w {
+            mask |= 1 << a;
+            side[a] = -1;
+            beta[a] = 1.0 - q[a] / w;
+        } else if q[a] > n - w {
+            mask |= 1 << a;
+            side[a] = 1;
+            beta[a] = 1.0 - (n - q[a]) / w;
+        }
+    }
+    (mask, side, beta)
+}
+
+/// The blend of the module docs inside a brick of level `own.level()` with coarser bits `bits`:
+/// `q` brick-local, `origin` the brick's hi-res origin.
+fn blend_towards_coarser(
+    own: &LevelGrid,
+    coarser: &LevelGrid,
+    q: Vec3,
+    origin: Vec3,
+    bits: u32,
+    n: f32,
+) -> f32 {
+    let w = own.band_width();
+    let (band_mask, side, beta) = level_band(q, w, n);
+    let active_mask = active_axes(bits, band_mask, side);
+    if active_mask == 0 {
+        return own.trilinear(origin + q);
+    }
+    let is_active = BVec3::new(
+        active_mask & 1 != 0,
+        active_mask & 2 != 0,
+        active_mask & 4 != 0,
+    );
+    let pick = |low: f32, high: f32| {
+        Vec3::new(
+            if side.x < 0 { low } else { high },
+            if side.y < 0 { low } else { high },
+            if side.z < 0 { low } else { high },
+        )
+    };
+    let face = pick(0.0, n);
+    let plane = pick(w, n - w);
+    let on_plane = Vec3::select(is_active, plane, q);
+    let active: Vec<usize> = (0..3).filter(|&a| is_active.test(a)).collect();
+    let mut sum = 0.0f64;
+    for subset in 0..1u32 << active.len() {
+        let mut on_face = BVec3::FALSE;
+        for (bit, &a) in active.iter().enumerate() {
+            on_face.set(a, subset >> bit & 1 != 0);
+        }
+        let weight: f64 = active
+            .iter()
+            .map(|&a| {
+                f64::from(if on_face.test(a) {
+                    beta[a]
+                } else {
+                    1.0 - beta[a]
+                })
+            })
+            .product();
+        let point = origin + Vec3::select(on_face, face, on_plane);
+        let s = on_face.bitmask();
+        let value = if s != 0 && feature_touches_low_res(bits, s, side) {
+            coarser.trilinear(point)
+        } else {
+            own.trilinear(point)
+        };
+        sum += weight * f64::from(value);
+    }
+    sum as f32
+}

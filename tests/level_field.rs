@@ -1,0 +1,394 @@
+//! The mixed-resolution field over any number of levels (issue 19): the CPU reference
+//! `mixvol::reference::LevelField`, its C0 construction at every level pair and boundary class,
+//! and the skeleton fixup that lets the cache draw transitions between vertex levels with a plain
+//! fetch.
+//!
+//! The continuity probe is the one of `tests/continuity.rs`: at a point p, the spread (max - min)
+//! of the field at p + eps * d over the 26 directions d. A C0 (Lipschitz) field keeps spread / eps
+//! bounded as eps shrinks; a jump keeps the spread finite. The discontinuous baseline must jump,
+//! so every continuity check can fail.
+
+mod common;
+
+use common::levels::{
+    boundary_classes, distance_plan, per_brick, probe_points, spread, textured_volume,
+    SMOOTH_RATIO_BOUND,
+};
+use common::Rng;
+use glam::{IVec3, UVec3, Vec3};
+use mixvol::bricks::{low_res_level, BrickGrid, DownsampleFilter, Level};
+use mixvol::cache::tables::{brick_neighbour_bits, coarser_neighbour_bits};
+use mixvol::cache::{BrickCache, CacheGeometry};
+use mixvol::reference::{
+    sample_mixed, sample_volume, LevelField, LevelFieldError, LevelGrid, ReferenceCache,
+    SamplePlacement,
+};
+use mixvol::scene::Transition;
+use mixvol::volume::{ScalarType, Volume, VoxelData};
+
+/// Brick size: four levels fit (`2^3 <= 16`).
+const N: u32 = 16;
+/// Levels of the pyramid the tests build.
+const LEVELS: u32 = 4;
+
+/// Checks the smooth field (both formulations) is Lipschitz at every probe point and, when
+/// `expect_jump`, that the discontinuous baseline jumps.
+fn check_continuity(
+    name: &str,
+    grid: &BrickGrid,
+    grids: &[LevelGrid],
+    levels: &[Option<u32>],
+    rng: &mut Rng,
+    expect_jump: bool,
+) {
+    let field = LevelField::new(grid, grids, levels).unwrap();
+    let points = probe_points(rng, grid.dims(), N, LEVELS, 2500);
+    let smooth = |x: Vec3| field.sample(x, Transition::Smooth);
+    let fixed_up = |x: Vec3| field.sample_fixed_up(x);
+    for (form, f) in [
+        ("blend", &smooth as &dyn Fn(Vec3) -> Option<f32>),
+        ("fixed-up", &fixed_up),
+    ] {
+        let (coarse, _) = spread(f, &points, 1e-2);
+        let (fine, worst) = spread(f, &points, 1e-4);
+        eprintln!("{name} ({form}): smooth spread/eps {coarse} (1e-2) {fine} (1e-4)");
+        assert!(
+            coarse < SMOOTH_RATIO_BOUND && fine < SMOOTH_RATIO_BOUND,
+            "{name} ({form}): the smooth field jumps: spread/eps {coarse} at 1e-2, {fine} at 1e-4 (spread {worst})"
+        );
+    }
+    let discontinuous = |x: Vec3| field.sample(x, Transition::Discontinuous);
+    let (_, worst) = spread(&discontinuous, &points, 1e-4);
+    eprintln!("{name}: discontinuous spread {worst} (1e-4)");
+    if expect_jump {
+        assert!(
+            worst > 1e-2,
+            "{name}: the discontinuous baseline should jump, largest spread {worst}"
+        );
+    }
+}
+
+/// The boundary classes of `tests/continuity.rs`, one level apart: the centre brick of a 3x3x3
+/// grid at `level`, the class at `level + 1`, the rest at `level`.
+#[test]
+fn every_level_pair_and_boundary_class_is_continuous() {
+    let mut rng = Rng(0x1e7e_1f1e_1d00_0001);
+    let volume = textured_volume(&mut rng, UVec3::splat(3 * N));
+    let grid = BrickGrid::new(volume.dims(), N).unwrap();
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let classes = boundary_classes();
+    for level in 0..LEVELS - 1 {
+        for (class, coarser) in &classes {
+            let levels = per_brick(UVec3::splat(3), |b| {
+                Some(if coarser(b) { level + 1 } else { level })
+            });
+            let name = format!("levels {level}-{}, {class}", level + 1);
+            check_continuity(&name, &grid, &grids, &levels, &mut rng, true);
+        }
+    }
+}
+
+/// A middle level is the fine side towards its coarser neighbours and the coarse side towards its
+/// finer ones: slabs of three consecutive levels, and a staircase of all four levels over a
+/// 4x4x4 grid (level = the largest brick coordinate) where every level meets both neighbours
+/// across faces, edges and corners.
+#[test]
+fn a_middle_level_is_continuous_towards_both_neighbours() {
+    let mut rng = Rng(0x1e7e_1f1e_1d00_0002);
+    let volume = textured_volume(&mut rng, UVec3::splat(3 * N));
+    let grid = BrickGrid::new(volume.dims(), N).unwrap();
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    for first in 0..LEVELS - 2 {
+        let levels = per_brick(UVec3::splat(3), |b| Some(first + b.x));
+        let name = format!("slabs {first}-{}-{}", first + 1, first + 2);
+        check_continuity(&name, &grid, &grids, &levels, &mut rng, true);
+        // The centre at the middle level, finer along one edge column, coarser along the
+        // opposite one (two bricks apart, so the rule holds).
+        let levels = per_brick(UVec3::splat(3), |b| {
+            Some(first + 1 + u32::from(b.x == 2 && b.y == 2) - u32::from(b.x == 0 && b.y == 0))
+        });
+        let name = format!("edge columns {first}-{}-{}", first + 1, first + 2);
+        check_continuity(&name, &grid, &grids, &levels, &mut rng, true);
+    }
+    let volume = textured_volume(&mut rng, UVec3::splat(4 * N));
+    let grid = BrickGrid::new(volume.dims(), N).unwrap();
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let levels = per_brick(UVec3::splat(4), |b| Some(b.max_element()));
+    check_continuity("staircase 0-1-2-3", &grid, &grids, &levels, &mut rng, true);
+}
+
+/// Random plans that keep the rule (level = Chebyshev distance from a random brick, shifted and
+/// clamped to the four levels), with undrawn bricks, on dims that are not multiples of the brick
+/// size.
+#[test]
+fn random_plans_over_four_levels_are_continuous_on_awkward_dims() {
+    let mut rng = Rng(0x1e7e_1f1e_1d00_0003);
+    let dims = UVec3::new(3 * N + 5, 2 * N + 3, 3 * N - 7);
+    let volume = textured_volume(&mut rng, dims);
+    let grid = BrickGrid::new(dims, N).unwrap();
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let bricks = grid.bricks_per_axis();
+    for plan in 0..8 {
+        let centre = UVec3::new(
+            rng.below(bricks.x),
+            rng.below(bricks.y),
+            rng.below(bricks.z),
+        )
+        .as_ivec3();
+        let shift = rng.below(2) as i32 - 1;
+        let mut levels = distance_plan(bricks, centre, shift, LEVELS);
+        if rng.below(4) == 0 {
+            let hole = rng.below(levels.len() as u32) as usize;
+            levels[hole] = None;
+        }
+        check_continuity(
+            &format!("random plan {plan}"),
+            &grid,
+            &grids,
+            &levels,
+            &mut rng,
+            false,
+        );
+    }
+}
+
+/// The skeleton fixup draws the blend: in every brick of a vertex level, the plain trilinear
+/// interpolation of the fixed-up samples equals the band blend (the ray-caster needs no blend
+/// beyond level 0), and the fixup changes samples (it is not vacuous).
+#[test]
+fn fixed_up_vertex_levels_draw_the_blend() {
+    let mut rng = Rng(0x1e7e_1f1e_1d00_0004);
+    let volume = textured_volume(&mut rng, UVec3::splat(4 * N));
+    let grid = BrickGrid::new(volume.dims(), N).unwrap();
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let levels = per_brick(UVec3::splat(4), |b| Some(b.max_element()));
+    let field = LevelField::new(&grid, &grids, &levels).unwrap();
+    let mut largest_change = 0.0f32;
+    for p in probe_points(&mut rng, grid.dims(), N, LEVELS, 20_000) {
+        let blend = field.sample(p, Transition::Smooth).unwrap();
+        let fixed_up = field.sample_fixed_up(p).unwrap();
+        assert!(
+            (blend - fixed_up).abs() < 1e-5,
+            "{p}: blend {blend}, fixed-up samples {fixed_up}"
+        );
+        let brick = grid.linear_index((p / N as f32).floor().as_uvec3().min(UVec3::splat(3)));
+        let level = field.brick_level(brick).unwrap();
+        largest_change = largest_change.max((fixed_up - grids[level as usize].trilinear(p)).abs());
+    }
+    assert!(
+        largest_change > 1e-2,
+        "the fixup should change the field near coarser bricks (largest change {largest_change})"
+    );
+    // A sample that touches a coarser brick holds the coarser field; one that does not keeps its
+    // own value. Level-1 sample (8, 8, 8) at position (16, 16, 16) is the corner shared by the
+    // bricks with coordinates 0 and 1: levels 0 and 1 only.
+    let corner = IVec3::splat(8);
+    assert_eq!(field.fixed_up_sample(1, corner), grids[1].value(corner));
+    // Level 1 sample (16, 8, 8) at position (32, 16, 16) touches brick (2, 1, 1), level 2.
+    let on_face = IVec3::new(16, 8, 8);
+    let coarse = grids[2].trilinear(on_face.as_vec3() * 2.0);
+    assert_eq!(field.fixed_up_sample(1, on_face), coarse);
+    assert_ne!(coarse, grids[1].value(on_face));
+}
+
+/// With all bricks at one level the field is that level's trilinear field, whatever the
+/// transition; level 0 is the single-resolution field, level 1 the library's `Mean2` low-res
+/// level, and every level reproduces a linear function away from the volume's clamped edge.
+#[test]
+fn each_level_alone_is_the_trilinear_field_of_its_own_samples() {
+    let mut rng = Rng(0x1e7e_1f1e_1d00_0005);
+    let dims = UVec3::new(2 * N + 3, N + 5, 2 * N);
+    let volume = textured_volume(&mut rng, dims);
+    let grid = BrickGrid::new(dims, N).unwrap();
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let points = probe_points(&mut rng, dims, N, LEVELS, 2000);
+    for level in 0..LEVELS {
+        let levels = vec![Some(level); grid.brick_count()];
+        let field = LevelField::new(&grid, &grids, &levels).unwrap();
+        for &p in &points {
+            let own = grids[level as usize].trilinear(p);
+            for transition in [Transition::Smooth, Transition::Discontinuous] {
+                assert_eq!(
+                    field.sample(p, transition),
+                    Some(own),
+                    "level {level} at {p}"
+                );
+            }
+            assert_eq!(field.sample_fixed_up(p), Some(own), "level {level} at {p}");
+        }
+    }
+    for &p in &points {
+        let single = sample_volume(&volume, p / dims.as_vec3());
+        assert!(
+            (grids[0].trilinear(p) - single).abs() < 1e-6,
+            "level 0 at {p}"
+        );
+    }
+    let low = low_res_level(&volume, DownsampleFilter::Mean2);
+    assert_eq!(grids[1].dims(), low.dims);
+    assert_eq!(grids[1].placement(), SamplePlacement::Vertex);
+    for (i, (a, b)) in grids[1].values().iter().zip(&low.values).enumerate() {
+        assert!((a - b).abs() < 1e-6, "level 1 sample {i}: {a} vs {b}");
+    }
+
+    // A ramp: a level-k sample is exact once its support (about 2^k voxels each way) misses the
+    // clamped edge, so points 2^(k+1) inside see only exact samples.
+    let dims = UVec3::new(48, 40, 36);
+    let slope = Vec3::new(0.013, -0.007, 0.004);
+    let linear = |p: Vec3| 0.5 + slope.dot(p);
+    let data = (0..dims.x * dims.y * dims.z)
+        .map(|i| {
+            let v = UVec3::new(i % dims.x, (i / dims.x) % dims.y, i / (dims.x * dims.y));
+            linear(v.as_vec3() + Vec3::splat(0.5))
+        })
+        .collect();
+    let ramp = Volume::new(dims, Vec3::ONE, VoxelData::F32(data)).unwrap();
+    let ramp_grids = LevelGrid::vertex_pyramid(&ramp, LEVELS);
+    let margin = (1 << LEVELS) as f32;
+    for _ in 0..2000 {
+        let p = Vec3::new(rng.unit(), rng.unit(), rng.unit()) * (dims.as_vec3() - 2.0 * margin)
+            + Vec3::splat(margin);
+        for g in &ramp_grids {
+            let v = g.trilinear(p);
+            assert!(
+                (v - linear(p)).abs() < 1e-5,
+                "level {} at {p}: {v} vs {}",
+                g.level(),
+                linear(p)
+            );
+        }
+    }
+}
+
+/// With two levels the field is the brick cache's (`reference::mixed`): the same values, smooth
+/// and discontinuous, for random plans with undrawn bricks; the coarser bits are the 26
+/// neighbour bits.
+#[test]
+fn two_levels_equal_the_brick_cache_field() {
+    let mut rng = Rng(0x1e7e_1f1e_1d00_0006);
+    let dims = UVec3::new(3 * N + 3, 2 * N + 5, 2 * N + 1);
+    let volume = textured_volume(&mut rng, dims);
+    let grid = BrickGrid::new(dims, N).unwrap();
+    let grids = LevelGrid::vertex_pyramid(&volume, 2);
+    let geometry = CacheGeometry::choose(N, 4, 1 << 30, 4096, grid.brick_count() as u32).unwrap();
+    for plan in 0..6 {
+        let levels: Vec<Level> = (0..grid.brick_count())
+            .map(|_| match rng.below(7) {
+                0 => Level::Absent,
+                1..=3 => Level::Lo,
+                _ => Level::Hi,
+            })
+            .collect();
+        let numbers: Vec<Option<u32>> = levels
+            .iter()
+            .map(|l| match l {
+                Level::Hi => Some(0),
+                Level::Lo => Some(1),
+                Level::Absent => None,
+            })
+            .collect();
+        let field = LevelField::new(&grid, &grids, &numbers).unwrap();
+        for (i, brick) in grid.bricks().enumerate() {
+            let bits = brick_neighbour_bits(&grid, brick, |j| levels[j]);
+            assert_eq!(field.coarser_bits(i), bits, "plan {plan} brick {brick}");
+            let numbered = coarser_neighbour_bits(&grid, brick, |j| numbers[j]);
+            assert_eq!(numbered, bits, "plan {plan} brick {brick}");
+        }
+        let mut cache = BrickCache::new(grid, geometry).unwrap();
+        cache.update(&levels).unwrap();
+        for transition in [Transition::Smooth, Transition::Discontinuous] {
+            let reference = ReferenceCache::build(
+                &volume,
+                DownsampleFilter::Mean2,
+                &cache,
+                ScalarType::F32,
+                transition,
+            )
+            .unwrap();
+            let view = reference.view();
+            for p in probe_points(&mut rng, dims, N, LEVELS, 3000) {
+                let from_cache = sample_mixed(&view, p, transition);
+                let from_levels = field.sample(p, transition);
+                match (from_cache, from_levels) {
+                    (Some(a), Some(b)) => assert!(
+                        (a - b).abs() < 2e-5,
+                        "plan {plan} {transition:?} at {p}: cache {a}, levels {b}"
+                    ),
+                    (a, b) => assert_eq!(a, b, "plan {plan} at {p}: drawn in one, not the other"),
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn bad_level_inputs_are_refused_with_what_was_expected() {
+    let mut rng = Rng(0x1e7e_1f1e_1d00_0007);
+    let volume = textured_volume(&mut rng, UVec3::new(3 * N, N, N));
+    let grid = BrickGrid::new(volume.dims(), N).unwrap();
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+
+    // Level 0 next to level 2 breaks the rule; 0-1-2 keeps it.
+    let err = LevelField::new(&grid, &grids, &[Some(0), Some(2), Some(2)]).unwrap_err();
+    assert_eq!(err, LevelFieldError::LevelRule);
+    assert!(LevelField::new(&grid, &grids, &[Some(0), Some(1), Some(2)]).is_ok());
+    // An undrawn brick between them separates them.
+    assert!(LevelField::new(&grid, &grids, &[Some(0), None, Some(3)]).is_ok());
+
+    let err = LevelField::new(&grid, &grids[..2], &[Some(0), Some(1), Some(2)]).unwrap_err();
+    assert_eq!(
+        err,
+        LevelFieldError::UnknownLevel {
+            brick: 2,
+            level: 2,
+            levels: 2
+        }
+    );
+    let err = LevelField::new(&grid, &grids, &[Some(0)]).unwrap_err();
+    assert_eq!(
+        err,
+        LevelFieldError::BrickLevelCount {
+            given: 1,
+            bricks: 3
+        }
+    );
+    assert_eq!(
+        LevelField::new(&grid, &[], &[None, None, None]).unwrap_err(),
+        LevelFieldError::NoLevels
+    );
+    let err = LevelField::new(&grid, &grids[1..], &[None, None, None]).unwrap_err();
+    assert_eq!(err, LevelFieldError::LevelOrder { index: 0, level: 1 });
+    // Five levels need bricks of 16 voxels per coarsest sample: 2^4 = 16 <= 16 is fine, six are
+    // too many.
+    let deep = LevelGrid::vertex_pyramid(&volume, 6);
+    let err = LevelField::new(&grid, &deep, &[None, None, None]).unwrap_err();
+    assert_eq!(
+        err,
+        LevelFieldError::TooManyLevels {
+            levels: 6,
+            brick_size: N
+        }
+    );
+    assert!(err.to_string().contains("2^5"), "{err}");
+
+    let err = LevelGrid::new(
+        1,
+        SamplePlacement::Vertex,
+        UVec3::new(2, 2, 2),
+        vec![0.0; 7],
+    )
+    .unwrap_err();
+    assert_eq!(
+        err,
+        LevelFieldError::SampleCount {
+            level: 1,
+            dims: [2, 2, 2],
+            values: 7,
+            expected: 8
+        }
+    );
+    assert!(matches!(
+        LevelGrid::new(0, SamplePlacement::CellCentred, UVec3::new(0, 2, 2), vec![]),
+        Err(LevelFieldError::InvalidGrid { level: 0, .. })
+    ));
+}

@@ -37,7 +37,8 @@ void main() {
         values[i] = vec2(0.0, 0.0);
         return;
     }
-    uint bits = neighbour_bits[bi];
+    // Only a level-0 brick (t_w = 1) blends (as look_up_brick in raycast.frag).
+    uint bits = entry.w == 1.0 ? neighbour_bits[bi] : 0u;
     vec3 lo = vec3(-1.0);
     vec3 hi = vec3(n + 1.0);
 #ifdef SMOOTH_TRANSITIONS

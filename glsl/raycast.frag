@@ -74,7 +74,9 @@ void look_up_brick(vec3 x, float n, ivec3 bricks, out ivec3 b, out vec4 entry, o
     int bi = b.x + bricks.x * (b.y + bricks.y * b.z);
     entry = layout_entries[bi];
 #ifdef SMOOTH_TRANSITIONS
-    bits = neighbour_bits[bi];
+    // Only a level-0 brick (t_w = 1) blends; the coarser bits of a coarser brick in the
+    // three-level cache serve its skeleton fixup alone.
+    bits = entry.w == 1.0 ? neighbour_bits[bi] : 0u;
 #else
     bits = 0u;
 #endif

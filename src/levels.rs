@@ -6,20 +6,22 @@
 //! compute dispatches, and the field read with the ray-caster's own functions (`probe.comp`
 //! includes `mixed.glsl`, unchanged: a level-0 brick blends, a coarser one is a plain fetch).
 //!
-//! The residency planner does not drive three levels yet (issue 19, item 4); this type lets the
-//! tests check the GPU cache, its fixups and its sampling against
-//! [`crate::reference::LevelReferenceCache`] and the field of the levels.
+//! The residency planner does not drive three levels yet (issue 19, item 4): the host sets the
+//! levels, through [`crate::renderer::VolumeSource::Levels`] to render, or through
+//! [`GpuLevelCache`] to read the field and the cache back (the tests check the GPU cache, its
+//! fixups and its sampling against [`crate::reference::LevelReferenceCache`]).
 
 use crate::cache::{ThreeLevelGeometry, EMPTY};
 use crate::error::{Error, Result};
 use crate::gpu::{
-    CacheRegion, CacheTables, FieldProbe, GpuBrickCache, GpuContext, SlotPacking, StagingUpload,
-    Submitter,
+    CacheRegion, CacheTables, DeviceShared, FieldProbe, GpuBrickCache, GpuContext, SlotPacking,
+    StagingUpload, Submitter,
 };
 use crate::reference::{LevelField, LevelReferenceCache};
 use crate::scene::Transition;
 use crate::volume::ScalarType;
 use glam::{UVec3, Vec3};
+use std::sync::Arc;
 
 /// A three-level brick cache (f32 texels) on the GPU, filled and fixed up once.
 pub struct GpuLevelCache {
@@ -30,6 +32,110 @@ pub struct GpuLevelCache {
     _staging: StagingUpload,
     dims: UVec3,
     brick_size: u32,
+}
+
+/// A three-level GPU cache with its update staged (recorded by [`GpuBrickCache::record`]), and
+/// what the ray-caster variant needs to know of its plan.
+pub(crate) struct StagedLevels {
+    /// The cache, its bricks, tables and fixup jobs staged.
+    pub(crate) gpu: GpuBrickCache,
+    /// Some level-0 brick has a level-1 neighbour: the ray-caster's blend is needed.
+    pub(crate) any_transition: bool,
+    /// Some drawn brick is coarser than level 0.
+    pub(crate) any_coarse: bool,
+    /// Some brick is not drawn.
+    pub(crate) any_absent: bool,
+}
+
+/// Creates a three-level cache of `geometry` for `frames` frame slots and stages the drawn
+/// bricks of `field` (packed, not fixed up: the GPU runs the fixups when smooth), the tables and
+/// the jobs of both fixups.
+pub(crate) fn stage_three_level(
+    shared: &Arc<DeviceShared>,
+    field: &LevelField,
+    geometry: &ThreeLevelGeometry,
+    smooth: bool,
+    frames: u32,
+) -> Result<StagedLevels> {
+    let packed = LevelReferenceCache::build(field, geometry, Transition::Discontinuous)
+        .map_err(|e| Error::InvalidInput(e.to_string()))?;
+    let brick_count = packed.places.len();
+    let slot_count = geometry.slot_count() as usize;
+    let mut gpu = GpuBrickCache::new(
+        shared,
+        ScalarType::F32,
+        1,
+        geometry.extent(),
+        brick_count,
+        slot_count,
+        frames,
+        smooth,
+        SlotPacking::ThreeLevel,
+    )?;
+    let mut boxes = Vec::new();
+    let mut reverse = vec![[EMPTY; crate::bricks::SUB_SLOTS_PER_SLOT as usize]; slot_count];
+    let mut fixup_slots = Vec::new();
+    let mut skeleton_bricks = Vec::new();
+    let mut any_coarse = false;
+    for (brick, place) in packed.places.iter().enumerate() {
+        let Some(place) = *place else {
+            continue;
+        };
+        let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
+        let extent = UVec3::splat(geometry.stored_edge(place.level));
+        let mut texels = Vec::with_capacity(extent.element_product() as usize);
+        for z in 0..extent.z {
+            for y in 0..extent.y {
+                for x in 0..extent.x {
+                    let t = (origin + UVec3::new(x, y, z)).as_ivec3();
+                    texels.push(packed.image.texel(t));
+                }
+            }
+        }
+        boxes.push((
+            origin,
+            extent,
+            bytemuck::cast_slice::<f32, u8>(&texels).to_vec(),
+        ));
+        let index = brick as u32;
+        let has_coarser = packed.neighbours[brick] != 0;
+        if place.level == 0 {
+            reverse[place.slot as usize][0] = index;
+            if has_coarser {
+                fixup_slots.push(place.slot);
+            }
+        } else {
+            any_coarse = true;
+            if has_coarser {
+                skeleton_bricks.push(index);
+            }
+        }
+    }
+    let regions: Vec<CacheRegion> = boxes
+        .iter()
+        .map(|(origin, extent, bytes)| CacheRegion {
+            origin: *origin,
+            extent: *extent,
+            bytes,
+        })
+        .collect();
+    let tables = CacheTables {
+        layout: &packed.layout,
+        neighbours: &packed.neighbours,
+        reverse: &reverse,
+        fixup_slots: &fixup_slots,
+        skeleton_bricks: &skeleton_bricks,
+        bricks: packed.bricks,
+        brick_size: packed.brick_size,
+        slots_per_axis: geometry.slots_per_axis(),
+    };
+    gpu.stage(&regions, &tables)?;
+    Ok(StagedLevels {
+        gpu,
+        any_transition: !fixup_slots.is_empty(),
+        any_coarse,
+        any_absent: packed.places.iter().any(Option::is_none),
+    })
 }
 
 impl GpuLevelCache {
@@ -47,78 +153,8 @@ impl GpuLevelCache {
         transition: Transition,
     ) -> Result<Self> {
         let shared = &ctx.shared;
-        // The cache as uploaded: packed, no fixup (the GPU runs it).
-        let packed = LevelReferenceCache::build(field, geometry, Transition::Discontinuous)
-            .map_err(|e| Error::InvalidInput(e.to_string()))?;
         let smooth = transition == Transition::Smooth;
-        let brick_count = packed.places.len();
-        let slot_count = geometry.slot_count() as usize;
-        let mut gpu = GpuBrickCache::new(
-            shared,
-            ScalarType::F32,
-            1,
-            geometry.extent(),
-            brick_count,
-            slot_count,
-            1,
-            smooth,
-            SlotPacking::ThreeLevel,
-        )?;
-
-        let mut boxes = Vec::new();
-        let mut reverse = vec![[EMPTY; crate::bricks::SUB_SLOTS_PER_SLOT as usize]; slot_count];
-        let mut fixup_slots = Vec::new();
-        let mut skeleton_bricks = Vec::new();
-        for (brick, place) in packed.places.iter().enumerate() {
-            let Some(place) = *place else {
-                continue;
-            };
-            let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
-            let extent = UVec3::splat(geometry.stored_edge(place.level));
-            let mut texels = Vec::with_capacity(extent.element_product() as usize);
-            for z in 0..extent.z {
-                for y in 0..extent.y {
-                    for x in 0..extent.x {
-                        let t = (origin + UVec3::new(x, y, z)).as_ivec3();
-                        texels.push(packed.image.texel(t));
-                    }
-                }
-            }
-            boxes.push((
-                origin,
-                extent,
-                bytemuck::cast_slice::<f32, u8>(&texels).to_vec(),
-            ));
-            let index = brick as u32;
-            let has_coarser = packed.neighbours[brick] != 0;
-            if place.level == 0 {
-                reverse[place.slot as usize][0] = index;
-                if has_coarser {
-                    fixup_slots.push(place.slot);
-                }
-            } else if has_coarser {
-                skeleton_bricks.push(index);
-            }
-        }
-        let regions: Vec<CacheRegion> = boxes
-            .iter()
-            .map(|(origin, extent, bytes)| CacheRegion {
-                origin: *origin,
-                extent: *extent,
-                bytes,
-            })
-            .collect();
-        let tables = CacheTables {
-            layout: &packed.layout,
-            neighbours: &packed.neighbours,
-            reverse: &reverse,
-            fixup_slots: &fixup_slots,
-            skeleton_bricks: &skeleton_bricks,
-            bricks: packed.bricks,
-            brick_size: packed.brick_size,
-            slots_per_axis: geometry.slots_per_axis(),
-        };
-        gpu.stage(&regions, &tables)?;
+        let mut gpu = stage_three_level(shared, field, geometry, smooth, 1)?.gpu;
         let mut submitter = Submitter::new(shared)?;
         let mut staging = StagingUpload::new(shared, "three-level bricks");
         submitter.run(|_, cmd| gpu.record(cmd, 0, &mut staging, None).map(|_| ()))?;
@@ -129,7 +165,7 @@ impl GpuLevelCache {
             submitter,
             _staging: staging,
             dims: field.grids()[0].dims(),
-            brick_size: packed.brick_size,
+            brick_size: field.brick_size(),
         })
     }
 

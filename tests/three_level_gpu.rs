@@ -7,12 +7,16 @@ mod common;
 
 use common::levels::{distance_plan, per_brick, probe_points, textured_volume};
 use common::Rng;
-use glam::{UVec3, Vec3};
-use mixvol::bricks::BrickGrid;
-use mixvol::cache::ThreeLevelGeometry;
+use glam::{IVec3, UVec3, Vec3, Vec4};
+use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
+use mixvol::cache::{CacheGeometry, ThreeLevelGeometry};
 use mixvol::levels::GpuLevelCache;
-use mixvol::reference::{sample_mixed, LevelField, LevelGrid, LevelReferenceCache};
-use mixvol::scene::Transition;
+use mixvol::optics::{TfPreset, TransferFunction};
+use mixvol::reference::{self, sample_mixed, LevelField, LevelGrid, LevelReferenceCache};
+use mixvol::renderer::{Frame, MixedConfig, Renderer, TargetFormat, VolumeSource};
+use mixvol::scene::{Camera, RenderSettings, Transition};
+use mixvol::volume::{ScalarType, SyntheticField, Volume};
+use std::sync::Arc;
 
 const N: u32 = 8;
 const LEVELS: u32 = 3;
@@ -148,6 +152,157 @@ fn the_gpu_three_level_cache_matches_its_cpu_mirror() {
                     ),
                 }
             }
+        }
+    }
+    common::finish(ctx);
+}
+
+/// A frame of `volume` drawn at `levels` through a three-level source with a cache budget of
+/// `budget` bytes, and the CPU reference frame over the CPU mirror of that cache.
+fn render_levels(
+    ctx: &mixvol::gpu::GpuContext,
+    volume: &Volume,
+    levels: &[Option<u32>],
+    transition: Transition,
+    budget: u64,
+) -> (Frame, Vec<Vec4>) {
+    let grid = BrickGrid::new(volume.dims(), N).unwrap();
+    let grids = LevelGrid::vertex_pyramid(volume, LEVELS);
+    let field = LevelField::new(&grid, &grids, levels).unwrap();
+    let tf = TransferFunction::preset(TfPreset::Bands);
+    let camera = Camera::perspective(Vec3::new(1.0, 0.8, 1.5), Vec3::ZERO, 40.0);
+    let settings = RenderSettings {
+        samples_per_voxel: 1.5,
+        ..RenderSettings::default()
+    };
+    let mut renderer = Renderer::new(ctx, TargetFormat::Rgba32Float).unwrap();
+    renderer.set_transfer_function(&tf).unwrap();
+    renderer
+        .set_source(VolumeSource::Levels {
+            volume,
+            levels,
+            config: config(transition, budget),
+        })
+        .unwrap();
+    let frame = renderer.render(&camera, &settings, 80, 80).unwrap();
+    let params = renderer.params(&camera, &settings, 80, 80).unwrap();
+    // The reference's cache geometry need not be the renderer's: the field does not depend on
+    // where the bricks sit.
+    let geometry = ThreeLevelGeometry::new(N, UVec3::splat(64)).unwrap();
+    let cpu = LevelReferenceCache::build(&field, &geometry, transition).unwrap();
+    let expected = reference::render_mixed(&cpu.view(), transition, &tf, &params);
+    (frame, expected)
+}
+
+fn config(transition: Transition, budget: u64) -> MixedConfig {
+    MixedConfig {
+        brick_size: N,
+        filter: DownsampleFilter::Mean2,
+        cache_budget_bytes: budget,
+        transition,
+    }
+}
+
+/// The tolerances of `tests/gpu_mixed.rs` for a GPU frame against the reference, and a frame
+/// that shows the volume.
+fn assert_matches(name: &str, frame: &Frame, expected: &[Vec4]) {
+    let d = common::diff(&frame.pixels, expected, 1.0 / 255.0);
+    eprintln!("{name}: {d:?}");
+    assert!(
+        d.mean < 1e-3 && d.max < 6.0 / 255.0 && d.large_fraction < 0.005,
+        "{name}: GPU frame differs from the reference: {d:?}"
+    );
+    let covered = expected.iter().filter(|p| p.w > 0.05).count();
+    assert!(
+        covered > expected.len() / 10,
+        "{name}: the frame shows the volume"
+    );
+}
+
+/// Frames of a three-level source (`VolumeSource::Levels`) match the CPU reference ray-caster
+/// over the CPU mirror of the cache, smooth and discontinuous; the smooth variant compiles the
+/// blend only when a level-0 brick meets level 1, and the transitions change the frame.
+#[test]
+fn three_level_frames_match_the_reference() {
+    let ctx = common::validated_context();
+    {
+        let volume = SyntheticField::MarschnerLobb
+            .generate(UVec3::new(4 * N, 3 * N, 4 * N), ScalarType::F32)
+            .unwrap();
+        let grid = BrickGrid::new(volume.dims(), N).unwrap();
+        let bricks = grid.bricks_per_axis();
+        let staircase = per_brick(bricks, |b| Some(b.max_element().min(2)));
+        let coarse_only = per_brick(bricks, |b| Some(1 + u32::from(b.x >= 2)));
+        let mut with_hole = staircase.clone();
+        with_hole[grid.brick_count() - 1] = None;
+        for (name, levels) in [
+            ("staircase", &staircase),
+            ("levels 1-2 only", &coarse_only),
+            ("staircase with a hole", &with_hole),
+        ] {
+            let mut frames = Vec::new();
+            for transition in [Transition::Smooth, Transition::Discontinuous] {
+                let (frame, expected) = render_levels(&ctx, &volume, levels, transition, 64 << 20);
+                let blends = transition == Transition::Smooth && name != "levels 1-2 only";
+                assert_eq!(frame.variant.smooth_transitions, blends, "{name}");
+                assert_eq!(
+                    frame.variant.absent_bricks,
+                    levels.contains(&None),
+                    "{name}"
+                );
+                assert_matches(&format!("{name} {transition:?}"), &frame, &expected);
+                frames.push(frame.pixels);
+            }
+            let d = common::diff(&frames[0], &frames[1], 1.0 / 255.0);
+            assert!(
+                d.max > 2.0 / 255.0,
+                "{name}: the transitions should change the frame ({d:?})"
+            );
+        }
+    }
+    common::finish(ctx);
+}
+
+/// A volume whose two-level representation does not fit the cache budget (even every brick at
+/// level 1 needs more slots than the largest two-level image within it) renders whole with three
+/// levels: no brick absent, and the reference frame.
+#[test]
+fn a_volume_too_big_for_two_levels_renders_whole_with_three() {
+    let ctx = common::validated_context();
+    {
+        let volume = SyntheticField::MarschnerLobb
+            .generate(UVec3::new(8 * N, 8 * N, 4 * N), ScalarType::F32)
+            .unwrap();
+        let grid = BrickGrid::new(volume.dims(), N).unwrap();
+        // 32^3 f32 texels: 27 two-level slots (216 level-1 bricks) for 256 bricks.
+        let budget = 32 * 32 * 32 * 4;
+        let two_level =
+            CacheGeometry::choose(N, 4, budget, 4096, grid.brick_count() as u32).unwrap();
+        assert!((two_level.slot_count() as usize) * 8 < grid.brick_count());
+        let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
+        renderer
+            .set_source(VolumeSource::Mixed {
+                volume: Arc::new(volume.clone()),
+                config: config(Transition::Smooth, budget),
+            })
+            .unwrap();
+        let all_low = vec![Level::Lo; grid.brick_count()];
+        assert!(
+            renderer.set_levels(&all_low).is_err(),
+            "two levels cannot draw every brick in this budget"
+        );
+        drop(renderer);
+
+        // Level 0 on the volume's face, level 1 around it, level 2 elsewhere: 8 slots.
+        let levels = distance_plan(grid.bricks_per_axis(), IVec3::new(0, 4, 1), 0, LEVELS);
+        for transition in [Transition::Smooth, Transition::Discontinuous] {
+            let (frame, expected) = render_levels(&ctx, &volume, &levels, transition, budget);
+            assert!(!frame.variant.absent_bricks, "every brick is drawn");
+            assert_matches(
+                &format!("too big for two levels, {transition:?}"),
+                &frame,
+                &expected,
+            );
         }
     }
     common::finish(ctx);

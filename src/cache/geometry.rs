@@ -81,68 +81,14 @@ impl CacheGeometry {
         slots_wanted: u32,
     ) -> Result<Self, CacheError> {
         check_brick_size(brick_size)?;
-        if bytes_per_texel == 0 {
-            return Err(CacheError::ZeroBytesPerTexel);
-        }
-        let slot_edge = hi_res_brick_extent(brick_size);
-        let min_axis = slot_edge.next_power_of_two();
-        let max_axis = if max_dim_3d == 0 {
-            0
-        } else {
-            1u32 << (31 - max_dim_3d.leading_zeros())
-        };
-        if max_axis < min_axis {
-            return Err(CacheError::SlotExceedsMaxDimension {
-                slot_edge,
-                max_dim_3d,
-            });
-        }
-        let bytes = |e: [u32; 3]| -> u128 {
-            e.iter().map(|&c| u128::from(c)).product::<u128>() * u128::from(bytes_per_texel)
-        };
-        let smallest = [min_axis; 3];
-        if bytes(smallest) > u128::from(byte_budget) {
-            return Err(CacheError::BudgetBelowOneSlot {
-                extent: smallest,
-                needed_bytes: bytes(smallest),
-                byte_budget,
-            });
-        }
-        let axes: Vec<u32> = std::iter::successors(Some(min_axis), |&c| c.checked_mul(2))
-            .take_while(|&c| c <= max_axis)
-            .collect();
-        let wanted = u128::from(slots_wanted.max(1));
-        // Rank key, smallest wins (see the doc comment).
-        type Key = (u8, u128, u128, u32, Reverse<u32>, Reverse<u32>);
-        let mut best: Option<(Key, [u32; 3])> = None;
-        for &x in &axes {
-            for &y in &axes {
-                for &z in &axes {
-                    let e = [x, y, z];
-                    if bytes(e) > u128::from(byte_budget) {
-                        continue;
-                    }
-                    let texels = u128::from(x) * u128::from(y) * u128::from(z);
-                    let slots = e
-                        .iter()
-                        .map(|&c| u128::from(c / slot_edge))
-                        .product::<u128>();
-                    let fewer_slots = u128::MAX - slots;
-                    let cubic = x.max(y).max(z);
-                    let key: Key = if slots >= wanted {
-                        (0, texels, fewer_slots, cubic, Reverse(x), Reverse(y))
-                    } else {
-                        (1, fewer_slots, texels, cubic, Reverse(x), Reverse(y))
-                    };
-                    if best.as_ref().is_none_or(|(k, _)| key < *k) {
-                        best = Some((key, e));
-                    }
-                }
-            }
-        }
-        // `smallest` fits the budget and the dimension limit, so `best` is always set.
-        let extent = best.map_or(smallest, |(_, e)| e);
-        Self::new(brick_size, UVec3::from_array(extent))
+        let extent = choose_extent(
+            hi_res_brick_extent(brick_size),
+            bytes_per_texel,
+            byte_budget,
+            max_dim_3d,
+            slots_wanted,
+        )?;
+        Self::new(brick_size, extent)
     }
 
     /// Brick size `n` in hi-res voxels.
@@ -226,6 +172,77 @@ impl CacheGeometry {
             )),
         }
     }
+}
+
+/// The cache extent [`CacheGeometry::choose`] picks for slots of `slot_edge` texels (its doc
+/// comment gives the rule); shared with [`super::ThreeLevelGeometry::choose`].
+pub(super) fn choose_extent(
+    slot_edge: u32,
+    bytes_per_texel: u32,
+    byte_budget: u64,
+    max_dim_3d: u32,
+    slots_wanted: u32,
+) -> Result<UVec3, CacheError> {
+    if bytes_per_texel == 0 {
+        return Err(CacheError::ZeroBytesPerTexel);
+    }
+    let min_axis = slot_edge.next_power_of_two();
+    let max_axis = if max_dim_3d == 0 {
+        0
+    } else {
+        1u32 << (31 - max_dim_3d.leading_zeros())
+    };
+    if max_axis < min_axis {
+        return Err(CacheError::SlotExceedsMaxDimension {
+            slot_edge,
+            max_dim_3d,
+        });
+    }
+    let bytes = |e: [u32; 3]| -> u128 {
+        e.iter().map(|&c| u128::from(c)).product::<u128>() * u128::from(bytes_per_texel)
+    };
+    let smallest = [min_axis; 3];
+    if bytes(smallest) > u128::from(byte_budget) {
+        return Err(CacheError::BudgetBelowOneSlot {
+            extent: smallest,
+            needed_bytes: bytes(smallest),
+            byte_budget,
+        });
+    }
+    let axes: Vec<u32> = std::iter::successors(Some(min_axis), |&c| c.checked_mul(2))
+        .take_while(|&c| c <= max_axis)
+        .collect();
+    let wanted = u128::from(slots_wanted.max(1));
+    // Rank key, smallest wins (see the doc comment).
+    type Key = (u8, u128, u128, u32, Reverse<u32>, Reverse<u32>);
+    let mut best: Option<(Key, [u32; 3])> = None;
+    for &x in &axes {
+        for &y in &axes {
+            for &z in &axes {
+                let e = [x, y, z];
+                if bytes(e) > u128::from(byte_budget) {
+                    continue;
+                }
+                let texels = u128::from(x) * u128::from(y) * u128::from(z);
+                let slots = e
+                    .iter()
+                    .map(|&c| u128::from(c / slot_edge))
+                    .product::<u128>();
+                let fewer_slots = u128::MAX - slots;
+                let cubic = x.max(y).max(z);
+                let key: Key = if slots >= wanted {
+                    (0, texels, fewer_slots, cubic, Reverse(x), Reverse(y))
+                } else {
+                    (1, fewer_slots, texels, cubic, Reverse(x), Reverse(y))
+                };
+                if best.as_ref().is_none_or(|(k, _)| key < *k) {
+                    best = Some((key, e));
+                }
+            }
+        }
+    }
+    // `smallest` fits the budget and the dimension limit, so `best` is always set.
+    Ok(UVec3::from_array(best.map_or(smallest, |(_, e)| e)))
 }
 
 /// Checks `n` is a power of two in `MIN_BRICK_SIZE..=MAX_BRICK_SIZE`.

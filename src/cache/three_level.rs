@@ -78,6 +78,33 @@ impl ThreeLevelGeometry {
         })
     }
 
+    /// Chooses the cache extent for `slots_wanted` slots of `(n + 4)^3` texels under the same
+    /// rule as [`super::CacheGeometry::choose`] (powers of two up to `max_dim_3d`, at most
+    /// `byte_budget` bytes; the smallest that holds the slots, else the one with the most).
+    ///
+    /// Errors: invalid brick size, zero `bytes_per_texel`, a slot larger than `max_dim_3d`, or a
+    /// budget that cannot hold even one slot.
+    pub fn choose(
+        brick_size: u32,
+        bytes_per_texel: u32,
+        byte_budget: u64,
+        max_dim_3d: u32,
+        slots_wanted: u32,
+    ) -> Result<Self, CacheError> {
+        if !brick_size.is_power_of_two() || !(MIN_BRICK_SIZE..=MAX_BRICK_SIZE).contains(&brick_size)
+        {
+            return Err(CacheError::InvalidBrickSize { size: brick_size });
+        }
+        let extent = super::geometry::choose_extent(
+            brick_size + 4,
+            bytes_per_texel,
+            byte_budget,
+            max_dim_3d,
+            slots_wanted,
+        )?;
+        Self::new(brick_size, extent)
+    }
+
     /// Brick size `n` in hi-res voxels.
     pub fn brick_size(&self) -> u32 {
         self.brick_size
@@ -212,6 +239,24 @@ mod tests {
                 assert!(covered.iter().all(|&c| c == 1), "n {n} level {level}");
             }
         }
+    }
+
+    #[test]
+    fn choose_finds_the_slots_wanted_within_the_budget() {
+        let geometry = ThreeLevelGeometry::choose(32, 4, 1 << 30, 4096, 100).unwrap();
+        assert!(geometry.slot_count() >= 100);
+        assert!(geometry.extent().element_product() as u64 * 4 <= 1 << 30);
+        // Capped by the budget: the most slots that fit.
+        let capped = ThreeLevelGeometry::choose(32, 4, 64 * 64 * 64 * 4, 4096, 100).unwrap();
+        assert_eq!(capped.slot_count(), 1);
+        assert!(matches!(
+            ThreeLevelGeometry::choose(32, 4, 1000, 4096, 1),
+            Err(CacheError::BudgetBelowOneSlot { .. })
+        ));
+        assert_eq!(
+            ThreeLevelGeometry::choose(24, 4, 1 << 30, 4096, 1),
+            Err(CacheError::InvalidBrickSize { size: 24 })
+        );
     }
 
     #[test]

@@ -332,6 +332,10 @@ impl VolumePass {
                 m.gpu.sync_slot(frame)?;
                 (m.gpu.image.view, Some(m.gpu.slot_tables(frame)))
             }
+            Source::Levels(l) => {
+                l.gpu.sync_slot(frame)?;
+                (l.gpu.image.view, Some(l.gpu.slot_tables(frame)))
+            }
             Source::None => {
                 return Err(Error::InvalidInput(
                     "render called before set_source".into(),

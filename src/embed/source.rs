@@ -6,16 +6,18 @@ use super::VolumePass;
 use crate::bricks::{
     fallback_levels, BrickSource, DownsampleFilter, Level, RgbaBrickSource, VolumeBrickSource,
 };
-use crate::cache::{BrickCache, CacheGeometry};
+use crate::cache::{BrickCache, CacheGeometry, ThreeLevelGeometry, THREE_LEVELS};
 use crate::error::{Error, Result};
 use crate::gpu::{Access, TimestampPool};
 use crate::gpu::{
     CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image, ImageDesc, SlotPacking,
 };
 use crate::gpu::{RaycastVariant, StagingUpload};
+use crate::levels::stage_three_level;
 use crate::lod::BrickGeometry;
 use crate::optics::SamplingModel;
 use crate::plan::ResidencyPlanner;
+use crate::reference::{LevelField, LevelGrid};
 use crate::scene::Transition;
 use crate::scene::{Camera, RayFeatures, RaycastParams, RenderSettings};
 use crate::volume::{RgbaVolume, ScalarType, Volume};
@@ -52,6 +54,22 @@ pub enum VolumeSource<'a> {
         /// `brick_size` and `filter` must match the source's.
         config: MixedConfig,
     },
+    /// A volume drawn through the paper's three-level brick cache (`(n+4)^3` slots holding one
+    /// level-0, eight level-1 or sixty-four level-2 bricks; `crate::cache::ThreeLevelGeometry`)
+    /// at the levels the host gives, one per brick: `Some(0)` full resolution, `Some(1)` and
+    /// `Some(2)` the vertex levels of `crate::reference::LevelGrid::vertex_pyramid`, `None` not
+    /// drawn. Face-, edge- and corner-adjacent drawn bricks must differ by at most one level.
+    /// The cache holds f32 texels; `config.filter` is not used (the levels are the vertex
+    /// pyramid). The planner does not drive it: renders draw these levels until the next
+    /// `set_source` (issue 19).
+    Levels {
+        /// The volume.
+        volume: &'a Volume,
+        /// The level of each brick (linear brick index).
+        levels: &'a [Option<u32>],
+        /// Brick size, cache budget and transition.
+        config: MixedConfig,
+    },
     /// A pre-classified volume through the brick cache, its bricks holding the weighted channels
     /// for `model` (an RGBA32F cache image; the fixup and the smooth transition blend work on all
     /// four channels alike). Frames must ask for the same sampling model (set the source again
@@ -80,6 +98,16 @@ impl std::fmt::Debug for VolumeSource<'_> {
             VolumeSource::Bricks { source, config } => f
                 .debug_struct("Bricks")
                 .field("dims", &source.grid().dims())
+                .field("config", config)
+                .finish(),
+            VolumeSource::Levels {
+                volume,
+                levels,
+                config,
+            } => f
+                .debug_struct("Levels")
+                .field("dims", &volume.dims())
+                .field("bricks", &levels.len())
                 .field("config", config)
                 .finish(),
             VolumeSource::RgbaMixed {
@@ -186,11 +214,26 @@ pub(crate) struct MixedState {
     stale_borders: Vec<bool>,
 }
 
+/// A volume drawn at host-set levels through the three-level cache ([`VolumeSource::Levels`]).
+pub(crate) struct LevelState {
+    pub(crate) gpu: GpuBrickCache,
+    dims: UVec3,
+    spacing: glam::Vec3,
+    value_range: (f32, f32),
+    is_float: bool,
+    brick_size: u32,
+    transition: Transition,
+    any_transition: bool,
+    any_coarse: bool,
+    any_absent: bool,
+}
+
 /// The source on the GPU.
 pub(super) enum Source {
     None,
     Single(SingleVolume),
     Mixed(Box<MixedState>),
+    Levels(Box<LevelState>),
 }
 
 fn volume_format(scalar: ScalarType) -> vk::Format {
@@ -264,7 +307,7 @@ impl Source {
                     *model = Some(features.sampling_model);
                 }
             }
-            Source::Single(_) | Source::None => {}
+            Source::Single(_) | Source::Levels(_) | Source::None => {}
         }
         Ok(())
     }
@@ -295,6 +338,10 @@ impl Source {
             }
             Source::Mixed(m) => {
                 let recorded = m.gpu.record(cmd, frame, staging, Some(queries))?;
+                Ok((recorded, recorded))
+            }
+            Source::Levels(l) => {
+                let recorded = l.gpu.record(cmd, frame, staging, Some(queries))?;
                 Ok((recorded, recorded))
             }
             Source::None => Ok((false, false)),
@@ -358,6 +405,11 @@ impl VolumePass {
             VolumeSource::Bricks { source, config } => {
                 self.attach_brick_source(source, config, None)
             }
+            VolumeSource::Levels {
+                volume,
+                levels,
+                config,
+            } => self.attach_levels(volume, levels, config),
             VolumeSource::RgbaMixed {
                 volume,
                 model,
@@ -368,6 +420,56 @@ impl VolumePass {
                 self.attach_brick_source(Arc::new(source), config, Some(model))
             }
         }
+    }
+
+    /// Draws `volume` at `levels` through a new three-level cache ([`VolumeSource::Levels`]).
+    fn attach_levels(
+        &mut self,
+        volume: &Volume,
+        levels: &[Option<u32>],
+        config: MixedConfig,
+    ) -> Result<()> {
+        let grid = crate::bricks::BrickGrid::new(volume.dims(), config.brick_size)?;
+        let grids = LevelGrid::vertex_pyramid(volume, THREE_LEVELS);
+        let field = LevelField::new(&grid, &grids, levels)
+            .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
+        let mut per_level = [0u32; THREE_LEVELS as usize];
+        for level in levels.iter().flatten() {
+            per_level[*level as usize] += 1;
+        }
+        let slots: u32 = (0..THREE_LEVELS)
+            .map(|k| per_level[k as usize].div_ceil(ThreeLevelGeometry::bricks_per_slot(k)))
+            .sum();
+        let geometry = ThreeLevelGeometry::choose(
+            config.brick_size,
+            4,
+            config.cache_budget_bytes,
+            self.ctx.shared.info.limits.max_image_dimension3_d,
+            slots,
+        )?;
+        // Free the old source's GPU memory before allocating the new cache.
+        self.source = Source::None;
+        let smooth = config.transition == Transition::Smooth;
+        let staged = stage_three_level(
+            &self.ctx.shared,
+            &field,
+            &geometry,
+            smooth,
+            self.desc.frames_in_flight,
+        )?;
+        self.source = Source::Levels(Box::new(LevelState {
+            gpu: staged.gpu,
+            dims: volume.dims(),
+            spacing: volume.spacing(),
+            value_range: volume.value_range(),
+            is_float: volume.scalar_type() == ScalarType::F32,
+            brick_size: config.brick_size,
+            transition: config.transition,
+            any_transition: staged.any_transition,
+            any_coarse: staged.any_coarse,
+            any_absent: staged.any_absent,
+        }));
+        Ok(())
     }
 
     /// Refuses a `config` whose cache geometry cannot exist (a slot beyond the device's 3D image
@@ -595,6 +697,17 @@ impl VolumePass {
                     ..features
                 },
             },
+            Source::Levels(l) => RaycastVariant {
+                mixed_resolution: true,
+                smooth_transitions: l.transition == Transition::Smooth && l.any_transition,
+                absent_bricks: l.any_absent,
+                host_depth,
+                rgba_volume: false,
+                features: RayFeatures {
+                    tricubic: features.tricubic && !l.any_coarse,
+                    ..features
+                },
+            },
             Source::Single(v) => RaycastVariant {
                 host_depth,
                 features: RayFeatures {
@@ -664,6 +777,17 @@ impl VolumePass {
                 height,
             )?
             .with_cache(m.config.brick_size, m.gpu.extent)),
+            Source::Levels(l) => Ok(RaycastParams::for_dims(
+                l.dims,
+                l.spacing,
+                l.value_range,
+                l.is_float,
+                camera,
+                settings,
+                width,
+                height,
+            )?
+            .with_cache(l.brick_size, l.gpu.extent)),
         }
     }
 }

@@ -19,6 +19,7 @@ pub mod shared_defs;
 mod upload;
 mod validation;
 
+pub(crate) use context::DeviceShared;
 pub use context::{
     ContextDesc, DeviceInfo, GpuContext, HostDevice, MemoryLimits, ALLOCATION_CAP_ENV,
 };

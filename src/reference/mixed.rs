@@ -215,7 +215,13 @@ pub fn sample_mixed(mv: &MixedVolume, x: Vec3, transition: Transition) -> Option
     if entry[3] == 0.0 {
         return None;
     }
-    let bits = mv.neighbours[bi];
+    // Only a level-0 brick (t_w = 1) blends: the coarser bits of a coarser brick in the
+    // three-level cache serve its skeleton fixup alone (`look_up_brick` in raycast.frag).
+    let bits = if entry[3] == 1.0 {
+        mv.neighbours[bi]
+    } else {
+        0
+    };
     let n = mv.brick_size as f32;
     let (lo, hi) = band_bounds(bits, n);
     Some(sample_in_brick(

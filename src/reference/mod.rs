@@ -425,11 +425,11 @@ pub fn render_scene(
 }
 
 /// The features a mixed-resolution frame runs with: those of `settings`, without tricubic
-/// reconstruction while a low-res brick is resident (as the GPU pass decides).
+/// reconstruction while a brick coarser than level 0 is resident (as the GPU pass decides).
 pub fn mixed_features(mv: &MixedVolume, settings: &RenderSettings) -> RayFeatures {
     let features = settings.features();
     RayFeatures {
-        tricubic: features.tricubic && !mv.layout.iter().any(|e| e[3] == 0.5),
+        tricubic: features.tricubic && !mv.layout.iter().any(|e| e[3] != 0.0 && e[3] != 1.0),
         ..features
     }
 }

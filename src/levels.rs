@@ -34,11 +34,9 @@ pub struct GpuLevelCache {
     brick_size: u32,
 }
 
-/// A three-level GPU cache with its update staged (recorded by [`GpuBrickCache::record`]), and
-/// what the ray-caster variant needs to know of its plan.
-pub(crate) struct StagedLevels {
-    /// The cache, its bricks, tables and fixup jobs staged.
-    pub(crate) gpu: GpuBrickCache,
+/// What the ray-caster variant needs to know of a staged three-level plan.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub(crate) struct LevelPlanFacts {
     /// Some level-0 brick has a level-1 neighbour: the ray-caster's blend is needed.
     pub(crate) any_transition: bool,
     /// Some drawn brick is coarser than level 0.
@@ -47,31 +45,39 @@ pub(crate) struct StagedLevels {
     pub(crate) any_absent: bool,
 }
 
-/// Creates a three-level cache of `geometry` for `frames` frame slots and stages the drawn
-/// bricks of `field` (packed, not fixed up: the GPU runs the fixups when smooth), the tables and
-/// the jobs of both fixups.
-pub(crate) fn stage_three_level(
+/// A GPU cache of `geometry` with the three-level packing, f32 texels, tables for
+/// `brick_count` bricks and `frames` frame slots.
+pub(crate) fn new_three_level_cache(
     shared: &Arc<DeviceShared>,
-    field: &LevelField,
     geometry: &ThreeLevelGeometry,
+    brick_count: usize,
     smooth: bool,
     frames: u32,
-) -> Result<StagedLevels> {
-    let packed = LevelReferenceCache::build(field, geometry, Transition::Discontinuous)
-        .map_err(|e| Error::InvalidInput(e.to_string()))?;
-    let brick_count = packed.places.len();
-    let slot_count = geometry.slot_count() as usize;
-    let mut gpu = GpuBrickCache::new(
+) -> Result<GpuBrickCache> {
+    GpuBrickCache::new(
         shared,
         ScalarType::F32,
         1,
         geometry.extent(),
         brick_count,
-        slot_count,
+        geometry.slot_count() as usize,
         frames,
         smooth,
         SlotPacking::ThreeLevel,
-    )?;
+    )
+}
+
+/// Stages the drawn bricks of `field` into `gpu` (a cache of `geometry`): every drawn brick
+/// packed (not fixed up: the GPU runs the fixups when the cache is smooth), the tables and the
+/// jobs of both fixups. The next [`GpuBrickCache::record`] uploads them.
+pub(crate) fn stage_three_level(
+    gpu: &mut GpuBrickCache,
+    field: &LevelField,
+    geometry: &ThreeLevelGeometry,
+) -> Result<LevelPlanFacts> {
+    let packed = LevelReferenceCache::build(field, geometry, Transition::Discontinuous)
+        .map_err(|e| Error::InvalidInput(e.to_string()))?;
+    let slot_count = geometry.slot_count() as usize;
     let mut boxes = Vec::new();
     let mut reverse = vec![[EMPTY; crate::bricks::SUB_SLOTS_PER_SLOT as usize]; slot_count];
     let mut fixup_slots = Vec::new();
@@ -130,8 +136,7 @@ pub(crate) fn stage_three_level(
         slots_per_axis: geometry.slots_per_axis(),
     };
     gpu.stage(&regions, &tables)?;
-    Ok(StagedLevels {
-        gpu,
+    Ok(LevelPlanFacts {
         any_transition: !fixup_slots.is_empty(),
         any_coarse,
         any_absent: packed.places.iter().any(Option::is_none),
@@ -154,7 +159,9 @@ impl GpuLevelCache {
     ) -> Result<Self> {
         let shared = &ctx.shared;
         let smooth = transition == Transition::Smooth;
-        let mut gpu = stage_three_level(shared, field, geometry, smooth, 1)?.gpu;
+        let brick_count = field.bricks_per_axis().element_product() as usize;
+        let mut gpu = new_three_level_cache(shared, geometry, brick_count, smooth, 1)?;
+        stage_three_level(&mut gpu, field, geometry)?;
         let mut submitter = Submitter::new(shared)?;
         let mut staging = StagingUpload::new(shared, "three-level bricks");
         submitter.run(|_, cmd| gpu.record(cmd, 0, &mut staging, None).map(|_| ()))?;

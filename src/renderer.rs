@@ -222,6 +222,14 @@ impl Renderer {
         Ok(report)
     }
 
+    /// Moves a three-level source ([`VolumeSource::Levels`]) to `levels` (see
+    /// [`VolumePass::set_brick_levels`]): uploads every drawn brick, rewrites the tables, runs
+    /// both fixups and waits.
+    pub fn set_brick_levels(&mut self, levels: &[Option<u32>]) -> Result<()> {
+        self.pass.set_brick_levels(levels)?;
+        self.flush()
+    }
+
     /// Stages a residency change without submitting it: the next [`Renderer::render`] records
     /// the uploads and the fixup in its own command buffer (so the frame's timings include them).
     /// Renders no longer plan residency from the camera, as with [`Renderer::set_levels`].

@@ -307,3 +307,77 @@ fn a_volume_too_big_for_two_levels_renders_whole_with_three() {
     }
     common::finish(ctx);
 }
+
+/// Residency changes across all three levels on one renderer stay validation-clean and keep
+/// matching the reference; a plan that breaks the rule or needs more slots than the cache has is
+/// refused and leaves the drawn frame as it was.
+#[test]
+fn residency_changes_across_three_levels_stay_clean() {
+    let ctx = common::validated_context();
+    {
+        let mut rng = Rng(0x3_1e7e_6a00_0002);
+        let volume = SyntheticField::MarschnerLobb
+            .generate(UVec3::new(4 * N, 4 * N, 3 * N), ScalarType::F32)
+            .unwrap();
+        let grid = BrickGrid::new(volume.dims(), N).unwrap();
+        let bricks = grid.bricks_per_axis();
+        let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+        let tf = TransferFunction::preset(TfPreset::Bands);
+        let camera = Camera::perspective(Vec3::new(1.2, 0.9, 1.4), Vec3::ZERO, 40.0);
+        let settings = RenderSettings::default();
+        let (w, h) = (40, 40);
+        // 64K f32 texels hold at most 25 slots of (n+4)^3 (64 x 64 x 16): fewer than the 48
+        // bricks at level 0.
+        let budget = 64 * 64 * 16 * 4;
+        let first = per_brick(bricks, |_| Some(2));
+        let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
+        renderer.set_transfer_function(&tf).unwrap();
+        renderer
+            .set_source(VolumeSource::Levels {
+                volume: &volume,
+                levels: &first,
+                config: config(Transition::Smooth, budget),
+            })
+            .unwrap();
+        let geometry = ThreeLevelGeometry::new(N, UVec3::splat(64)).unwrap();
+        let mut seen = [false; 3];
+        for change in 0..40 {
+            let centre = UVec3::new(
+                rng.below(bricks.x),
+                rng.below(bricks.y),
+                rng.below(bricks.z),
+            );
+            let mut levels = distance_plan(bricks, centre.as_ivec3(), rng.below(2) as i32, LEVELS);
+            if rng.below(3) == 0 {
+                let hole = rng.below(levels.len() as u32) as usize;
+                levels[hole] = None;
+            }
+            for level in levels.iter().flatten() {
+                seen[*level as usize] = true;
+            }
+            renderer.set_brick_levels(&levels).unwrap();
+            let frame = renderer.render(&camera, &settings, w, h).unwrap();
+            if change % 8 == 7 {
+                let field = LevelField::new(&grid, &grids, &levels).unwrap();
+                let cpu =
+                    LevelReferenceCache::build(&field, &geometry, Transition::Smooth).unwrap();
+                let params = renderer.params(&camera, &settings, w, h).unwrap();
+                let expected =
+                    reference::render_mixed(&cpu.view(), Transition::Smooth, &tf, &params);
+                assert_matches(&format!("change {change}"), &frame, &expected);
+
+                // Refused plans: level 0 next to level 2, and every brick at level 0 (48 slots).
+                let mut broken = levels.clone();
+                let at = levels.iter().position(|l| *l == Some(2)).unwrap();
+                broken[at] = Some(0);
+                assert!(renderer.set_brick_levels(&broken).is_err());
+                let all_fine = vec![Some(0); grid.brick_count()];
+                assert!(renderer.set_brick_levels(&all_fine).is_err());
+                let again = renderer.render(&camera, &settings, w, h).unwrap();
+                assert_eq!(again.pixels, frame.pixels, "a refused plan changes nothing");
+            }
+        }
+        assert_eq!(seen, [true; 3], "the changes visit every level");
+    }
+    common::finish(ctx);
+}

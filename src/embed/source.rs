@@ -13,7 +13,7 @@ use crate::gpu::{
     CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image, ImageDesc, SlotPacking,
 };
 use crate::gpu::{RaycastVariant, StagingUpload};
-use crate::levels::stage_three_level;
+use crate::levels::{new_three_level_cache, stage_three_level, LevelPlanFacts};
 use crate::lod::BrickGeometry;
 use crate::optics::SamplingModel;
 use crate::plan::ResidencyPlanner;
@@ -217,15 +217,29 @@ pub(crate) struct MixedState {
 /// A volume drawn at host-set levels through the three-level cache ([`VolumeSource::Levels`]).
 pub(crate) struct LevelState {
     pub(crate) gpu: GpuBrickCache,
+    /// The brick grid, every level's samples and the cache geometry (a new plan is packed from
+    /// them).
+    grid: crate::bricks::BrickGrid,
+    grids: Vec<LevelGrid>,
+    geometry: ThreeLevelGeometry,
     dims: UVec3,
     spacing: glam::Vec3,
     value_range: (f32, f32),
     is_float: bool,
     brick_size: u32,
     transition: Transition,
-    any_transition: bool,
-    any_coarse: bool,
-    any_absent: bool,
+    facts: LevelPlanFacts,
+}
+
+impl LevelState {
+    /// Stages `levels`: checks the plan (rule, levels, slots) first, so a refused plan leaves
+    /// the drawn one as it is.
+    fn stage(&mut self, levels: &[Option<u32>]) -> Result<()> {
+        let field = LevelField::new(&self.grid, &self.grids, levels)
+            .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
+        self.facts = stage_three_level(&mut self.gpu, &field, &self.geometry)?;
+        Ok(())
+    }
 }
 
 /// The source on the GPU.
@@ -423,6 +437,7 @@ impl VolumePass {
     }
 
     /// Draws `volume` at `levels` through a new three-level cache ([`VolumeSource::Levels`]).
+    /// The cache holds as many slots as the budget allows, up to every brick at level 0.
     fn attach_levels(
         &mut self,
         volume: &Volume,
@@ -430,46 +445,61 @@ impl VolumePass {
         config: MixedConfig,
     ) -> Result<()> {
         let grid = crate::bricks::BrickGrid::new(volume.dims(), config.brick_size)?;
-        let grids = LevelGrid::vertex_pyramid(volume, THREE_LEVELS);
-        let field = LevelField::new(&grid, &grids, levels)
-            .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
-        let mut per_level = [0u32; THREE_LEVELS as usize];
-        for level in levels.iter().flatten() {
-            per_level[*level as usize] += 1;
-        }
-        let slots: u32 = (0..THREE_LEVELS)
-            .map(|k| per_level[k as usize].div_ceil(ThreeLevelGeometry::bricks_per_slot(k)))
-            .sum();
         let geometry = ThreeLevelGeometry::choose(
             config.brick_size,
             4,
             config.cache_budget_bytes,
             self.ctx.shared.info.limits.max_image_dimension3_d,
-            slots,
+            u32::try_from(grid.brick_count()).unwrap_or(u32::MAX),
         )?;
+        let grids = LevelGrid::vertex_pyramid(volume, THREE_LEVELS);
+        // The plan is checked before the cache is allocated.
+        LevelField::new(&grid, &grids, levels)
+            .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
         // Free the old source's GPU memory before allocating the new cache.
         self.source = Source::None;
-        let smooth = config.transition == Transition::Smooth;
-        let staged = stage_three_level(
+        let gpu = new_three_level_cache(
             &self.ctx.shared,
-            &field,
             &geometry,
-            smooth,
+            grid.brick_count(),
+            config.transition == Transition::Smooth,
             self.desc.frames_in_flight,
         )?;
-        self.source = Source::Levels(Box::new(LevelState {
-            gpu: staged.gpu,
+        let mut state = LevelState {
+            gpu,
+            grid,
+            grids,
+            geometry,
             dims: volume.dims(),
             spacing: volume.spacing(),
             value_range: volume.value_range(),
             is_float: volume.scalar_type() == ScalarType::F32,
             brick_size: config.brick_size,
             transition: config.transition,
-            any_transition: staged.any_transition,
-            any_coarse: staged.any_coarse,
-            any_absent: staged.any_absent,
-        }));
+            facts: LevelPlanFacts {
+                any_transition: false,
+                any_coarse: false,
+                any_absent: true,
+            },
+        };
+        state.stage(levels)?;
+        self.source = Source::Levels(Box::new(state));
         Ok(())
+    }
+
+    /// Moves a three-level source ([`VolumeSource::Levels`]) to `levels` (one per brick, the
+    /// rule kept): every drawn brick is packed and staged again with the new tables, and the next
+    /// [`VolumePass::record`] uploads them (one copy command, one region each) and runs both
+    /// fixups. Errors: another kind of source, a plan that breaks the one-level rule or names a
+    /// level past 2, or one that needs more slots than the cache has; the drawn plan is then
+    /// unchanged.
+    pub fn set_brick_levels(&mut self, levels: &[Option<u32>]) -> Result<()> {
+        let Source::Levels(state) = &mut self.source else {
+            return Err(Error::InvalidInput(
+                "set_brick_levels needs a three-level source (VolumeSource::Levels)".into(),
+            ));
+        };
+        state.stage(levels)
     }
 
     /// Refuses a `config` whose cache geometry cannot exist (a slot beyond the device's 3D image
@@ -699,12 +729,12 @@ impl VolumePass {
             },
             Source::Levels(l) => RaycastVariant {
                 mixed_resolution: true,
-                smooth_transitions: l.transition == Transition::Smooth && l.any_transition,
-                absent_bricks: l.any_absent,
+                smooth_transitions: l.transition == Transition::Smooth && l.facts.any_transition,
+                absent_bricks: l.facts.any_absent,
                 host_depth,
                 rgba_volume: false,
                 features: RayFeatures {
-                    tricubic: features.tricubic && !l.any_coarse,
+                    tricubic: features.tricubic && !l.facts.any_coarse,
                     ..features
                 },
             },

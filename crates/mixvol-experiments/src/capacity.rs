@@ -6,8 +6,10 @@
 //! - [`Scheme::TwoLevel`], the one `mixvol` builds: `(n+2)^3` slots holding one level-0 brick or
 //!   eight `(n/2+1)^3` level-1 bricks. Its slot and sub-slot extents are read from the library
 //!   ([`hi_res_brick_extent`], [`low_res_brick_extent`], [`SUB_SLOTS_PER_SLOT`]).
-//! - [`Scheme::ThreeLevel`], Beyer et al. §3.1 (not built yet): `(n+4)^3` slots holding one
-//!   level-0 brick, eight `(n/2+2)^3` level-1 bricks or sixty-four `(n/4+1)^3` level-2 bricks.
+//! - [`Scheme::ThreeLevel`], Beyer et al. §3.1, which `mixvol` builds too
+//!   ([`mixvol::cache::ThreeLevelGeometry`], drawn through `VolumeSource::Levels`): `(n+4)^3`
+//!   slots holding one level-0 brick, eight `(n/2+2)^3` level-1 bricks or sixty-four
+//!   `(n/4+1)^3` level-2 bricks. Its slot and sub-slot extents are read from the library too.
 //!
 //! The cache is an image with a power of two texels on every axis, at most `max_dim_3d`
 //! (`maxImageDimension3D`) each, under a byte budget, and holds whole slots only, as
@@ -16,6 +18,7 @@
 //! slot).
 
 use mixvol::bricks::{hi_res_brick_extent, low_res_brick_extent, SUB_SLOTS_PER_SLOT};
+use mixvol::cache::{ThreeLevelGeometry, THREE_LEVELS};
 use std::fmt::Write as _;
 
 /// A way of packing brick levels into cache slots.
@@ -23,7 +26,8 @@ use std::fmt::Write as _;
 pub enum Scheme {
     /// `(n+2)^3` slots: one level-0 brick or eight level-1 bricks (built).
     TwoLevel,
-    /// `(n+4)^3` slots: one level-0, eight level-1 or 64 level-2 bricks (the paper's §3.1).
+    /// `(n+4)^3` slots: one level-0, eight level-1 or 64 level-2 bricks (the paper's §3.1;
+    /// built).
     ThreeLevel,
 }
 
@@ -35,7 +39,7 @@ impl Scheme {
     pub fn name(self) -> &'static str {
         match self {
             Scheme::TwoLevel => "two levels, (n+2)^3 slots (built)",
-            Scheme::ThreeLevel => "three levels, (n+4)^3 slots (paper §3.1, not built)",
+            Scheme::ThreeLevel => "three levels, (n+4)^3 slots (paper §3.1, built)",
         }
     }
 
@@ -43,7 +47,7 @@ impl Scheme {
     pub fn slot_edge(self, n: u32) -> u32 {
         match self {
             Scheme::TwoLevel => hi_res_brick_extent(n),
-            Scheme::ThreeLevel => n + 4,
+            Scheme::ThreeLevel => three_level(n).slot_edge(),
         }
     }
 
@@ -55,9 +59,27 @@ impl Scheme {
                 (hi_res_brick_extent(n), 1),
                 (low_res_brick_extent(n), SUB_SLOTS_PER_SLOT),
             ],
-            Scheme::ThreeLevel => vec![(n + 4, 1), (n / 2 + 2, 8), (n / 4 + 1, 64)],
+            Scheme::ThreeLevel => {
+                let geometry = three_level(n);
+                (0..THREE_LEVELS)
+                    .map(|k| {
+                        (
+                            geometry.sub_slot_edge(k),
+                            ThreeLevelGeometry::bricks_per_slot(k),
+                        )
+                    })
+                    .collect()
+            }
         }
     }
+}
+
+/// The library's three-level geometry for bricks of `n` voxels (one slot; only its slot and
+/// sub-slot extents are read). `n` is a power of two of at least 4, as everywhere here.
+fn three_level(n: u32) -> ThreeLevelGeometry {
+    let edge = (n + 4).next_power_of_two();
+    ThreeLevelGeometry::new(n, glam::UVec3::splat(edge))
+        .expect("a power-of-two brick size of at least 4 has a three-level slot")
 }
 
 /// What one level of a scheme costs.

@@ -1,7 +1,7 @@
 //! The capacity report's figures: the slot packings hold their bricks exactly, the slot search
 //! finds what the library's cache layout finds, and the capacities follow.
 
-use mixvol::cache::CacheGeometry;
+use mixvol::cache::{CacheGeometry, ThreeLevelGeometry};
 use mixvol_experiments::capacity::{capacity, level_costs, most_slots, Scheme};
 
 #[test]
@@ -35,8 +35,9 @@ fn every_level_fills_its_slot_exactly() {
 
 #[test]
 fn the_slot_search_finds_as_many_slots_as_the_cache_layout() {
-    // `CacheGeometry::choose` asked for more slots than fit returns the extent with the most
-    // slots: the same count (and texels) as `most_slots` for the two-level slot edge.
+    // `CacheGeometry::choose` and `ThreeLevelGeometry::choose` asked for more slots than fit
+    // return the extent with the most slots: the same count (and texels) as `most_slots` for
+    // their slot edges.
     for n in [8, 16, 32, 64] {
         for (budget, max_dim) in [
             (1u64 << 20, 2048),
@@ -46,21 +47,30 @@ fn the_slot_search_finds_as_many_slots_as_the_cache_layout() {
             (1 << 31, 16384),
         ] {
             for bytes_per_texel in [1, 2] {
-                let geometry = CacheGeometry::choose(n, bytes_per_texel, budget, max_dim, u32::MAX);
-                let found = most_slots(
-                    Scheme::TwoLevel.slot_edge(n),
-                    bytes_per_texel,
-                    budget,
-                    max_dim,
-                );
-                match (geometry, found) {
-                    (Ok(g), Some((extent, slots))) => {
-                        assert_eq!(u64::from(g.slot_count()), slots, "n {n}, budget {budget}");
-                        let texels: u64 = extent.iter().map(|&c| u64::from(c)).product();
-                        assert_eq!(g.texel_count(), texels, "n {n}, budget {budget}");
+                let two = CacheGeometry::choose(n, bytes_per_texel, budget, max_dim, u32::MAX)
+                    .map(|g| (u64::from(g.slot_count()), g.texel_count()));
+                let three =
+                    ThreeLevelGeometry::choose(n, bytes_per_texel, budget, max_dim, u32::MAX).map(
+                        |g| {
+                            (
+                                u64::from(g.slot_count()),
+                                g.extent().as_u64vec3().element_product(),
+                            )
+                        },
+                    );
+                for (scheme, geometry) in [(Scheme::TwoLevel, two), (Scheme::ThreeLevel, three)] {
+                    let found = most_slots(scheme.slot_edge(n), bytes_per_texel, budget, max_dim);
+                    match (geometry, found) {
+                        (Ok((slot_count, texel_count)), Some((extent, slots))) => {
+                            assert_eq!(slot_count, slots, "{scheme:?} n {n}, budget {budget}");
+                            let texels: u64 = extent.iter().map(|&c| u64::from(c)).product();
+                            assert_eq!(texel_count, texels, "{scheme:?} n {n}, budget {budget}");
+                        }
+                        (Err(_), None) => {}
+                        (g, f) => {
+                            panic!("{scheme:?} n {n}, budget {budget}: layout {g:?}, search {f:?}")
+                        }
                     }
-                    (Err(_), None) => {}
-                    (g, f) => panic!("n {n}, budget {budget}: layout {g:?}, search {f:?}"),
                 }
             }
         }

@@ -4,8 +4,9 @@
 // brick to that brick's field at the sample's position: one trilinear read through its layout
 // entry (the position is a vertex of the finer level, so the weights are 0 or 1/2). Then a plain
 // fetch of the finer brick is C0 across the level change. Mirrors `skeleton_fixup_value` in
-// src/reference/level_cache.rs. One workgroup layer per (job, face), as fixup.comp; a job is a
-// brick index. Bindings, group sizes and the push-constant block: src/gpu/shared_defs.rs.
+// src/reference/level_cache.rs. One workgroup layer per (job, face), as fixup.comp; a job is the
+// first brick of a stored brick's block (the brick itself up to level 2). Bindings, group sizes
+// and the push-constant block: src/gpu/shared_defs.rs.
 #include "include/neighbours.glsl"
 
 layout(local_size_x = FIXUP_GROUP_SIZE, local_size_y = FIXUP_GROUP_SIZE, local_size_z = 1) in;
@@ -48,12 +49,13 @@ void main() {
     if (job >= uint(pc.slots_per_axis.w)) {
         return;
     }
-    uint brick_index = skeleton_bricks[job];
-    vec4 entry = layout_entries[brick_index];
+    uint first_index = skeleton_bricks[job];
+    vec4 entry = layout_entries[first_index];
     // t_w = 2^-level exactly.
     int level = int(round(-log2(entry.w)));
     int n = pc.bricks.w;
-    int last = n >> level;
+    // Samples per axis less one: n / 2^level up to level 2, n / 4 past it (a block's brick).
+    int last = n >> min(level, 2);
     ivec2 uv = ivec2(gl_GlobalInvocationID.xy);
     if (uv.x > last || uv.y > last) {
         return;
@@ -64,18 +66,24 @@ void main() {
     t[(axis + 1) % 3] = uv.x;
     t[(axis + 2) % 3] = uv.y;
 
-    ivec3 brick = unflatten(brick_index, pc.bricks.xyz);
-    // t_xyz = origin + 0.5 - n*b/2^level (src/cache/three_level.rs); all terms are integers.
-    ivec3 origin = ivec3(round(entry.xyz - 0.5)) + brick * last;
-    uint bits = neighbour_bits[brick_index];
+    // The first brick of the stored brick's block (the brick itself up to level 2).
+    ivec3 first = unflatten(first_index, pc.bricks.xyz);
+    // t_xyz = origin + 0.5 - n*first/2^level (src/cache/three_level.rs); all terms are integers.
+    ivec3 origin = ivec3(round(entry.xyz - 0.5)) + (first * n) / (1 << level);
+    ivec3 position = first * n + t * (1 << level);
+    // The brick of the block whose box holds the sample (the last one at the far faces).
+    int block = 1 << max(level - 2, 0);
+    ivec3 last_brick = min(first + (block - 1), pc.bricks.xyz - 1);
+    ivec3 brick = clamp(position / n, first, last_brick);
+    uint bits = neighbour_bits[uint(brick.x + pc.bricks.x * (brick.y + pc.bricks.y * brick.z))];
 
     uint mask = 0u;
     ivec3 side = ivec3(0);
     for (int a = 0; a < 3; ++a) {
-        if (t[a] == 0) {
+        if (position[a] == n * brick[a]) {
             mask |= 1u << uint(a);
             side[a] = -1;
-        } else if (t[a] == last) {
+        } else if (position[a] == n * (brick[a] + 1)) {
             mask |= 1u << uint(a);
             side[a] = 1;
         }
@@ -83,7 +91,7 @@ void main() {
     if ((bits & touching(mask, side)) == 0u) {
         return;
     }
-    vec3 position = vec3(brick * n + t * (1 << level));
+    vec3 p = vec3(position);
     for (int c = 0; c < 7; ++c) {
         uint candidate = PRECEDENCE[c];
         if ((candidate & ~mask) != 0u) {
@@ -96,7 +104,7 @@ void main() {
         ivec3 nb = brick + d;
         uint ni = uint(nb.x + pc.bricks.x * (nb.y + pc.bricks.y * nb.z));
         vec4 coarser = layout_entries[ni];
-        imageStore(cache_image, origin + t, cache_trilinear(position * coarser.w + coarser.xyz));
+        imageStore(cache_image, origin + t, cache_trilinear(p * coarser.w + coarser.xyz));
         return;
     }
 }

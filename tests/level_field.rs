@@ -1,7 +1,7 @@
 //! The mixed-resolution field over any number of levels (issue 19): the CPU reference
-//! `mixvol::reference::LevelField`, its C0 construction at every level pair and boundary class,
-//! and the skeleton fixup that lets the cache draw transitions between vertex levels with a plain
-//! fetch.
+//! `mixvol::reference::LevelField`, its C0 construction at every level pair and boundary class
+//! (up to level 4, whose bricks come in blocks of 4^3), and the skeleton fixup that lets the
+//! cache draw transitions between vertex levels with a plain fetch.
 //!
 //! The continuity probe is the one of `tests/continuity.rs`: at a point p, the spread (max - min)
 //! of the field at p + eps * d over the 26 directions d. A C0 (Lipschitz) field keeps spread / eps
@@ -11,7 +11,7 @@
 mod common;
 
 use common::levels::{
-    boundary_classes, distance_plan, per_brick, probe_points, spread, textured_volume,
+    boundary_classes, per_brick, probe_points, spread, staircase_plan, textured_volume,
     SMOOTH_RATIO_BOUND,
 };
 use common::Rng;
@@ -20,16 +20,24 @@ use mixvol::bricks::{low_res_level, BrickGrid, DownsampleFilter, Level};
 use mixvol::cache::tables::{brick_neighbour_bits, coarser_neighbour_bits};
 use mixvol::cache::{BrickCache, CacheGeometry};
 use mixvol::reference::{
-    sample_mixed, sample_volume, LevelField, LevelFieldError, LevelGrid, ReferenceCache,
-    SamplePlacement,
+    block_bricks, sample_mixed, sample_volume, LevelField, LevelFieldError, LevelGrid,
+    ReferenceCache, SamplePlacement,
 };
 use mixvol::scene::Transition;
 use mixvol::volume::{ScalarType, Volume, VoxelData};
 
-/// Brick size: four levels fit (`2^3 <= 16`).
-const N: u32 = 16;
-/// Levels of the pyramid the tests build.
-const LEVELS: u32 = 4;
+/// Brick size: the smallest that takes levels past 2.
+const N: u32 = 8;
+/// Levels of the pyramid the tests build: 0-2, and the block levels 3 (blocks of 2^3 bricks)
+/// and 4 (4^3).
+const LEVELS: u32 = 5;
+
+/// A textured volume of `bricks` bricks per axis, its grid and its first `levels` levels.
+fn setup(rng: &mut Rng, bricks: UVec3, levels: u32) -> (BrickGrid, Vec<LevelGrid>) {
+    let volume = textured_volume(rng, bricks * N);
+    let grid = BrickGrid::new(volume.dims(), N).unwrap();
+    (grid, LevelGrid::vertex_pyramid(&volume, levels))
+}
 
 /// Checks the smooth field (both formulations) is Lipschitz at every probe point and, when
 /// `expect_jump`, that the discontinuous baseline jumps.
@@ -42,7 +50,7 @@ fn check_continuity(
     expect_jump: bool,
 ) {
     let field = LevelField::new(grid, grids, levels).unwrap();
-    let points = probe_points(rng, grid.dims(), N, LEVELS, 2500);
+    let points = probe_points(rng, grid.dims(), N, grids.len() as u32, 2500);
     let smooth = |x: Vec3| field.sample(x, Transition::Smooth);
     let fixed_up = |x: Vec3| field.sample_fixed_up(x);
     for (form, f) in [
@@ -68,19 +76,18 @@ fn check_continuity(
     }
 }
 
-/// The boundary classes of `tests/continuity.rs`, one level apart: the centre brick of a 3x3x3
-/// grid at `level`, the class at `level + 1`, the rest at `level`.
+/// The boundary classes of `tests/continuity.rs`, one level apart: a 3x3x3 grid of cells, each
+/// a block of the coarser level (one brick up to level 2), the centre cell at `level`, the class
+/// at `level + 1`, the rest at `level`.
 #[test]
 fn every_level_pair_and_boundary_class_is_continuous() {
     let mut rng = Rng(0x1e7e_1f1e_1d00_0001);
-    let volume = textured_volume(&mut rng, UVec3::splat(3 * N));
-    let grid = BrickGrid::new(volume.dims(), N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
-    let classes = boundary_classes();
     for level in 0..LEVELS - 1 {
-        for (class, coarser) in &classes {
-            let levels = per_brick(UVec3::splat(3), |b| {
-                Some(if coarser(b) { level + 1 } else { level })
+        let cell = block_bricks(level + 1);
+        let (grid, grids) = setup(&mut rng, UVec3::splat(3 * cell), level + 2);
+        for (class, coarser) in boundary_classes() {
+            let levels = per_brick(grid.bricks_per_axis(), |b| {
+                Some(level + u32::from(coarser(b / cell)))
             });
             let name = format!("levels {level}-{}, {class}", level + 1);
             check_continuity(&name, &grid, &grids, &levels, &mut rng, true);
@@ -89,60 +96,64 @@ fn every_level_pair_and_boundary_class_is_continuous() {
 }
 
 /// A middle level is the fine side towards its coarser neighbours and the coarse side towards its
-/// finer ones: slabs of three consecutive levels, and a staircase of all four levels over a
-/// 4x4x4 grid (level = the largest brick coordinate) where every level meets both neighbours
-/// across faces, edges and corners.
+/// finer ones: slabs of three consecutive levels, an edge column finer and the opposite one
+/// coarser, and the staircase of all five levels over 16^3 bricks, where every level meets both
+/// neighbours across faces, edges and corners.
 #[test]
 fn a_middle_level_is_continuous_towards_both_neighbours() {
     let mut rng = Rng(0x1e7e_1f1e_1d00_0002);
-    let volume = textured_volume(&mut rng, UVec3::splat(3 * N));
-    let grid = BrickGrid::new(volume.dims(), N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
     for first in 0..LEVELS - 2 {
-        let levels = per_brick(UVec3::splat(3), |b| Some(first + b.x));
+        let cell = block_bricks(first + 2);
+        let (grid, grids) = setup(&mut rng, UVec3::splat(3 * cell), first + 3);
+        let bricks = grid.bricks_per_axis();
+        let levels = per_brick(bricks, |b| Some(first + b.x / cell));
         let name = format!("slabs {first}-{}-{}", first + 1, first + 2);
         check_continuity(&name, &grid, &grids, &levels, &mut rng, true);
         // The centre at the middle level, finer along one edge column, coarser along the
-        // opposite one (two bricks apart, so the rule holds).
-        let levels = per_brick(UVec3::splat(3), |b| {
-            Some(first + 1 + u32::from(b.x == 2 && b.y == 2) - u32::from(b.x == 0 && b.y == 0))
+        // opposite one (two cells apart, so the rule holds).
+        let levels = per_brick(bricks, |b| {
+            let c = b / cell;
+            Some(first + 1 + u32::from(c.x == 2 && c.y == 2) - u32::from(c.x == 0 && c.y == 0))
         });
         let name = format!("edge columns {first}-{}-{}", first + 1, first + 2);
         check_continuity(&name, &grid, &grids, &levels, &mut rng, true);
     }
-    let volume = textured_volume(&mut rng, UVec3::splat(4 * N));
-    let grid = BrickGrid::new(volume.dims(), N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
-    let levels = per_brick(UVec3::splat(4), |b| Some(b.max_element()));
-    check_continuity("staircase 0-1-2-3", &grid, &grids, &levels, &mut rng, true);
+    let (grid, grids) = setup(&mut rng, UVec3::splat(16), LEVELS);
+    let levels = staircase_plan(grid.bricks_per_axis(), 0, LEVELS);
+    assert_eq!(levels.iter().flatten().max(), Some(&(LEVELS - 1)));
+    check_continuity(
+        "staircase 0-1-2-3-4",
+        &grid,
+        &grids,
+        &levels,
+        &mut rng,
+        true,
+    );
 }
 
-/// Random plans that keep the rule (level = Chebyshev distance from a random brick, shifted and
-/// clamped to the four levels), with undrawn bricks, on dims that are not multiples of the brick
-/// size.
+/// Staircases shifted up and down (aligned blocks, the rule kept), with undrawn bricks among the
+/// levels without blocks, on dims that are not multiples of the brick size (blocks clipped at the
+/// far faces).
 #[test]
-fn random_plans_over_four_levels_are_continuous_on_awkward_dims() {
+fn random_plans_over_five_levels_are_continuous_on_awkward_dims() {
     let mut rng = Rng(0x1e7e_1f1e_1d00_0003);
-    let dims = UVec3::new(3 * N + 5, 2 * N + 3, 3 * N - 7);
+    let dims = UVec3::new(11 * N + 5, 6 * N + 3, 9 * N - 3);
     let volume = textured_volume(&mut rng, dims);
     let grid = BrickGrid::new(dims, N).unwrap();
     let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
-    let bricks = grid.bricks_per_axis();
-    for plan in 0..8 {
-        let centre = UVec3::new(
-            rng.below(bricks.x),
-            rng.below(bricks.y),
-            rng.below(bricks.z),
-        )
-        .as_ivec3();
-        let shift = rng.below(2) as i32 - 1;
-        let mut levels = distance_plan(bricks, centre, shift, LEVELS);
-        if rng.below(4) == 0 {
-            let hole = rng.below(levels.len() as u32) as usize;
-            levels[hole] = None;
+    for plan in 0..6 {
+        let shift = plan % 3 - 1;
+        let mut levels = staircase_plan(grid.bricks_per_axis(), shift, LEVELS);
+        if plan >= 3 {
+            for _ in 0..4 {
+                let hole = rng.below(levels.len() as u32) as usize;
+                if levels[hole].is_some_and(|l| block_bricks(l) == 1) {
+                    levels[hole] = None;
+                }
+            }
         }
         check_continuity(
-            &format!("random plan {plan}"),
+            &format!("random plan {plan} (shift {shift})"),
             &grid,
             &grids,
             &levels,
@@ -152,40 +163,45 @@ fn random_plans_over_four_levels_are_continuous_on_awkward_dims() {
     }
 }
 
-/// The skeleton fixup draws the blend: in every brick of a vertex level, the plain trilinear
-/// interpolation of the fixed-up samples equals the band blend (the ray-caster needs no blend
-/// beyond level 0), and the fixup changes samples (it is not vacuous).
+/// The skeleton fixup draws the blend: in every brick of a vertex level whose band fits half a
+/// brick (levels 1 and 2 here), the plain trilinear interpolation of the fixed-up samples equals
+/// the band blend (the ray-caster needs no blend beyond level 0), and the fixup changes samples
+/// (it is not vacuous).
 #[test]
 fn fixed_up_vertex_levels_draw_the_blend() {
     let mut rng = Rng(0x1e7e_1f1e_1d00_0004);
-    let volume = textured_volume(&mut rng, UVec3::splat(4 * N));
-    let grid = BrickGrid::new(volume.dims(), N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
-    let levels = per_brick(UVec3::splat(4), |b| Some(b.max_element()));
+    let (grid, grids) = setup(&mut rng, UVec3::splat(6), 4);
+    let levels = staircase_plan(grid.bricks_per_axis(), 0, 4);
     let field = LevelField::new(&grid, &grids, &levels).unwrap();
     let mut largest_change = 0.0f32;
-    for p in probe_points(&mut rng, grid.dims(), N, LEVELS, 20_000) {
-        let blend = field.sample(p, Transition::Smooth).unwrap();
+    let mut compared = 0;
+    for p in probe_points(&mut rng, grid.dims(), N, 4, 20_000) {
+        let brick = grid.linear_index((p / N as f32).floor().as_uvec3().min(UVec3::splat(5)));
+        let level = field.brick_level(brick).unwrap();
         let fixed_up = field.sample_fixed_up(p).unwrap();
+        largest_change = largest_change.max((fixed_up - grids[level as usize].trilinear(p)).abs());
+        if grids[level as usize].band_width() > 0.5 * N as f32 {
+            continue;
+        }
+        let blend = field.sample(p, Transition::Smooth).unwrap();
         assert!(
             (blend - fixed_up).abs() < 1e-5,
             "{p}: blend {blend}, fixed-up samples {fixed_up}"
         );
-        let brick = grid.linear_index((p / N as f32).floor().as_uvec3().min(UVec3::splat(3)));
-        let level = field.brick_level(brick).unwrap();
-        largest_change = largest_change.max((fixed_up - grids[level as usize].trilinear(p)).abs());
+        compared += 1;
     }
+    assert!(compared > 5_000, "{compared} points compared");
     assert!(
         largest_change > 1e-2,
         "the fixup should change the field near coarser bricks (largest change {largest_change})"
     );
     // A sample that touches a coarser brick holds the coarser field; one that does not keeps its
-    // own value. Level-1 sample (8, 8, 8) at position (16, 16, 16) is the corner shared by the
+    // own value. Level-1 sample (4, 4, 4) at position (8, 8, 8) is the corner shared by the
     // bricks with coordinates 0 and 1: levels 0 and 1 only.
-    let corner = IVec3::splat(8);
+    let corner = IVec3::splat(4);
     assert_eq!(field.fixed_up_sample(1, corner), grids[1].value(corner));
-    // Level 1 sample (16, 8, 8) at position (32, 16, 16) touches brick (2, 1, 1), level 2.
-    let on_face = IVec3::new(16, 8, 8);
+    // Level-1 sample (8, 4, 4) at position (16, 8, 8) touches brick (2, 1, 1), level 2.
+    let on_face = IVec3::new(8, 4, 4);
     let coarse = grids[2].trilinear(on_face.as_vec3() * 2.0);
     assert_eq!(field.fixed_up_sample(1, on_face), coarse);
     assert_ne!(coarse, grids[1].value(on_face));
@@ -233,7 +249,7 @@ fn each_level_alone_is_the_trilinear_field_of_its_own_samples() {
 
     // A ramp: a level-k sample is exact once its support (about 2^k voxels each way) misses the
     // clamped edge, so points 2^(k+1) inside see only exact samples.
-    let dims = UVec3::new(48, 40, 36);
+    let dims = UVec3::new(80, 72, 68);
     let slope = Vec3::new(0.013, -0.007, 0.004);
     let linear = |p: Vec3| 0.5 + slope.dot(p);
     let data = (0..dims.x * dims.y * dims.z)
@@ -324,52 +340,79 @@ fn two_levels_equal_the_brick_cache_field() {
 #[test]
 fn bad_level_inputs_are_refused_with_what_was_expected() {
     let mut rng = Rng(0x1e7e_1f1e_1d00_0007);
-    let volume = textured_volume(&mut rng, UVec3::new(3 * N, N, N));
+    let volume = textured_volume(&mut rng, UVec3::new(3 * N, 2 * N, 2 * N));
     let grid = BrickGrid::new(volume.dims(), N).unwrap();
     let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let row = |levels: [Option<u32>; 3]| {
+        // The first row of bricks as given, the rest as the brick below in x.
+        per_brick(grid.bricks_per_axis(), |b| levels[b.x as usize])
+    };
 
     // Level 0 next to level 2 breaks the rule; 0-1-2 keeps it.
-    let err = LevelField::new(&grid, &grids, &[Some(0), Some(2), Some(2)]).unwrap_err();
+    let err = LevelField::new(&grid, &grids, &row([Some(0), Some(2), Some(2)])).unwrap_err();
     assert_eq!(err, LevelFieldError::LevelRule);
-    assert!(LevelField::new(&grid, &grids, &[Some(0), Some(1), Some(2)]).is_ok());
+    assert!(LevelField::new(&grid, &grids, &row([Some(0), Some(1), Some(2)])).is_ok());
     // An undrawn brick between them separates them.
-    assert!(LevelField::new(&grid, &grids, &[Some(0), None, Some(3)]).is_ok());
-
-    let err = LevelField::new(&grid, &grids[..2], &[Some(0), Some(1), Some(2)]).unwrap_err();
+    assert!(LevelField::new(&grid, &grids, &row([Some(1), None, Some(2)])).is_ok());
+    // Level 3 comes in aligned blocks of 2^3 bricks: bricks x = 2 alone (the block of x = 2..3,
+    // clipped to the grid, is whole) is fine; level 3 at x = 1 shares its block with x = 0.
+    assert!(LevelField::new(&grid, &grids, &row([Some(1), Some(2), Some(3)])).is_ok());
+    let err = LevelField::new(&grid, &grids, &row([Some(2), Some(3), Some(3)])).unwrap_err();
     assert_eq!(
         err,
-        LevelFieldError::UnknownLevel {
-            brick: 2,
-            level: 2,
-            levels: 2
+        LevelFieldError::BrokenBlock {
+            brick: 1,
+            level: 3,
+            block: 2
         }
     );
+    let mut holey = row([Some(2), Some(3), Some(3)]);
+    holey.iter_mut().for_each(|l| *l = l.map(|_| 3));
+    holey[grid.linear_index(UVec3::new(1, 1, 1))] = None;
+    assert!(matches!(
+        LevelField::new(&grid, &grids, &holey),
+        Err(LevelFieldError::BrokenBlock { level: 3, .. })
+    ));
+
+    let three = row([Some(0), Some(1), Some(2)]);
+    let err = LevelField::new(&grid, &grids[..2], &three).unwrap_err();
+    assert!(matches!(
+        err,
+        LevelFieldError::UnknownLevel {
+            level: 2,
+            levels: 2,
+            ..
+        }
+    ));
     let err = LevelField::new(&grid, &grids, &[Some(0)]).unwrap_err();
     assert_eq!(
         err,
         LevelFieldError::BrickLevelCount {
             given: 1,
-            bricks: 3
+            bricks: grid.brick_count()
         }
     );
+    let none = vec![None; grid.brick_count()];
     assert_eq!(
-        LevelField::new(&grid, &[], &[None, None, None]).unwrap_err(),
+        LevelField::new(&grid, &[], &none).unwrap_err(),
         LevelFieldError::NoLevels
     );
-    let err = LevelField::new(&grid, &grids[1..], &[None, None, None]).unwrap_err();
+    let err = LevelField::new(&grid, &grids[1..], &none).unwrap_err();
     assert_eq!(err, LevelFieldError::LevelOrder { index: 0, level: 1 });
-    // Five levels need bricks of 16 voxels per coarsest sample: 2^4 = 16 <= 16 is fine, six are
-    // too many.
-    let deep = LevelGrid::vertex_pyramid(&volume, 6);
-    let err = LevelField::new(&grid, &deep, &[None, None, None]).unwrap_err();
+    // Bricks of 4 voxels take three levels, not four (the block levels need 8).
+    let small = BrickGrid::new(volume.dims(), 4).unwrap();
+    let none = vec![None; small.brick_count()];
+    assert!(LevelField::new(&small, &grids[..3], &none).is_ok());
+    let err = LevelField::new(&small, &grids[..4], &none).unwrap_err();
     assert_eq!(
         err,
         LevelFieldError::TooManyLevels {
-            levels: 6,
-            brick_size: N
+            levels: 4,
+            min_brick_size: 8,
+            brick_size: 4
         }
     );
-    assert!(err.to_string().contains("2^5"), "{err}");
+    assert!(err.to_string().contains("at least 8 voxels"), "{err}");
 
     let err = LevelGrid::new(
         1,

@@ -8,15 +8,16 @@
 mod common;
 
 use common::levels::{
-    boundary_classes, distance_plan, per_brick, probe_points, spread, textured_volume,
-    SMOOTH_RATIO_BOUND,
+    boundary_classes, distance_plan, per_brick, probe_points, spread, staircase_plan,
+    textured_volume, SMOOTH_RATIO_BOUND,
 };
 use common::Rng;
 use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, Level};
 use mixvol::cache::{BrickCache, CacheError, CacheGeometry, ThreeLevelGeometry};
 use mixvol::reference::{
-    sample_mixed, LevelCacheError, LevelField, LevelGrid, LevelReferenceCache,
+    block_origin, sample_mixed, LevelCacheError, LevelField, LevelGrid, LevelReferenceCache,
+    SamplePlacement,
 };
 use mixvol::scene::Transition;
 
@@ -241,26 +242,93 @@ fn a_volume_too_big_for_two_levels_is_drawn_whole_with_three() {
     );
 }
 
+/// Past level 2 a stored brick holds a block of bricks: the staircase of five levels over 16^3
+/// bricks (4096) fits five slots, every brick of a block shares its block's stored brick, and the
+/// cache draws the level field, continuous, smooth and discontinuous.
+#[test]
+fn block_levels_share_one_stored_brick_and_draw_the_level_field() {
+    let mut rng = Rng(0x3_1e7e_0006);
+    let dims = UVec3::splat(16 * N);
+    let volume = textured_volume(&mut rng, dims);
+    let grid = BrickGrid::new(dims, N).unwrap();
+    let grids = LevelGrid::vertex_pyramid(&volume, 5);
+    let levels = staircase_plan(grid.bricks_per_axis(), 0, 5);
+    let field = LevelField::new(&grid, &grids, &levels).unwrap();
+    let geometry = ThreeLevelGeometry::new(N, UVec3::splat(32)).unwrap();
+    assert_eq!(geometry.slot_count(), 8);
+    let points = probe_points(&mut rng, dims, N, 5, 4000);
+    for transition in [Transition::Smooth, Transition::Discontinuous] {
+        let cache = LevelReferenceCache::build(&field, &geometry, transition).unwrap();
+        // 1 level-0 brick, 7 level-1 bricks, 56 + 56 + 56 of the level-2 size (levels 2, 3, 4).
+        let slots_used = cache.places.iter().flatten().map(|p| p.slot).max();
+        assert_eq!(slots_used, Some(4));
+        for (i, brick) in grid.bricks().enumerate() {
+            let level = levels[i].unwrap();
+            let first = grid.linear_index(block_origin(brick, level));
+            assert_eq!(cache.places[i], cache.places[first], "brick {brick}");
+            assert_eq!(cache.layout[i], cache.layout[first], "brick {brick}");
+            assert_eq!(cache.places[i].unwrap().level, level);
+        }
+        let view = cache.view();
+        for &p in &points {
+            let from_cache = sample_mixed(&view, p, transition).unwrap();
+            let from_levels = field.sample(p, transition).unwrap();
+            assert!(
+                (from_cache - from_levels).abs() < 2e-5,
+                "{transition:?} at {p}: cache {from_cache}, levels {from_levels}"
+            );
+        }
+        let f = |x: Vec3| sample_mixed(&view, x, transition);
+        let (coarse, _) = spread(&f, &points, 1e-2);
+        let (fine, worst) = spread(&f, &points, 1e-4);
+        eprintln!("{transition:?}: spread/eps {coarse} (1e-2) {fine} (1e-4), spread {worst}");
+        match transition {
+            Transition::Smooth => assert!(coarse < SMOOTH_RATIO_BOUND && fine < SMOOTH_RATIO_BOUND),
+            Transition::Discontinuous => assert!(worst > 1e-2, "largest spread {worst}"),
+        }
+    }
+    // Every brick at level 2: 4096 stored bricks, 64 slots.
+    let all_two = vec![Some(2); grid.brick_count()];
+    let field = LevelField::new(&grid, &grids, &all_two).unwrap();
+    let err = LevelReferenceCache::build(&field, &geometry, Transition::Smooth).unwrap_err();
+    assert_eq!(
+        err,
+        LevelCacheError::OverBudget {
+            needed: 64,
+            per_level: [0, 0, 4096],
+            slots: 8
+        }
+    );
+}
+
 #[test]
 fn fields_the_packing_cannot_hold_are_refused() {
     let mut rng = Rng(0x3_1e7e_0005);
     let volume = textured_volume(&mut rng, UVec3::new(2 * N, N, N));
     let grid = BrickGrid::new(volume.dims(), N).unwrap();
     let geometry = roomy_geometry(&grid);
-    let four = LevelGrid::vertex_pyramid(&volume, 4);
     let levels = [Some(0), Some(1)];
-    let field = LevelField::new(&grid, &four, &levels).unwrap();
-    assert_eq!(
-        LevelReferenceCache::build(&field, &geometry, Transition::Smooth).unwrap_err(),
-        LevelCacheError::TooManyLevels { levels: 4 }
-    );
+    let pyramid = LevelGrid::vertex_pyramid(&volume, 2);
     let other = ThreeLevelGeometry::new(2 * N, UVec3::splat(32)).unwrap();
-    let field = LevelField::new(&grid, &four[..3], &levels).unwrap();
+    let field = LevelField::new(&grid, &pyramid, &levels).unwrap();
     assert_eq!(
         LevelReferenceCache::build(&field, &other, Transition::Smooth).unwrap_err(),
         LevelCacheError::BrickSize {
             field: N,
             cache: 2 * N
+        }
+    );
+    // A cell-centred level 1 is not what the packing stores.
+    let cell_centred = [
+        pyramid[0].clone(),
+        pyramid[0].downsampled(SamplePlacement::CellCentred, volume.dims()),
+    ];
+    let field = LevelField::new(&grid, &cell_centred, &levels).unwrap();
+    assert_eq!(
+        LevelReferenceCache::build(&field, &geometry, Transition::Smooth).unwrap_err(),
+        LevelCacheError::Placement {
+            level: 1,
+            found: SamplePlacement::CellCentred
         }
     );
 }

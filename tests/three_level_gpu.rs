@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::levels::{distance_plan, per_brick, probe_points, textured_volume};
+use common::levels::{distance_plan, per_brick, probe_points, staircase_plan, textured_volume};
 use common::Rng;
 use glam::{IVec3, UVec3, Vec3, Vec4};
 use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
@@ -50,6 +50,108 @@ fn plans(rng: &mut Rng, bricks: UVec3) -> Vec<(&'static str, Vec<Option<u32>>)> 
     ]
 }
 
+/// Uploads `levels` of `field` into a GPU cache of `geometry`, smooth and discontinuous, and
+/// checks the texels after the GPU fixups, the probed field and its continuity against the CPU
+/// mirror.
+fn check_gpu_cache(
+    ctx: &mixvol::gpu::GpuContext,
+    rng: &mut Rng,
+    name: &str,
+    field: &LevelField,
+    geometry: &ThreeLevelGeometry,
+    levels: u32,
+) {
+    let dims = field.grids()[0].dims();
+    for transition in [Transition::Smooth, Transition::Discontinuous] {
+        let cpu = LevelReferenceCache::build(field, geometry, transition).unwrap();
+        let mut gpu = GpuLevelCache::new(ctx, field, geometry, transition).unwrap();
+
+        // The texels of every stored brick after upload and the GPU fixups.
+        let texels = gpu.read_back().unwrap();
+        let e = geometry.extent();
+        let mut compared = 0;
+        for place in cpu.places.iter().flatten() {
+            let origin = geometry.origin(*place).unwrap();
+            let edge = geometry.stored_edge(place.level);
+            for z in origin.z..origin.z + edge {
+                for y in origin.y..origin.y + edge {
+                    for x in origin.x..origin.x + edge {
+                        let i = (x + e.x * (y + e.y * z)) as usize;
+                        let (g, c) = (texels[i], cpu.image.texels[i]);
+                        assert!(
+                            (g - c).abs() < 1e-6,
+                            "{name} {transition:?} texel ({x}, {y}, {z}) of {place:?}: gpu {g}, cpu {c}"
+                        );
+                        compared += 1;
+                    }
+                }
+            }
+        }
+        assert!(compared > 0);
+
+        // The field, read with the ray-caster's functions.
+        let points = probe_points(rng, dims, N, levels, 3000);
+        let values = gpu.sample(&points).unwrap();
+        let view = cpu.view();
+        for (p, g) in points.iter().zip(&values) {
+            match (g, sample_mixed(&view, *p, transition)) {
+                (Some(g), Some(c)) => assert!(
+                    (g - c).abs() < 2e-3,
+                    "{name} {transition:?} at {p}: gpu {g}, cpu {c}"
+                ),
+                (g, c) => assert_eq!(g.is_some(), c.is_some(), "{name} at {p}"),
+            }
+        }
+
+        // Continuity on the GPU: the largest jump between p +- eps d shrinks with eps when
+        // smooth (the bound of tests/gpu_mixed.rs: slope 14 over 2 sqrt(3) eps plus the GPU's
+        // sub-texel weight quantisation) and stays when discontinuous.
+        let dirs = [
+            Vec3::X,
+            Vec3::Y,
+            Vec3::Z,
+            Vec3::ONE,
+            Vec3::new(1.0, -1.0, 1.0),
+        ];
+        let eps_values = [1e-2f32, 1e-3];
+        let mut max_jump = [0.0f32; 2];
+        for (k, eps) in eps_values.iter().enumerate() {
+            let probes: Vec<Vec3> = points
+                .iter()
+                .flat_map(|p| {
+                    dirs.iter()
+                        .flat_map(move |d| [*p + *eps * *d, *p - *eps * *d])
+                })
+                .collect();
+            let values = gpu.sample(&probes).unwrap();
+            for pair in values.chunks_exact(2) {
+                if let (Some(a), Some(b)) = (pair[0], pair[1]) {
+                    max_jump[k] = max_jump[k].max((a - b).abs());
+                }
+            }
+        }
+        eprintln!("{name} {transition:?}: max jump {max_jump:?} at eps {eps_values:?}");
+        match transition {
+            Transition::Smooth => {
+                for k in 0..2 {
+                    assert!(
+                        max_jump[k] < 14.0 * 3.5 * eps_values[k] + 0.01,
+                        "{name}: the smooth GPU field jumps: {max_jump:?}"
+                    );
+                }
+                assert!(
+                    max_jump[1] < 0.5 * max_jump[0],
+                    "{name}: smooth jumps must shrink with eps: {max_jump:?}"
+                );
+            }
+            Transition::Discontinuous => assert!(
+                max_jump[1] > 0.02 && max_jump[1] > 0.5 * max_jump[0],
+                "{name}: the discontinuous GPU field should jump: {max_jump:?}"
+            ),
+        }
+    }
+}
+
 #[test]
 fn the_gpu_three_level_cache_matches_its_cpu_mirror() {
     let ctx = common::validated_context();
@@ -64,95 +166,18 @@ fn the_gpu_three_level_cache_matches_its_cpu_mirror() {
         let geometry = ThreeLevelGeometry::new(N, UVec3::new(32, 32, 32)).unwrap();
         for (name, levels) in plans(&mut rng, grid.bricks_per_axis()) {
             let field = LevelField::new(&grid, &grids, &levels).unwrap();
-            for transition in [Transition::Smooth, Transition::Discontinuous] {
-                let cpu = LevelReferenceCache::build(&field, &geometry, transition).unwrap();
-                let mut gpu = GpuLevelCache::new(&ctx, &field, &geometry, transition).unwrap();
-
-                // The texels of every drawn brick after upload and the GPU fixups.
-                let texels = gpu.read_back().unwrap();
-                let e = geometry.extent();
-                let mut compared = 0;
-                for place in cpu.places.iter().flatten() {
-                    let origin = geometry.origin(*place).unwrap();
-                    let edge = geometry.stored_edge(place.level);
-                    for z in origin.z..origin.z + edge {
-                        for y in origin.y..origin.y + edge {
-                            for x in origin.x..origin.x + edge {
-                                let i = (x + e.x * (y + e.y * z)) as usize;
-                                let (g, c) = (texels[i], cpu.image.texels[i]);
-                                assert!(
-                                    (g - c).abs() < 1e-6,
-                                    "{name} {transition:?} texel ({x}, {y}, {z}) of {place:?}: gpu {g}, cpu {c}"
-                                );
-                                compared += 1;
-                            }
-                        }
-                    }
-                }
-                assert!(compared > 0);
-
-                // The field, read with the ray-caster's functions.
-                let points = probe_points(&mut rng, dims, N, LEVELS, 3000);
-                let values = gpu.sample(&points).unwrap();
-                let view = cpu.view();
-                for (p, g) in points.iter().zip(&values) {
-                    match (g, sample_mixed(&view, *p, transition)) {
-                        (Some(g), Some(c)) => assert!(
-                            (g - c).abs() < 2e-3,
-                            "{name} {transition:?} at {p}: gpu {g}, cpu {c}"
-                        ),
-                        (g, c) => assert_eq!(g.is_some(), c.is_some(), "{name} at {p}"),
-                    }
-                }
-
-                // Continuity on the GPU: the largest jump between p +- eps d shrinks with eps when
-                // smooth (the bound of tests/gpu_mixed.rs: slope 14 over 2 sqrt(3) eps plus the
-                // GPU's sub-texel weight quantisation) and stays when discontinuous.
-                let dirs = [
-                    Vec3::X,
-                    Vec3::Y,
-                    Vec3::Z,
-                    Vec3::ONE,
-                    Vec3::new(1.0, -1.0, 1.0),
-                ];
-                let eps_values = [1e-2f32, 1e-3];
-                let mut max_jump = [0.0f32; 2];
-                for (k, eps) in eps_values.iter().enumerate() {
-                    let probes: Vec<Vec3> = points
-                        .iter()
-                        .flat_map(|p| {
-                            dirs.iter()
-                                .flat_map(move |d| [*p + *eps * *d, *p - *eps * *d])
-                        })
-                        .collect();
-                    let values = gpu.sample(&probes).unwrap();
-                    for pair in values.chunks_exact(2) {
-                        if let (Some(a), Some(b)) = (pair[0], pair[1]) {
-                            max_jump[k] = max_jump[k].max((a - b).abs());
-                        }
-                    }
-                }
-                eprintln!("{name} {transition:?}: max jump {max_jump:?} at eps {eps_values:?}");
-                match transition {
-                    Transition::Smooth => {
-                        for k in 0..2 {
-                            assert!(
-                                max_jump[k] < 14.0 * 3.5 * eps_values[k] + 0.01,
-                                "{name}: the smooth GPU field jumps: {max_jump:?}"
-                            );
-                        }
-                        assert!(
-                            max_jump[1] < 0.5 * max_jump[0],
-                            "{name}: smooth jumps must shrink with eps: {max_jump:?}"
-                        );
-                    }
-                    Transition::Discontinuous => assert!(
-                        max_jump[1] > 0.05 && max_jump[1] > 0.5 * max_jump[0],
-                        "{name}: the discontinuous GPU field should jump: {max_jump:?}"
-                    ),
-                }
-            }
+            check_gpu_cache(&ctx, &mut rng, name, &field, &geometry, LEVELS);
         }
+
+        // Five levels over 16^3 bricks: levels 3 and 4 in blocks of 2^3 and 4^3 bricks, each
+        // block one stored brick (4096 bricks in five slots).
+        let dims = UVec3::splat(16 * N);
+        let volume = textured_volume(&mut rng, dims);
+        let grid = BrickGrid::new(dims, N).unwrap();
+        let grids = LevelGrid::vertex_pyramid(&volume, 5);
+        let levels = staircase_plan(grid.bricks_per_axis(), 0, 5);
+        let field = LevelField::new(&grid, &grids, &levels).unwrap();
+        check_gpu_cache(&ctx, &mut rng, "five levels", &field, &geometry, 5);
     }
     common::finish(ctx);
 }

@@ -11,10 +11,15 @@
 //! - level `k` in 1..=2: samples on vertices every `2^k` voxels; texel `origin + t` (t in
 //!   `0..=n/2^k`) holds level-`k` sample `n*b/2^k + t`, both faces included. A level-1 sub-slot
 //!   has one texel more per axis than its `n/2 + 1` samples; it is left unwritten.
+//! - level `k > 2` (any number of levels): a brick of the level-2 size, `n/4 + 1` samples per
+//!   axis every `2^k` voxels, in a level-2 sub-slot, for a whole aligned block of `2^(k - 2)`
+//!   bricks per axis (`crate::reference::block_bricks`): texel `origin + t` holds level-`k`
+//!   sample `n*b0/2^k + t`, `b0` the block's first brick. Every brick of the block has the
+//!   block's layout entry. Level-2 sub-slots hold bricks of any level from 2 up, mixed.
 //!
 //! Layout entries use the two-level cache's convention, `x_tex = x * t_w + t_xyz`:
 //! - level 0: `t_w = 1`, `t_xyz = origin + 2 - n*b`;
-//! - level `k >= 1`: `t_w = 2^-k`, `t_xyz = origin + 0.5 - n*b/2^k`.
+//! - level `k >= 1`: `t_w = 2^-k`, `t_xyz = origin + 0.5 - n*b0/2^k` (`b0 = b` up to level 2).
 //!
 //! `t_w` is exact in `f32`, and the ray-caster's test `t_w == 1` still singles out level 0.
 
@@ -22,11 +27,12 @@ use super::{CacheError, MIN_BRICK_SIZE};
 use crate::bricks::MAX_BRICK_SIZE;
 use glam::UVec3;
 
-/// Levels of the three-level packing.
+/// Levels of the three-level packing: its three sizes of stored brick (levels past 2 use the
+/// level-2 size).
 pub const THREE_LEVELS: u32 = 3;
 
-/// Where a brick of the three-level packing lives: slot `slot`, holding bricks of level `level`,
-/// at sub-slot `index` (`0` for level 0, `0..8` for level 1, `0..64` for level 2).
+/// Where a brick of the three-level packing lives: slot `slot`, at sub-slot `index` (`0` for
+/// level 0, `0..8` for level 1, `0..64` for level 2 and up) of the size of level `level`.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
 pub struct LevelSlot {
     /// Linear slot index.
@@ -131,16 +137,13 @@ impl ThreeLevelGeometry {
         self.slots_per_axis.element_product()
     }
 
-    /// Bricks of `level` one slot holds: 1, 8, 64 (`8^level`); 0 for a level past the third.
+    /// Stored bricks of `level` one slot holds: 1, 8, 64 (`8^level`), and 64 past level 2.
     pub fn bricks_per_slot(level: u32) -> u32 {
-        if level < THREE_LEVELS {
-            1 << (3 * level)
-        } else {
-            0
-        }
+        1 << (3 * level.min(THREE_LEVELS - 1))
     }
 
-    /// Sub-slot edge of `level` in texels: `n + 4`, `n/2 + 2`, `n/4 + 1` (`(n + 4) / 2^level`).
+    /// Sub-slot edge of `level` in texels: `n + 4`, `n/2 + 2`, `n/4 + 1` (`(n + 4) / 2^level`),
+    /// and `n/4 + 1` past level 2.
     pub fn sub_slot_edge(&self, level: u32) -> u32 {
         self.slot_edge() >> level.min(THREE_LEVELS - 1)
     }
@@ -166,16 +169,16 @@ impl ThreeLevelGeometry {
     }
 
     /// Texel origin of `place`: the slot origin plus the sub-slot's coordinates (x fastest over
-    /// `2^level` per axis) times the sub-slot edge. `None` when the level or the index is out of
-    /// range, or the slot is not in the cache.
+    /// `2^min(level, 2)` per axis) times the sub-slot edge. `None` when the level (past 30) or
+    /// the index is out of range, or the slot is not in the cache.
     pub fn origin(&self, place: LevelSlot) -> Option<UVec3> {
-        if place.level >= THREE_LEVELS
+        if place.level > 30
             || place.index >= Self::bricks_per_slot(place.level)
             || place.slot >= self.slot_count()
         {
             return None;
         }
-        let per_axis = 1 << place.level;
+        let per_axis = 1 << place.level.min(THREE_LEVELS - 1);
         let sub = UVec3::new(
             place.index % per_axis,
             (place.index / per_axis) % per_axis,
@@ -184,8 +187,9 @@ impl ThreeLevelGeometry {
         Some(self.slot_origin(place.slot) + sub * self.sub_slot_edge(place.level))
     }
 
-    /// Layout entry `(t_x, t_y, t_z, t_w)` of brick `brick` stored at `place` (module docs);
-    /// all zero (a skipped brick) when `place` is out of range.
+    /// Layout entry `(t_x, t_y, t_z, t_w)` of the bricks stored at `place` (module docs), `brick`
+    /// the first brick of the stored brick's block (the brick itself up to level 2); all zero (a
+    /// skipped brick) when `place` is out of range.
     pub fn layout_entry(&self, brick: UVec3, place: LevelSlot) -> [f32; 4] {
         let Some(origin) = self.origin(place) else {
             return [0.0; 4];
@@ -197,7 +201,8 @@ impl ThreeLevelGeometry {
             let t = o + 2 - n * b;
             [t.x as f32, t.y as f32, t.z as f32, 1.0]
         } else {
-            let t = o - (n >> place.level) * b;
+            // n * b is a multiple of 2^level: b is a block's first brick.
+            let t = o - n * b / (1i64 << place.level);
             let scale = 1.0 / (1u32 << place.level) as f32;
             [t.x as f32 + 0.5, t.y as f32 + 0.5, t.z as f32 + 0.5, scale]
         }
@@ -277,7 +282,12 @@ mod tests {
         let place = |slot, level, index| LevelSlot { slot, level, index };
         assert_eq!(geometry.origin(place(8, 0, 0)), None);
         assert_eq!(geometry.origin(place(0, 1, 8)), None);
-        assert_eq!(geometry.origin(place(0, 3, 0)), None);
+        assert_eq!(geometry.origin(place(0, 31, 0)), None);
+        assert_eq!(geometry.origin(place(0, 3, 64)), None);
+        assert_eq!(
+            geometry.origin(place(7, 3, 63)),
+            geometry.origin(place(7, 2, 63))
+        );
         assert_eq!(
             geometry.layout_entry(UVec3::ZERO, place(0, 2, 64)),
             [0.0; 4]

@@ -56,9 +56,12 @@ pub enum VolumeSource<'a> {
     },
     /// A volume drawn through the paper's three-level brick cache (`(n+4)^3` slots holding one
     /// level-0, eight level-1 or sixty-four level-2 bricks; `crate::cache::ThreeLevelGeometry`)
-    /// at the levels the host gives, one per brick: `Some(0)` full resolution, `Some(1)` and
-    /// `Some(2)` the vertex levels of `crate::reference::LevelGrid::vertex_pyramid`, `None` not
-    /// drawn. Face-, edge- and corner-adjacent drawn bricks must differ by at most one level.
+    /// at the levels the host gives, one per brick: `Some(0)` full resolution, `Some(k)` the
+    /// vertex level `k` of `crate::reference::LevelGrid::vertex_pyramid`, `None` not drawn.
+    /// Face-, edge- and corner-adjacent drawn bricks must differ by at most one level; past
+    /// level 2 (bricks of at least 8 voxels) the bricks of a level come in aligned blocks of
+    /// `crate::reference::block_bricks(k)` per axis, each stored as one level-2-sized brick, up to
+    /// the level whose block covers the grid's longest axis.
     /// The cache holds f32 texels; `config.filter` is not used (the levels are the vertex
     /// pyramid). The planner does not drive it: renders draw these levels until the next
     /// `set_source` (issue 19).
@@ -229,6 +232,17 @@ pub(crate) struct LevelState {
     brick_size: u32,
     transition: Transition,
     facts: LevelPlanFacts,
+}
+
+/// The levels a three-level source builds for `grid`: 0-2, and past them (bricks of 8 voxels or
+/// more) as many block levels as it takes for one block to cover the grid's longest axis.
+fn pyramid_levels(grid: &crate::bricks::BrickGrid) -> u32 {
+    if grid.brick_size() < 8 {
+        return THREE_LEVELS;
+    }
+    let longest = grid.bricks_per_axis().max_element().max(1);
+    // block_bricks(k) = 2^(k - 2) >= longest.
+    THREE_LEVELS.max(2 + longest.next_power_of_two().trailing_zeros() + 1)
 }
 
 impl LevelState {
@@ -452,7 +466,7 @@ impl VolumePass {
             self.ctx.shared.info.limits.max_image_dimension3_d,
             u32::try_from(grid.brick_count()).unwrap_or(u32::MAX),
         )?;
-        let grids = LevelGrid::vertex_pyramid(volume, THREE_LEVELS);
+        let grids = LevelGrid::vertex_pyramid(volume, pyramid_levels(&grid));
         // The plan is checked before the cache is allocated.
         LevelField::new(&grid, &grids, levels)
             .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;

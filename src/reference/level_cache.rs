@@ -9,19 +9,20 @@
 //!   (slot-local texels 1 and `n + 2`) gets the nearest level-1 sample of the first level-1
 //!   neighbour in [`FIXUP_PRECEDENCE`], as `reference::mixed::fixup_value` computes it for the
 //!   two-level cache.
-//! - **Skeleton fixup** of every level-`k` brick (`k` = 1, 2) with a level-`k + 1` neighbour
+//! - **Skeleton fixup** of every stored brick of a level `k >= 1` with a level-`k + 1` neighbour
 //!   ([`skeleton_fixup_value`]): each stored sample on a face, edge or corner that touches a
 //!   level-`k + 1` brick becomes that brick's field at the sample's position, one trilinear fetch
 //!   through its layout entry (the position is a level-`k` vertex, so the fetch weights are 0 or
 //!   1/2: the exact mean of one, two or four coarser samples). This is
-//!   [`LevelField::fixed_up_sample`] read from the cache.
+//!   [`LevelField::fixed_up_sample`] read from the cache. Past level 2 a stored brick holds a
+//!   block of bricks, whose faces are its bricks' faces.
 //!
 //! The fixups never read what they write (`reference::level_field`, "The scheme the cache
 //! builds"), so the order of bricks does not matter; this mirror runs them in brick order, in
 //! place, as one dispatch would. A brick whose coarser neighbours change must be uploaded again
 //! before the skeleton fixup: the fixup overwrites the brick's own samples and cannot restore them.
 
-use super::level_field::{LevelField, SamplePlacement};
+use super::level_field::{block_bricks, block_origin, LevelField, SamplePlacement};
 use super::mixed::{fixup_value, offset_of, touching, CacheImage, MixedVolume, FIXUP_PRECEDENCE};
 use crate::cache::tables::neighbour_bit;
 use crate::cache::{LevelSlot, ThreeLevelGeometry, THREE_LEVELS};
@@ -31,12 +32,6 @@ use glam::{IVec3, UVec3};
 /// Why a [`LevelReferenceCache`] cannot be built.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum LevelCacheError {
-    /// The field has more levels than the packing holds.
-    #[error("the three-level packing holds levels 0..{THREE_LEVELS}; the field has {levels}")]
-    TooManyLevels {
-        /// Levels of the field.
-        levels: usize,
-    },
     /// A level's samples are not placed as the packing stores them.
     #[error("level {level} is {found:?}; the packing stores level 0 cell-centred and levels 1-2 on vertices")]
     Placement {
@@ -55,13 +50,13 @@ pub enum LevelCacheError {
     },
     /// The drawn bricks need more slots than the cache has.
     #[error(
-        "the plan needs {needed} slots ({per_level:?} bricks of levels 0, 1, 2 at 1, 8, 64 per \
-         slot) but the cache has {slots}"
+        "the plan needs {needed} slots ({per_level:?} stored bricks of level 0, level 1 and \
+         level 2 or coarser, at 1, 8, 64 per slot) but the cache has {slots}"
     )]
     OverBudget {
         /// Slots needed.
         needed: u64,
-        /// Drawn bricks per level.
+        /// Stored bricks of level 0, level 1, and level 2 or coarser (a block counts once).
         per_level: [usize; 3],
         /// Slots in the cache.
         slots: u32,
@@ -90,20 +85,17 @@ impl LevelReferenceCache {
     /// Packs every drawn brick of `field` into a cache of `geometry` (slots filled level by
     /// level, in brick order) and, for [`Transition::Smooth`], runs both fixups.
     ///
-    /// Errors: more than three levels, a level placed other than level 0 cell-centred and levels
-    /// 1-2 on vertices, a brick size other than the cache's, or more slots needed than the cache
-    /// has.
+    /// Any number of levels: past level 2 a stored brick holds a whole block (module docs of
+    /// `cache::three_level`).
+    ///
+    /// Errors: a level placed other than level 0 cell-centred and the others on vertices, a
+    /// brick size other than the cache's, or more slots needed than the cache has.
     pub fn build(
         field: &LevelField,
         geometry: &ThreeLevelGeometry,
         transition: Transition,
     ) -> Result<Self, LevelCacheError> {
         let grids = field.grids();
-        if grids.len() > THREE_LEVELS as usize {
-            return Err(LevelCacheError::TooManyLevels {
-                levels: grids.len(),
-            });
-        }
         for g in grids {
             let expected = if g.level() == 0 {
                 SamplePlacement::CellCentred
@@ -126,12 +118,27 @@ impl LevelReferenceCache {
         }
         let bricks = field.bricks_per_axis();
         let count = bricks.element_product() as usize;
-        let mut per_level = [0usize; 3];
+        let brick_coords = |i: usize| {
+            let i = i as u32;
+            UVec3::new(
+                i % bricks.x,
+                (i / bricks.x) % bricks.y,
+                i / (bricks.x * bricks.y),
+            )
+        };
+        let linear = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
+        // The stored bricks: each drawn brick that is the first of its block, by packing class
+        // (level 0, level 1, level 2 and coarser), in brick order.
+        let class = |level: u32| level.min(THREE_LEVELS - 1) as usize;
+        let mut stored: [Vec<usize>; 3] = Default::default();
         for i in 0..count {
             if let Some(level) = field.brick_level(i) {
-                per_level[level as usize] += 1;
+                if block_origin(brick_coords(i), level) == brick_coords(i) {
+                    stored[class(level)].push(i);
+                }
             }
         }
+        let per_level = stored.clone().map(|s| s.len());
         let needed: u64 = (0..THREE_LEVELS)
             .map(|k| {
                 let per_slot = u64::from(ThreeLevelGeometry::bricks_per_slot(k));
@@ -146,22 +153,16 @@ impl LevelReferenceCache {
             });
         }
 
-        let brick_coords = |i: usize| {
-            let i = i as u32;
-            UVec3::new(
-                i % bricks.x,
-                (i / bricks.x) % bricks.y,
-                i / (bricks.x * bricks.y),
-            )
-        };
         let mut image = CacheImage::new(geometry.extent());
         let mut places = vec![None; count];
         let mut layout = vec![[0.0; 4]; count];
+        let mut owners = Vec::new();
         let mut next_slot = 0;
-        for level in 0..THREE_LEVELS {
-            let per_slot = ThreeLevelGeometry::bricks_per_slot(level);
+        for (k, class_bricks) in stored.iter().enumerate() {
+            let per_slot = ThreeLevelGeometry::bricks_per_slot(k as u32);
             let mut filled = 0;
-            for i in (0..count).filter(|&i| field.brick_level(i) == Some(level)) {
+            for &i in class_bricks {
+                let level = field.brick_level(i).unwrap_or(0);
                 let place = LevelSlot {
                     slot: next_slot,
                     level,
@@ -171,24 +172,36 @@ impl LevelReferenceCache {
                 if filled == per_slot {
                     (next_slot, filled) = (next_slot + 1, 0);
                 }
-                let brick = brick_coords(i);
-                places[i] = Some(place);
-                layout[i] = geometry.layout_entry(brick, place);
+                let first = brick_coords(i);
+                let entry = geometry.layout_entry(first, place);
+                // Every brick of the block (clipped to the grid) shares the stored brick.
+                let block = UVec3::splat(block_bricks(level));
+                let end = (first + block).min(bricks);
+                for z in first.z..end.z {
+                    for y in first.y..end.y {
+                        for x in first.x..end.x {
+                            let j = linear(UVec3::new(x, y, z));
+                            places[j] = Some(place);
+                            layout[j] = entry;
+                        }
+                    }
+                }
+                owners.push(i);
                 let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
                 let edge = geometry.stored_edge(level);
-                // Level 0: voxel n*b - 2 + t; level k: sample n*b/2^k + t (module docs of
+                // Level 0: voxel n*b - 2 + t; level k: sample n*b0/2^k + t (module docs of
                 // `cache::three_level`); the grids clamp to their extent.
-                let first = if level == 0 {
-                    (brick * n).as_ivec3() - IVec3::splat(2)
+                let first_sample = if level == 0 {
+                    (first * n).as_ivec3() - IVec3::splat(2)
                 } else {
-                    (brick * (n >> level)).as_ivec3()
+                    (first.as_ivec3() * n as i32) / (1 << level)
                 };
                 let g = &grids[level as usize];
                 let mut values = Vec::with_capacity(edge.pow(3) as usize);
                 for z in 0..edge as i32 {
                     for y in 0..edge as i32 {
                         for x in 0..edge as i32 {
-                            values.push(g.value(first + IVec3::new(x, y, z)));
+                            values.push(g.value(first_sample + IVec3::new(x, y, z)));
                         }
                     }
                 }
@@ -201,16 +214,17 @@ impl LevelReferenceCache {
         let neighbours: Vec<u32> = (0..count).map(|i| field.coarser_bits(i)).collect();
 
         if transition == Transition::Smooth {
-            for i in 0..count {
-                let (Some(place), bits) = (places[i], neighbours[i]) else {
+            for &i in &owners {
+                let Some(place) = places[i] else {
                     continue;
                 };
-                if bits == 0 {
-                    continue;
-                }
                 let brick = brick_coords(i);
                 let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
                 if place.level == 0 {
+                    let bits = neighbours[i];
+                    if bits == 0 {
+                        continue;
+                    }
                     // The inner (n+2)^3 box of the slot is the two-level cache's hi-res brick.
                     let inner = origin + UVec3::ONE;
                     for t in boundary_texels(n + 2, |t| t == 0 || t == n + 1) {
@@ -221,12 +235,12 @@ impl LevelReferenceCache {
                         }
                     }
                 } else {
-                    let last = n >> place.level;
+                    let last = geometry.stored_edge(place.level) - 1;
                     for t in boundary_texels(last + 1, |t| t == 0 || t == last) {
                         if let Some(v) = skeleton_fixup_value(
                             &image,
                             &layout,
-                            bits,
+                            &neighbours,
                             bricks,
                             n,
                             brick.as_ivec3(),
@@ -276,30 +290,39 @@ fn boundary_texels(edge: u32, on_boundary: impl Fn(u32) -> bool) -> Vec<UVec3> {
     out
 }
 
-/// The skeleton-fixed value of stored sample `t` (brick-local sample index, `0..=n/2^level` per
-/// axis) of the brick `brick` of vertex level `level` with coarser bits `bits`, or `None` when the
-/// sample touches no brick of level `level + 1` (it keeps its value): the field of the first
-/// touching coarser brick in [`FIXUP_PRECEDENCE`] at the sample's position, one trilinear fetch
-/// through that brick's layout entry. Mirrors the skeleton pass the GPU fixup will run.
+/// The skeleton-fixed value of stored sample `t` (`0..=last` per axis, `last + 1` the stored
+/// edge) of the stored brick of vertex level `level` whose block starts at brick `first`, or
+/// `None` when the sample touches no brick of level `level + 1` (it keeps its value). The sample
+/// sits at `n*first + 2^level t`; the brick of the block whose box holds it (the last one at the
+/// block's far faces) says, through its coarser bits `neighbours[..]`, which bricks touch it.
+/// The value is the field of the first touching coarser brick in [`FIXUP_PRECEDENCE`] at the
+/// sample's position: one trilinear fetch through that brick's layout entry. Mirrors
+/// `glsl/skeleton_fixup.comp`.
 #[allow(clippy::too_many_arguments)] // reason: mirrors a shader's per-texel inputs.
 pub fn skeleton_fixup_value(
     cache: &CacheImage,
     layout: &[[f32; 4]],
-    bits: u32,
+    neighbours: &[u32],
     bricks: UVec3,
     brick_size: u32,
-    brick: IVec3,
+    first: IVec3,
     level: u32,
     t: UVec3,
 ) -> Option<f32> {
-    let last = brick_size >> level;
+    let n = brick_size as i32;
+    let position = first * n + (t.as_ivec3() << level as i32);
+    let block = block_bricks(level) as i32;
+    let last_brick = (first + IVec3::splat(block - 1)).min(bricks.as_ivec3() - IVec3::ONE);
+    let brick = (position / n).clamp(first, last_brick);
+    let bits = neighbours
+        [(brick.x as u32 + bricks.x * (brick.y as u32 + bricks.y * brick.z as u32)) as usize];
     let mut mask = 0;
     let mut side = IVec3::ZERO;
     for a in 0..3 {
-        if t[a] == 0 {
+        if position[a] == n * brick[a] {
             mask |= 1 << a;
             side[a] = -1;
-        } else if t[a] == last {
+        } else if position[a] == n * (brick[a] + 1) {
             mask |= 1 << a;
             side[a] = 1;
         }
@@ -307,7 +330,6 @@ pub fn skeleton_fixup_value(
     if mask == 0 || bits & touching(mask, side) == 0 {
         return None;
     }
-    let position = (brick * brick_size as i32 + (t << level).as_ivec3()).as_vec3();
     for candidate in FIXUP_PRECEDENCE {
         if candidate & !mask != 0 {
             continue;
@@ -319,7 +341,7 @@ pub fn skeleton_fixup_value(
         let nb = brick + d;
         let ni = (nb.x as u32 + bricks.x * (nb.y as u32 + bricks.y * nb.z as u32)) as usize;
         let [tx, ty, tz, tw] = layout[ni];
-        return Some(cache.fetch(position * tw + glam::Vec3::new(tx, ty, tz)));
+        return Some(cache.fetch(position.as_vec3() * tw + glam::Vec3::new(tx, ty, tz)));
     }
     None
 }

@@ -63,7 +63,29 @@
 //! samples, which are level-`k` samples too, so interpolating it at level-`k` spacing is exact).
 //! A fixed-up value depends on the sample's position alone (every brick holding a copy sees the
 //! same touching bricks), so the copies agree. [`LevelField::sample_fixed_up`] is that field; a
-//! test checks it equals [`LevelField::sample`]. Only the level-0 transition needs the blend of
+//! test checks it equals [`LevelField::sample`].
+//!
+//! # Any number of levels: block levels
+//! A brick of level `k >= 2` stores `n/4 + 1` samples per axis (the paper's level-2 brick), so
+//! past level 2 it covers more than one brick of the grid: an aligned *block* of
+//! [`block_bricks`]`(k) = 2^(k - 2)` bricks per axis, all drawn at level `k` (checked; clipped to
+//! the grid at its far faces). Every brick of the grid keeps its own layout entry, so the
+//! ray-caster does not change; the bricks of a block share one stored brick. Such a level's band
+//! (one cell, `2^k`) can be wider than half a brick, so there the field is defined by the
+//! skeleton fixup alone ([`LevelField::sample`] uses [`LevelField::sample_fixed_up`] for those
+//! levels), and its C0 argument is the fixup's:
+//!
+//! - *across a face between levels `k` and `k + 1`*: the finer side's samples on the face hold
+//!   the coarser field there. The face lies on samples of level `k + 1` (a block of level `k`
+//!   spans `2^(k - 2) n` voxels, a multiple of `2^(k + 1)` once `n >= 8`), so the coarser field
+//!   on the face is linear between level-`k` samples, and the finer side's bilinear face
+//!   function equals it. The coarser side draws its own samples, unchanged on that face: a
+//!   coarser sample there touches level `k` and so, by the rule, no level-`k + 2` brick, which
+//!   alone would change it;
+//! - *between bricks of one level*: a fixed-up value depends on the sample's position only;
+//! - *inside a brick*: trilinear interpolation of one set of samples.
+//!
+//! With up to three levels the blend and the fixed-up field are the same function (tested). Only the level-0 transition needs the blend of
 //! `reference::mixed` (cell-centred samples never lie on a face). Reads and writes of the fixup
 //! never meet: a level-`k` brick writes only samples that touch a level-`k + 1` brick, and a
 //! level-`k - 1` brick reads only the level-`k` samples it touches, which touch no level-`k + 1`
@@ -120,13 +142,30 @@ pub enum LevelFieldError {
     /// No level grid at all.
     #[error("no level grids")]
     NoLevels,
-    /// A brick holds fewer than one cell of the coarsest level.
-    #[error("{levels} levels need bricks of at least 2^{} voxels; the bricks have {brick_size}", levels - 1)]
+    /// The bricks are too small for this many levels: up to three levels a brick must hold a
+    /// whole cell of the coarsest (`2^(levels - 1) <= n`); past three, the block levels need
+    /// bricks of at least 8 voxels (their blocks' faces then lie on the next level's samples).
+    #[error("{levels} levels need bricks of at least {min_brick_size} voxels; the bricks have {brick_size}")]
     TooManyLevels {
         /// Levels given.
         levels: usize,
+        /// The smallest brick size that takes them.
+        min_brick_size: u32,
         /// Brick size.
         brick_size: u32,
+    },
+    /// A brick of a block level is not part of a whole block at its level.
+    #[error(
+        "brick {brick} is level {level}, whose bricks come in aligned blocks of {block}^3; its \
+         block has a brick at another level or not drawn"
+    )]
+    BrokenBlock {
+        /// Linear brick index.
+        brick: usize,
+        /// Its level.
+        level: u32,
+        /// Bricks per axis of a block of that level.
+        block: u32,
     },
     /// The per-brick levels do not have one entry per brick.
     #[error("{given} brick levels for a grid of {bricks} bricks")]
@@ -384,9 +423,23 @@ impl<'a> LevelField<'a> {
             });
         }
         let n = grid.brick_size();
-        if grids.len() > 31 || (1u32 << (grids.len() - 1)) > n {
+        let min_brick_size = if grids.len() <= 3 {
+            1u32 << (grids.len() - 1)
+        } else {
+            8
+        };
+        // A cell-centred level's band (half a cell) must fit in half a brick.
+        let cell_centred = grids
+            .iter()
+            .filter(|g| g.placement == SamplePlacement::CellCentred)
+            .map(|g| 1u32 << g.level)
+            .max()
+            .unwrap_or(1);
+        let min_brick_size = min_brick_size.max(cell_centred);
+        if grids.len() > 31 || n < min_brick_size {
             return Err(LevelFieldError::TooManyLevels {
                 levels: grids.len(),
+                min_brick_size,
                 brick_size: n,
             });
         }
@@ -410,6 +463,7 @@ impl<'a> LevelField<'a> {
         if !check_level_rule_with(grid, |i| brick_levels[i]) {
             return Err(LevelFieldError::LevelRule);
         }
+        check_blocks(grid, brick_levels)?;
         let coarser_bits = grid
             .bricks()
             .map(|b| coarser_neighbour_bits(grid, b, |i| brick_levels[i]))
@@ -516,6 +570,13 @@ impl<'a> LevelField<'a> {
         if transition == Transition::Discontinuous || bits == 0 {
             return Some(own.trilinear(x));
         }
+        if own.placement == SamplePlacement::Vertex
+            && own.band_width() > 0.5 * self.brick_size as f32
+        {
+            // A block level: its band (one cell) is wider than half a brick; only the fixed-up
+            // construction is defined there (module docs).
+            return self.sample_fixed_up(x);
+        }
         // bits != 0: a level-(k+1) neighbour exists, so its grid does too (checked in new).
         let coarser = &self.grids[level + 1];
         let origin = b.as_vec3() * self.brick_size as f32;
@@ -528,6 +589,49 @@ impl<'a> LevelField<'a> {
             self.brick_size as f32,
         ))
     }
+}
+
+/// Bricks per axis of a block of `level`: 1 up to level 2, `2^(level - 2)` past it (a brick of
+/// level `k >= 2` stores `n/4 + 1` samples per axis every `2^k` voxels, so it covers
+/// `2^(k - 2)` bricks; module docs).
+pub fn block_bricks(level: u32) -> u32 {
+    1 << level.saturating_sub(2).min(30)
+}
+
+/// The first brick of the block of `level` holding `brick`.
+pub fn block_origin(brick: UVec3, level: u32) -> UVec3 {
+    let block = block_bricks(level);
+    brick / block * block
+}
+
+/// Checks that every drawn brick of a block level lies in an aligned block (clipped to the grid)
+/// whose bricks are all drawn at that level.
+fn check_blocks(grid: &BrickGrid, brick_levels: &[Option<u32>]) -> Result<(), LevelFieldError> {
+    for (brick, b) in grid.bricks().enumerate() {
+        let Some(level) = brick_levels[brick] else {
+            continue;
+        };
+        let block = block_bricks(level);
+        if block == 1 {
+            continue;
+        }
+        let first = block_origin(b, level);
+        let last = (first + UVec3::splat(block)).min(grid.bricks_per_axis());
+        for z in first.z..last.z {
+            for y in first.y..last.y {
+                for x in first.x..last.x {
+                    if brick_levels[grid.linear_index(UVec3::new(x, y, z))] != Some(level) {
+                        return Err(LevelFieldError::BrokenBlock {
+                            brick,
+                            level,
+                            block,
+                        });
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Trilinear interpolation at grid coordinate `u` (samples at integer coordinates) of the

@@ -121,3 +121,19 @@ pub fn boundary_classes() -> [(&'static str, InClass); 6] {
         ("checkerboard", |b| (b.x + b.y + b.z).is_multiple_of(2)),
     ]
 }
+
+/// The level of a brick `d` bricks (Chebyshev) from the grid's first corner on the staircase of
+/// powers of two: 0 at the corner, then `floor(log2 d) + 1`, shifted by `shift` and clamped to
+/// `0..levels`. Its steps sit at powers of two, so every level past 2 comes in aligned blocks of
+/// `2^(k - 2)` bricks, and adjacent bricks differ by at most one level.
+pub fn staircase_plan(bricks: UVec3, shift: i32, levels: u32) -> Vec<Option<u32>> {
+    per_brick(bricks, |b| {
+        let d = b.max_element();
+        let step = if d == 0 {
+            0
+        } else {
+            32 - d.leading_zeros() as i32
+        };
+        Some((step + shift).clamp(0, levels as i32 - 1) as u32)
+    })
+}

@@ -4,7 +4,8 @@
 //!   0-1 (a checkerboard), smooth and discontinuous;
 //! - the smooth / discontinuous ratio at each level pair of the three-level cache: 0-1 (the
 //!   ray-caster blends in the half-voxel bands) and 1-2 (the skeleton fixup does the work, the
-//!   ray-caster only fetches), and the three-level checkerboards against all level 0.
+//!   ray-caster only fetches), and the three-level checkerboards against all level 0;
+//! - the same ratio at the block level pairs 2-3 and 3-4 (bricks of 16, halves of the volume).
 //!
 //! The configurations are measured in interleaved rounds (one frame of each per round) and the
 //! medians compared. Both caches hold f32 texels (an f32 volume). Run: `cargo bench --bench
@@ -146,5 +147,73 @@ fn main() -> mixvol::Result<()> {
     row(4, format!("{:.2} vs all level 0", m[4] / m[6]));
     row(5, format!("{:.2} vs discontinuous", m[5] / m[4]));
     row(6, "1.00".into());
+
+    // The block levels (past 2): bricks of 16 (8x8x8), the halves x < 4 and x >= 4 one level
+    // apart, so levels 3 and 4 come in whole aligned blocks.
+    let block_size = 16;
+    let grid = BrickGrid::new(volume.dims(), block_size)?;
+    let halves = |low: u32| -> Vec<Option<u32>> {
+        (0..grid.brick_count())
+            .map(|i| Some(low + u32::from(grid.brick_coords(i).x >= 4)))
+            .collect()
+    };
+    let block_config = |transition| MixedConfig {
+        brick_size: block_size,
+        ..config(transition)
+    };
+    let blocks = |transition, levels: &[Option<u32>]| -> mixvol::Result<Renderer> {
+        let mut r = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
+        r.set_transfer_function(&tf)?;
+        r.set_source(VolumeSource::Levels {
+            volume: &volume,
+            levels,
+            config: block_config(transition),
+        })?;
+        Ok(r)
+    };
+    let mut deep: Vec<(&str, Renderer)> = vec![
+        (
+            "halves 2/3, discontinuous",
+            blocks(Transition::Discontinuous, &halves(2))?,
+        ),
+        (
+            "halves 2/3, smooth",
+            blocks(Transition::Smooth, &halves(2))?,
+        ),
+        (
+            "halves 3/4, discontinuous",
+            blocks(Transition::Discontinuous, &halves(3))?,
+        ),
+        (
+            "halves 3/4, smooth",
+            blocks(Transition::Smooth, &halves(3))?,
+        ),
+        (
+            "all level 0",
+            blocks(Transition::Smooth, &vec![Some(0); grid.brick_count()])?,
+        ),
+    ];
+    let mut times = vec![Vec::new(); deep.len()];
+    for (_, r) in deep.iter_mut() {
+        r.render(&camera, &settings, size, size)?;
+    }
+    for _ in 0..frames {
+        for (i, (_, r)) in deep.iter_mut().enumerate() {
+            let f = r.render(&camera, &settings, size, size)?;
+            times[i].push(f.timing.gpu_raycast_ms.unwrap_or(f.timing.cpu_frame_ms));
+        }
+    }
+    let d: Vec<f64> = times.into_iter().map(median).collect();
+    println!();
+    println!("Block levels, bricks {block_size}^3 (8x8x8), the same scene and frames:");
+    println!();
+    println!("| configuration | frame ms | ratio |");
+    println!("|---|---|---|");
+    let row = |i: usize, ratio: String| println!("| {} | {:.2} | {ratio} |", deep[i].0, d[i]);
+    row(0, format!("{:.2} vs all level 0", d[0] / d[4]));
+    row(1, format!("{:.2} vs discontinuous", d[1] / d[0]));
+    row(2, format!("{:.2} vs all level 0", d[2] / d[4]));
+    row(3, format!("{:.2} vs discontinuous", d[3] / d[2]));
+    row(4, "1.00".into());
     Ok(())
 }

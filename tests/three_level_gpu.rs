@@ -192,7 +192,8 @@ fn render_levels(
     budget: u64,
 ) -> (Frame, Vec<Vec4>) {
     let grid = BrickGrid::new(volume.dims(), N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(volume, LEVELS);
+    let deepest = levels.iter().flatten().max().copied().unwrap_or(0);
+    let grids = LevelGrid::vertex_pyramid(volume, deepest + 1);
     let field = LevelField::new(&grid, &grids, levels).unwrap();
     let tf = TransferFunction::preset(TfPreset::Bands);
     let camera = Camera::perspective(Vec3::new(1.0, 0.8, 1.5), Vec3::ZERO, 40.0);
@@ -283,6 +284,18 @@ fn three_level_frames_match_the_reference() {
                 d.max > 2.0 / 255.0,
                 "{name}: the transitions should change the frame ({d:?})"
             );
+        }
+
+        // Five levels over 16^3 bricks (levels 3 and 4 in blocks).
+        let volume = SyntheticField::MarschnerLobb
+            .generate(UVec3::splat(16 * N), ScalarType::F32)
+            .unwrap();
+        let grid = BrickGrid::new(volume.dims(), N).unwrap();
+        let levels = staircase_plan(grid.bricks_per_axis(), 0, 5);
+        for transition in [Transition::Smooth, Transition::Discontinuous] {
+            let (frame, expected) = render_levels(&ctx, &volume, &levels, transition, 1 << 20);
+            assert!(!frame.variant.absent_bricks);
+            assert_matches(&format!("five levels {transition:?}"), &frame, &expected);
         }
     }
     common::finish(ctx);

@@ -2,7 +2,7 @@
 //! brick stores per voxel it represents at each level, and the largest volume a cache of a given
 //! size can hold with every brick at its coarsest level.
 //!
-//! Two schemes:
+//! Three schemes:
 //! - [`Scheme::TwoLevel`], the one `mixvol` builds: `(n+2)^3` slots holding one level-0 brick or
 //!   eight `(n/2+1)^3` level-1 bricks. Its slot and sub-slot extents are read from the library
 //!   ([`hi_res_brick_extent`], [`low_res_brick_extent`], [`SUB_SLOTS_PER_SLOT`]).
@@ -10,6 +10,10 @@
 //!   ([`mixvol::cache::ThreeLevelGeometry`], drawn through `VolumeSource::Levels`): `(n+4)^3`
 //!   slots holding one level-0 brick, eight `(n/2+2)^3` level-1 bricks or sixty-four
 //!   `(n/4+1)^3` level-2 bricks. Its slot and sub-slot extents are read from the library too.
+//! - [`Scheme::Blocks`], the three-level packing with the block levels past 2 that `mixvol`
+//!   builds as well: a level-`k` brick of the level-2 size stands for an aligned block of
+//!   `2^(k - 2)` bricks per axis ([`mixvol::reference::block_bricks`]). Shown up to level
+//!   [`BLOCK_LEVELS`]` - 1`; there is no limit but the volume's.
 //!
 //! The cache is an image with a power of two texels on every axis, at most `max_dim_3d`
 //! (`maxImageDimension3D`) each, under a byte budget, and holds whole slots only, as
@@ -19,6 +23,10 @@
 
 use mixvol::bricks::{hi_res_brick_extent, low_res_brick_extent, SUB_SLOTS_PER_SLOT};
 use mixvol::cache::{ThreeLevelGeometry, THREE_LEVELS};
+use mixvol::reference::block_bricks;
+
+/// Levels of [`Scheme::Blocks`] in the report (0-5: blocks of up to 8^3 bricks).
+pub const BLOCK_LEVELS: u32 = 6;
 use std::fmt::Write as _;
 
 /// A way of packing brick levels into cache slots.
@@ -29,17 +37,20 @@ pub enum Scheme {
     /// `(n+4)^3` slots: one level-0, eight level-1 or 64 level-2 bricks (the paper's §3.1;
     /// built).
     ThreeLevel,
+    /// The three-level packing with levels past 2 as blocks of bricks (built).
+    Blocks,
 }
 
 impl Scheme {
-    /// Both schemes, the built one first.
-    pub const ALL: [Scheme; 2] = [Scheme::TwoLevel, Scheme::ThreeLevel];
+    /// Every scheme, in the order they were built.
+    pub const ALL: [Scheme; 3] = [Scheme::TwoLevel, Scheme::ThreeLevel, Scheme::Blocks];
 
     /// A short name for tables.
     pub fn name(self) -> &'static str {
         match self {
             Scheme::TwoLevel => "two levels, (n+2)^3 slots (built)",
             Scheme::ThreeLevel => "three levels, (n+4)^3 slots (paper §3.1, built)",
+            Scheme::Blocks => "block levels past 2, (n+4)^3 slots (built)",
         }
     }
 
@@ -47,7 +58,7 @@ impl Scheme {
     pub fn slot_edge(self, n: u32) -> u32 {
         match self {
             Scheme::TwoLevel => hi_res_brick_extent(n),
-            Scheme::ThreeLevel => three_level(n).slot_edge(),
+            Scheme::ThreeLevel | Scheme::Blocks => three_level(n).slot_edge(),
         }
     }
 
@@ -59,9 +70,14 @@ impl Scheme {
                 (hi_res_brick_extent(n), 1),
                 (low_res_brick_extent(n), SUB_SLOTS_PER_SLOT),
             ],
-            Scheme::ThreeLevel => {
+            Scheme::ThreeLevel | Scheme::Blocks => {
                 let geometry = three_level(n);
-                (0..THREE_LEVELS)
+                let levels = if self == Scheme::Blocks {
+                    BLOCK_LEVELS
+                } else {
+                    THREE_LEVELS
+                };
+                (0..levels)
                     .map(|k| {
                         (
                             geometry.sub_slot_edge(k),
@@ -70,6 +86,17 @@ impl Scheme {
                     })
                     .collect()
             }
+        }
+    }
+}
+
+impl Scheme {
+    /// Bricks per axis one stored brick of `level` stands for: 1, or the block of
+    /// [`Scheme::Blocks`].
+    pub fn block(self, level: u32) -> u32 {
+        match self {
+            Scheme::Blocks => block_bricks(level),
+            Scheme::TwoLevel | Scheme::ThreeLevel => 1,
         }
     }
 }
@@ -87,9 +114,9 @@ fn three_level(n: u32) -> ThreeLevelGeometry {
 pub struct LevelCost {
     /// The level (0 = full resolution).
     pub level: u32,
-    /// Cache texels one brick of this level takes: its share of a slot.
+    /// Cache texels one stored brick of this level takes: its share of a slot.
     pub texels_per_brick: f64,
-    /// Cache texels per voxel of the volume the brick represents (`n^3` voxels).
+    /// Cache texels per voxel of the volume the stored brick represents (`(block n)^3` voxels).
     pub texels_per_voxel: f64,
 }
 
@@ -103,10 +130,11 @@ pub fn level_costs(scheme: Scheme, n: u32) -> Vec<LevelCost> {
         .enumerate()
         .map(|(level, &(_, per_slot))| {
             let texels_per_brick = slot / f64::from(per_slot);
+            let voxels = f64::from(scheme.block(level as u32) * n).powi(3);
             LevelCost {
                 level: level as u32,
                 texels_per_brick,
-                texels_per_voxel: texels_per_brick / f64::from(n).powi(3),
+                texels_per_voxel: texels_per_brick / voxels,
             }
         })
         .collect()
@@ -156,9 +184,9 @@ pub struct Capacity {
     pub extent: [u32; 3],
     /// Its slots.
     pub slots: u64,
-    /// Bricks it holds at the coarsest level.
+    /// Stored bricks it holds at the coarsest level.
     pub bricks: u64,
-    /// Voxels those bricks represent (`bricks * n^3`).
+    /// Voxels those bricks represent (`bricks * (block n)^3`).
     pub voxels: u64,
 }
 
@@ -176,13 +204,15 @@ pub fn capacity(
         byte_budget,
         max_dim_3d,
     )?;
-    let per_slot = scheme.levels(n).last().map_or(1, |&(_, k)| u64::from(k));
+    let levels = scheme.levels(n);
+    let per_slot = levels.last().map_or(1, |&(_, k)| u64::from(k));
+    let block = u64::from(scheme.block(levels.len().saturating_sub(1) as u32));
     let bricks = slots * per_slot;
     Some(Capacity {
         extent,
         slots,
         bricks,
-        voxels: bricks * u64::from(n).pow(3),
+        voxels: bricks * (block * u64::from(n)).pow(3),
     })
 }
 
@@ -193,29 +223,37 @@ pub fn report(bytes_per_texel: u32, byte_budget: u64, max_dim_3d: u32) -> String
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "Texels stored per voxel represented (a brick's share of its slot over its n^3 voxels):\n"
+        "Texels stored per voxel represented (a stored brick's share of its slot over the \
+         voxels it stands for: n^3, or (block n)^3 for the block levels):\n"
     );
-    let _ = writeln!(s, "| scheme | n | level 0 | level 1 | level 2 |");
-    let _ = writeln!(s, "|---|---|---|---|---|");
+    let _ = write!(s, "| scheme | n |");
+    for level in 0..BLOCK_LEVELS {
+        let _ = write!(s, " level {level} |");
+    }
+    let _ = writeln!(s, "\n|---|---|{}", "---|".repeat(BLOCK_LEVELS as usize));
     for scheme in Scheme::ALL {
         for n in [16, 32, 64] {
             let costs = level_costs(scheme, n);
             let cell = |l: usize| {
                 costs.get(l).map_or("-".to_string(), |c| {
-                    format!(
-                        "{:.4} ({:.0} texels)",
-                        c.texels_per_voxel, c.texels_per_brick
-                    )
+                    if c.texels_per_voxel >= 1e-3 {
+                        format!(
+                            "{:.4} ({:.0} texels)",
+                            c.texels_per_voxel, c.texels_per_brick
+                        )
+                    } else {
+                        format!(
+                            "{:.2e} ({:.0} texels)",
+                            c.texels_per_voxel, c.texels_per_brick
+                        )
+                    }
                 })
             };
-            let _ = writeln!(
-                s,
-                "| {} | {n} | {} | {} | {} |",
-                scheme.name(),
-                cell(0),
-                cell(1),
-                cell(2)
-            );
+            let _ = write!(s, "| {} | {n} |", scheme.name());
+            for level in 0..BLOCK_LEVELS as usize {
+                let _ = write!(s, " {} |", cell(level));
+            }
+            let _ = writeln!(s);
         }
     }
     let _ = writeln!(

@@ -99,3 +99,27 @@ fn three_levels_draw_several_times_the_volume_of_two() {
     // No slot fits a budget below one power-of-two slot.
     assert!(capacity(Scheme::ThreeLevel, 32, 1, 63 * 63 * 63, 16384).is_none());
 }
+
+#[test]
+fn each_block_level_costs_an_eighth_of_the_one_before() {
+    // Past level 2 a stored brick keeps the level-2 size and covers twice the extent per axis.
+    for n in [16, 32, 64] {
+        let costs = level_costs(Scheme::Blocks, n);
+        let three = level_costs(Scheme::ThreeLevel, n);
+        assert_eq!(
+            costs.len(),
+            mixvol_experiments::capacity::BLOCK_LEVELS as usize
+        );
+        assert_eq!(&costs[..3], &three[..]);
+        for k in 3..costs.len() {
+            assert_eq!(costs[k].texels_per_brick, costs[2].texels_per_brick);
+            let ratio = costs[k - 1].texels_per_voxel / costs[k].texels_per_voxel;
+            assert!((ratio - 8.0).abs() < 1e-9, "n {n}, level {k}: {ratio}");
+        }
+        // The same slots, each stored brick standing for 8^3 bricks at level 5.
+        let blocks = capacity(Scheme::Blocks, n, 1, 2 << 30, 16384).unwrap();
+        let three = capacity(Scheme::ThreeLevel, n, 1, 2 << 30, 16384).unwrap();
+        assert_eq!(blocks.slots, three.slots);
+        assert_eq!(blocks.voxels, three.voxels * 512);
+    }
+}

@@ -109,17 +109,20 @@ fn main() -> mixvol::Result<()> {
             three_level(Transition::Smooth, &all_fine)?,
         ),
     ];
-    let mut times = vec![Vec::new(); configs.len()];
-    for (_, r) in configs.iter_mut() {
-        r.render(&camera, &settings, size, size)?; // warm-up: llvmpipe compiles at first draw
-    }
-    for _ in 0..frames {
-        for (i, (_, r)) in configs.iter_mut().enumerate() {
-            let f = r.render(&camera, &settings, size, size)?;
-            times[i].push(f.timing.gpu_raycast_ms.unwrap_or(f.timing.cpu_frame_ms));
+    let measure = |configs: &mut [(&str, Renderer)]| -> mixvol::Result<Vec<f64>> {
+        let mut times = vec![Vec::new(); configs.len()];
+        for (_, r) in configs.iter_mut() {
+            r.render(&camera, &settings, size, size)?; // warm-up: llvmpipe compiles at first draw
         }
-    }
-    let m: Vec<f64> = times.into_iter().map(median).collect();
+        for _ in 0..frames {
+            for (i, (_, r)) in configs.iter_mut().enumerate() {
+                let f = r.render(&camera, &settings, size, size)?;
+                times[i].push(f.timing.gpu_raycast_ms.unwrap_or(f.timing.cpu_frame_ms));
+            }
+        }
+        Ok(times.into_iter().map(median).collect())
+    };
+    let m = measure(&mut configs)?;
     let info = ctx.info();
     println!(
         "# three levels against two, Marschner-Lobb 128^3 f32, bricks {brick_size}^3 ({}x{}x{}), {size}x{size}, {}, median of {frames} interleaved frames",
@@ -193,17 +196,7 @@ fn main() -> mixvol::Result<()> {
             blocks(Transition::Smooth, &vec![Some(0); grid.brick_count()])?,
         ),
     ];
-    let mut times = vec![Vec::new(); deep.len()];
-    for (_, r) in deep.iter_mut() {
-        r.render(&camera, &settings, size, size)?;
-    }
-    for _ in 0..frames {
-        for (i, (_, r)) in deep.iter_mut().enumerate() {
-            let f = r.render(&camera, &settings, size, size)?;
-            times[i].push(f.timing.gpu_raycast_ms.unwrap_or(f.timing.cpu_frame_ms));
-        }
-    }
-    let d: Vec<f64> = times.into_iter().map(median).collect();
+    let d = measure(&mut deep)?;
     println!();
     println!("Block levels, bricks {block_size}^3 (8x8x8), the same scene and frames:");
     println!();

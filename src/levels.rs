@@ -17,7 +17,7 @@ use crate::gpu::{
     CacheRegion, CacheTables, DeviceShared, FieldProbe, GpuBrickCache, GpuContext, SlotPacking,
     StagingUpload, Submitter,
 };
-use crate::reference::{block_origin, LevelField, LevelReferenceCache};
+use crate::reference::{LevelField, LevelReferenceCache};
 use crate::scene::Transition;
 use crate::volume::ScalarType;
 use glam::{UVec3, Vec3};
@@ -83,33 +83,10 @@ pub(crate) fn stage_three_level(
     let mut fixup_slots = Vec::new();
     let mut skeleton_bricks = Vec::new();
     let mut any_coarse = false;
-    let bricks = packed.bricks;
-    let coords = |i: usize| {
-        let i = i as u32;
-        UVec3::new(
-            i % bricks.x,
-            (i / bricks.x) % bricks.y,
-            i / (bricks.x * bricks.y),
-        )
-    };
-    let linear = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
-    // A skeleton job per stored brick one of whose bricks has a coarser neighbour.
-    let mut skeleton_job = vec![false; packed.places.len()];
-    for (brick, place) in packed.places.iter().enumerate() {
-        if let Some(place) = place {
-            if place.level > 0 && packed.neighbours[brick] != 0 {
-                skeleton_job[linear(block_origin(coords(brick), place.level))] = true;
-            }
-        }
-    }
-    for (brick, place) in packed.places.iter().enumerate() {
-        let Some(place) = *place else {
+    for &brick in &packed.stored {
+        let Some(place) = packed.places[brick] else {
             continue;
         };
-        if block_origin(coords(brick), place.level) != coords(brick) {
-            // Another brick of the block holds the stored brick.
-            continue;
-        }
         let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
         let extent = UVec3::splat(geometry.stored_edge(place.level));
         let mut texels = Vec::with_capacity(extent.element_product() as usize);
@@ -134,7 +111,7 @@ pub(crate) fn stage_three_level(
             }
         } else {
             any_coarse = true;
-            if skeleton_job[brick] {
+            if packed.block_has_coarser_neighbour(brick) {
                 skeleton_bricks.push(index);
             }
         }

@@ -33,23 +33,7 @@ impl CacheGeometry {
     /// below [`super::EMPTY`].
     pub fn new(brick_size: u32, extent: UVec3) -> Result<Self, CacheError> {
         check_brick_size(brick_size)?;
-        let slot_edge = hi_res_brick_extent(brick_size);
-        if extent
-            .to_array()
-            .iter()
-            .any(|&c| !c.is_power_of_two() || c < slot_edge)
-        {
-            return Err(CacheError::InvalidExtent {
-                extent: extent.to_array(),
-                slot_edge,
-            });
-        }
-        let slots_per_axis = extent / slot_edge;
-        let slots =
-            u64::from(slots_per_axis.x) * u64::from(slots_per_axis.y) * u64::from(slots_per_axis.z);
-        if slots >= u64::from(super::EMPTY) {
-            return Err(CacheError::TooManySlots { slots });
-        }
+        let slots_per_axis = whole_slots(hi_res_brick_extent(brick_size), extent)?;
         Ok(Self {
             brick_size,
             extent,
@@ -245,8 +229,30 @@ pub(super) fn choose_extent(
     Ok(UVec3::from_array(best.map_or(smallest, |(_, e)| e)))
 }
 
+/// Whole slots of edge `slot_edge` per axis of a cache of `extent` texels: every axis a power of
+/// two holding at least one slot, fewer slots than a `u32` slot index below [`super::EMPTY`]
+/// addresses. Shared with [`super::ThreeLevelGeometry::new`].
+pub(super) fn whole_slots(slot_edge: u32, extent: UVec3) -> Result<UVec3, CacheError> {
+    if extent
+        .to_array()
+        .iter()
+        .any(|&c| !c.is_power_of_two() || c < slot_edge)
+    {
+        return Err(CacheError::InvalidExtent {
+            extent: extent.to_array(),
+            slot_edge,
+        });
+    }
+    let slots_per_axis = extent / slot_edge;
+    let slots = slots_per_axis.as_u64vec3().element_product();
+    if slots >= u64::from(super::EMPTY) {
+        return Err(CacheError::TooManySlots { slots });
+    }
+    Ok(slots_per_axis)
+}
+
 /// Checks `n` is a power of two in `MIN_BRICK_SIZE..=MAX_BRICK_SIZE`.
-fn check_brick_size(brick_size: u32) -> Result<(), CacheError> {
+pub(super) fn check_brick_size(brick_size: u32) -> Result<(), CacheError> {
     if brick_size.is_power_of_two() && (MIN_BRICK_SIZE..=MAX_BRICK_SIZE).contains(&brick_size) {
         Ok(())
     } else {

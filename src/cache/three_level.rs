@@ -23,8 +23,8 @@
 //!
 //! `t_w` is exact in `f32`, and the ray-caster's test `t_w == 1` still singles out level 0.
 
-use super::{CacheError, MIN_BRICK_SIZE};
-use crate::bricks::MAX_BRICK_SIZE;
+use super::geometry::{check_brick_size, choose_extent, whole_slots};
+use super::CacheError;
 use glam::UVec3;
 
 /// Levels of the three-level packing: its three sizes of stored brick (levels past 2 use the
@@ -57,26 +57,8 @@ impl ThreeLevelGeometry {
     /// in `MIN_BRICK_SIZE..=MAX_BRICK_SIZE` (a level-2 brick then has whole cells), every axis of
     /// `extent` a power of two holding at least one slot, and fewer slots than `u32::MAX`.
     pub fn new(brick_size: u32, extent: UVec3) -> Result<Self, CacheError> {
-        if !brick_size.is_power_of_two() || !(MIN_BRICK_SIZE..=MAX_BRICK_SIZE).contains(&brick_size)
-        {
-            return Err(CacheError::InvalidBrickSize { size: brick_size });
-        }
-        let slot_edge = brick_size + 4;
-        if extent
-            .to_array()
-            .iter()
-            .any(|&c| !c.is_power_of_two() || c < slot_edge)
-        {
-            return Err(CacheError::InvalidExtent {
-                extent: extent.to_array(),
-                slot_edge,
-            });
-        }
-        let slots_per_axis = extent / slot_edge;
-        let slots = slots_per_axis.as_u64vec3().element_product();
-        if slots >= u64::from(super::EMPTY) {
-            return Err(CacheError::TooManySlots { slots });
-        }
+        check_brick_size(brick_size)?;
+        let slots_per_axis = whole_slots(brick_size + 4, extent)?;
         Ok(Self {
             brick_size,
             extent,
@@ -97,11 +79,8 @@ impl ThreeLevelGeometry {
         max_dim_3d: u32,
         slots_wanted: u32,
     ) -> Result<Self, CacheError> {
-        if !brick_size.is_power_of_two() || !(MIN_BRICK_SIZE..=MAX_BRICK_SIZE).contains(&brick_size)
-        {
-            return Err(CacheError::InvalidBrickSize { size: brick_size });
-        }
-        let extent = super::geometry::choose_extent(
+        check_brick_size(brick_size)?;
+        let extent = choose_extent(
             brick_size + 4,
             bytes_per_texel,
             byte_budget,

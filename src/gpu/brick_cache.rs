@@ -66,6 +66,31 @@ impl SlotPacking {
     }
 }
 
+/// The descriptor bindings of a fixup pass: the cache as a storage image, the layout and neighbour
+/// tables, the job list, and for `fixup.comp` (`reverse`) the reverse table, which
+/// `skeleton_fixup.comp` does not read.
+fn fixup_bindings(reverse: bool) -> Vec<(u32, vk::DescriptorType)> {
+    let mut bindings = vec![
+        (FIXUP_BINDING_CACHE, vk::DescriptorType::STORAGE_IMAGE),
+        (
+            FIXUP_BINDING_LAYOUT_TABLE,
+            vk::DescriptorType::STORAGE_BUFFER,
+        ),
+        (
+            FIXUP_BINDING_NEIGHBOUR_TABLE,
+            vk::DescriptorType::STORAGE_BUFFER,
+        ),
+        (FIXUP_BINDING_JOBS, vk::DescriptorType::STORAGE_BUFFER),
+    ];
+    if reverse {
+        bindings.push((
+            FIXUP_BINDING_REVERSE_TABLE,
+            vk::DescriptorType::STORAGE_BUFFER,
+        ));
+    }
+    bindings
+}
+
 /// One reverse-table entry: the bricks in a cache slot (`SUB_SLOTS_PER_SLOT` words in GLSL).
 type ReverseEntry = [u32; SUB_SLOTS_PER_SLOT as usize];
 
@@ -213,22 +238,7 @@ impl GpuBrickCache {
                 ("CACHE_IMAGE_FORMAT", glsl_format.to_string()),
                 ("SLOT_BORDER", packing.slot_border().to_string()),
             ],
-            &[
-                (FIXUP_BINDING_CACHE, vk::DescriptorType::STORAGE_IMAGE),
-                (
-                    FIXUP_BINDING_LAYOUT_TABLE,
-                    vk::DescriptorType::STORAGE_BUFFER,
-                ),
-                (
-                    FIXUP_BINDING_NEIGHBOUR_TABLE,
-                    vk::DescriptorType::STORAGE_BUFFER,
-                ),
-                (
-                    FIXUP_BINDING_REVERSE_TABLE,
-                    vk::DescriptorType::STORAGE_BUFFER,
-                ),
-                (FIXUP_BINDING_JOBS, vk::DescriptorType::STORAGE_BUFFER),
-            ],
+            &fixup_bindings(true),
             std::mem::size_of::<FixupPush>() as u32,
             frames,
         )?;
@@ -238,18 +248,7 @@ impl GpuBrickCache {
                 shared,
                 "skeleton_fixup.comp",
                 &[("CACHE_IMAGE_FORMAT", glsl_format.to_string())],
-                &[
-                    (FIXUP_BINDING_CACHE, vk::DescriptorType::STORAGE_IMAGE),
-                    (
-                        FIXUP_BINDING_LAYOUT_TABLE,
-                        vk::DescriptorType::STORAGE_BUFFER,
-                    ),
-                    (
-                        FIXUP_BINDING_NEIGHBOUR_TABLE,
-                        vk::DescriptorType::STORAGE_BUFFER,
-                    ),
-                    (FIXUP_BINDING_JOBS, vk::DescriptorType::STORAGE_BUFFER),
-                ],
+                &fixup_bindings(false),
                 std::mem::size_of::<FixupPush>() as u32,
                 frames,
             )?),
@@ -444,28 +443,7 @@ impl GpuBrickCache {
             let slot = &self.slots[frame];
             self.fixup.write_descriptors(
                 frame,
-                &[
-                    (
-                        FIXUP_BINDING_CACHE,
-                        ComputeResource::StorageImage(self.image.view),
-                    ),
-                    (
-                        FIXUP_BINDING_LAYOUT_TABLE,
-                        ComputeResource::StorageBuffer(slot.layout.raw),
-                    ),
-                    (
-                        FIXUP_BINDING_NEIGHBOUR_TABLE,
-                        ComputeResource::StorageBuffer(slot.neighbours.raw),
-                    ),
-                    (
-                        FIXUP_BINDING_REVERSE_TABLE,
-                        ComputeResource::StorageBuffer(slot.reverse.raw),
-                    ),
-                    (
-                        FIXUP_BINDING_JOBS,
-                        ComputeResource::StorageBuffer(slot.jobs.raw),
-                    ),
-                ],
+                &self.fixup_resources(slot, slot.jobs.raw, Some(slot.reverse.raw)),
             );
             // A brick face with its border: n + 2 texels a side.
             let groups_xy = (pending.push.bricks[3] as u32 + 2).div_ceil(FIXUP_GROUP_SIZE);
@@ -491,24 +469,7 @@ impl GpuBrickCache {
             let slot = &self.slots[frame];
             skeleton.write_descriptors(
                 frame,
-                &[
-                    (
-                        FIXUP_BINDING_CACHE,
-                        ComputeResource::StorageImage(self.image.view),
-                    ),
-                    (
-                        FIXUP_BINDING_LAYOUT_TABLE,
-                        ComputeResource::StorageBuffer(slot.layout.raw),
-                    ),
-                    (
-                        FIXUP_BINDING_NEIGHBOUR_TABLE,
-                        ComputeResource::StorageBuffer(slot.neighbours.raw),
-                    ),
-                    (
-                        FIXUP_BINDING_JOBS,
-                        ComputeResource::StorageBuffer(slot.skeleton_jobs.raw),
-                    ),
-                ],
+                &self.fixup_resources(slot, slot.skeleton_jobs.raw, None),
             );
             // A level-1 brick face: n/2 + 1 samples a side (level-2 jobs use fewer).
             let groups_xy = (pending.push.bricks[3] as u32 / 2 + 1).div_ceil(FIXUP_GROUP_SIZE);
@@ -537,6 +498,38 @@ impl GpuBrickCache {
         write_timestamp(1);
         self.initialized = true;
         Ok(true)
+    }
+
+    /// The resources of [`fixup_bindings`] for frame slot tables `slot`: the job list `jobs`,
+    /// and the reverse table where the pass reads it.
+    fn fixup_resources(
+        &self,
+        slot: &SlotTables,
+        jobs: vk::Buffer,
+        reverse: Option<vk::Buffer>,
+    ) -> Vec<(u32, ComputeResource)> {
+        let mut resources = vec![
+            (
+                FIXUP_BINDING_CACHE,
+                ComputeResource::StorageImage(self.image.view),
+            ),
+            (
+                FIXUP_BINDING_LAYOUT_TABLE,
+                ComputeResource::StorageBuffer(slot.layout.raw),
+            ),
+            (
+                FIXUP_BINDING_NEIGHBOUR_TABLE,
+                ComputeResource::StorageBuffer(slot.neighbours.raw),
+            ),
+            (FIXUP_BINDING_JOBS, ComputeResource::StorageBuffer(jobs)),
+        ];
+        if let Some(reverse) = reverse {
+            resources.push((
+                FIXUP_BINDING_REVERSE_TABLE,
+                ComputeResource::StorageBuffer(reverse),
+            ));
+        }
+        resources
     }
 
     /// Reads the whole cache image back (for tests): texel bytes, x fastest.

@@ -7,7 +7,7 @@
 //! # The fixups (Smooth only)
 //! - **Border fixup** of every level-0 brick with a level-1 neighbour: the inner border layer
 //!   (slot-local texels 1 and `n + 2`) gets the nearest level-1 sample of the first level-1
-//!   neighbour in [`FIXUP_PRECEDENCE`], as `reference::mixed::fixup_value` computes it for the
+//!   neighbour in [`FIXUP_PRECEDENCE`](super::FIXUP_PRECEDENCE), as `reference::mixed::fixup_value` computes it for the
 //!   two-level cache.
 //! - **Skeleton fixup** of every stored brick of a level `k >= 1` with a level-`k + 1` neighbour
 //!   ([`skeleton_fixup_value`]): each stored sample on a face, edge or corner that touches a
@@ -23,8 +23,7 @@
 //! before the skeleton fixup: the fixup overwrites the brick's own samples and cannot restore them.
 
 use super::level_field::{block_bricks, block_origin, LevelField, SamplePlacement};
-use super::mixed::{fixup_value, offset_of, touching, CacheImage, MixedVolume, FIXUP_PRECEDENCE};
-use crate::cache::tables::neighbour_bit;
+use super::mixed::{first_marked_neighbour, fixup_value, touching, CacheImage, MixedVolume};
 use crate::cache::{LevelSlot, ThreeLevelGeometry, THREE_LEVELS};
 use crate::scene::Transition;
 use glam::{IVec3, UVec3};
@@ -73,8 +72,11 @@ pub struct LevelReferenceCache {
     /// Coarser bits per brick ([`LevelField::coarser_bits`]): for a level-0 brick the 26
     /// neighbour bits of the two-level cache.
     pub neighbours: Vec<u32>,
-    /// Where each brick lives, `None` when not drawn.
+    /// Where each brick lives, `None` when not drawn (the bricks of a block share a place).
     pub places: Vec<Option<LevelSlot>>,
+    /// The bricks that hold a stored brick, in packing order: every drawn brick up to level 2,
+    /// the first brick of each block past it.
+    pub stored: Vec<usize>,
     /// Bricks per axis.
     pub bricks: UVec3,
     /// Brick size.
@@ -156,7 +158,7 @@ impl LevelReferenceCache {
         let mut image = CacheImage::new(geometry.extent());
         let mut places = vec![None; count];
         let mut layout = vec![[0.0; 4]; count];
-        let mut owners = Vec::new();
+        let mut stored_bricks = Vec::new();
         let mut next_slot = 0;
         for (k, class_bricks) in stored.iter().enumerate() {
             let per_slot = ThreeLevelGeometry::bricks_per_slot(k as u32);
@@ -186,7 +188,7 @@ impl LevelReferenceCache {
                         }
                     }
                 }
-                owners.push(i);
+                stored_bricks.push(i);
                 let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
                 let edge = geometry.stored_edge(level);
                 // Level 0: voxel n*b - 2 + t; level k: sample n*b0/2^k + t (module docs of
@@ -214,7 +216,7 @@ impl LevelReferenceCache {
         let neighbours: Vec<u32> = (0..count).map(|i| field.coarser_bits(i)).collect();
 
         if transition == Transition::Smooth {
-            for &i in &owners {
+            for &i in &stored_bricks {
                 let Some(place) = places[i] else {
                     continue;
                 };
@@ -258,8 +260,29 @@ impl LevelReferenceCache {
             layout,
             neighbours,
             places,
+            stored: stored_bricks,
             bricks,
             brick_size: n,
+        })
+    }
+
+    /// Whether a brick of the block held by stored brick `brick` (one of [`Self::stored`]) has
+    /// a neighbour one level coarser: the block's fixup has work.
+    pub fn block_has_coarser_neighbour(&self, brick: usize) -> bool {
+        let Some(place) = self.places[brick] else {
+            return false;
+        };
+        let b = self.bricks;
+        let first = UVec3::new(
+            brick as u32 % b.x,
+            (brick as u32 / b.x) % b.y,
+            brick as u32 / (b.x * b.y),
+        );
+        let end = (first + UVec3::splat(block_bricks(place.level))).min(b);
+        (first.z..end.z).any(|z| {
+            (first.y..end.y).any(|y| {
+                (first.x..end.x).any(|x| self.neighbours[(x + b.x * (y + b.y * z)) as usize] != 0)
+            })
         })
     }
 
@@ -295,7 +318,7 @@ fn boundary_texels(edge: u32, on_boundary: impl Fn(u32) -> bool) -> Vec<UVec3> {
 /// `None` when the sample touches no brick of level `level + 1` (it keeps its value). The sample
 /// sits at `n*first + 2^level t`; the brick of the block whose box holds it (the last one at the
 /// block's far faces) says, through its coarser bits `neighbours[..]`, which bricks touch it.
-/// The value is the field of the first touching coarser brick in [`FIXUP_PRECEDENCE`] at the
+/// The value is the field of the first touching coarser brick in [`FIXUP_PRECEDENCE`](super::FIXUP_PRECEDENCE) at the
 /// sample's position: one trilinear fetch through that brick's layout entry. Mirrors
 /// `glsl/skeleton_fixup.comp`.
 #[allow(clippy::too_many_arguments)] // reason: mirrors a shader's per-texel inputs.
@@ -330,18 +353,7 @@ pub fn skeleton_fixup_value(
     if mask == 0 || bits & touching(mask, side) == 0 {
         return None;
     }
-    for candidate in FIXUP_PRECEDENCE {
-        if candidate & !mask != 0 {
-            continue;
-        }
-        let d = offset_of(candidate, side);
-        if bits & neighbour_bit(d) == 0 {
-            continue;
-        }
-        let nb = brick + d;
-        let ni = (nb.x as u32 + bricks.x * (nb.y as u32 + bricks.y * nb.z as u32)) as usize;
-        let [tx, ty, tz, tw] = layout[ni];
-        return Some(cache.fetch(position.as_vec3() * tw + glam::Vec3::new(tx, ty, tz)));
-    }
-    None
+    let (_, ni) = first_marked_neighbour(bits, mask, side, brick, bricks)?;
+    let [tx, ty, tz, tw] = layout[ni];
+    Some(cache.fetch(position.as_vec3() * tw + glam::Vec3::new(tx, ty, tz)))
 }

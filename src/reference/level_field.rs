@@ -98,6 +98,7 @@ use crate::scene::Transition;
 use glam::{BVec3, IVec3, UVec3, Vec3};
 
 use super::mixed::{active_axes, brick_of, feature_touches_low_res};
+use super::sampling::trilinear;
 
 /// Where a level's samples sit in its cells.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]
@@ -632,21 +633,6 @@ fn check_blocks(grid: &BrickGrid, brick_levels: &[Option<u32>]) -> Result<(), Le
         }
     }
     Ok(())
-}
-
-/// Trilinear interpolation at grid coordinate `u` (samples at integer coordinates) of the
-/// samples `value(k)`, in f64 with one rounding at the end.
-fn trilinear(u: Vec3, value: impl Fn(IVec3) -> f32) -> f32 {
-    let base = u.floor();
-    let f = (u - base).as_dvec3();
-    let b = base.as_ivec3();
-    let v = |d: IVec3| f64::from(value(b + d));
-    let lerp = |a: f64, c: f64, t: f64| a + (c - a) * t;
-    let c00 = lerp(v(IVec3::new(0, 0, 0)), v(IVec3::new(1, 0, 0)), f.x);
-    let c10 = lerp(v(IVec3::new(0, 1, 0)), v(IVec3::new(1, 1, 0)), f.x);
-    let c01 = lerp(v(IVec3::new(0, 0, 1)), v(IVec3::new(1, 0, 1)), f.x);
-    let c11 = lerp(v(IVec3::new(0, 1, 1)), v(IVec3::new(1, 1, 1)), f.x);
-    lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z) as f32
 }
 
 /// Band axes of local point `q` for a band of width `w` in a brick of size `n`: (band mask,

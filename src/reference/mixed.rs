@@ -81,19 +81,7 @@ impl CacheImage {
     /// Trilinear fetch at texel coordinate `p` (texel centres at `i + 0.5`), clamp to edge:
     /// `texture()` on the cache with unnormalised coordinates.
     pub fn fetch(&self, p: Vec3) -> f32 {
-        let x = p - Vec3::splat(0.5);
-        let base = x.floor();
-        let f = x - base;
-        let b = base.as_ivec3();
-        // In f64: `c - a` cannot overflow between finite texels; one rounding at the end.
-        let v = |d: IVec3| f64::from(self.texel(b + d));
-        let f = f.as_dvec3();
-        let lerp = |a: f64, c: f64, t: f64| a + (c - a) * t;
-        let c00 = lerp(v(IVec3::new(0, 0, 0)), v(IVec3::new(1, 0, 0)), f.x);
-        let c10 = lerp(v(IVec3::new(0, 1, 0)), v(IVec3::new(1, 1, 0)), f.x);
-        let c01 = lerp(v(IVec3::new(0, 0, 1)), v(IVec3::new(1, 0, 1)), f.x);
-        let c11 = lerp(v(IVec3::new(0, 1, 1)), v(IVec3::new(1, 1, 1)), f.x);
-        lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z) as f32
+        super::sampling::trilinear(p - Vec3::splat(0.5), |t| self.texel(t))
     }
 }
 
@@ -418,37 +406,50 @@ pub fn fixup_value(
         return None;
     }
     let n = brick_size as i32;
-    for candidate in FIXUP_PRECEDENCE {
-        if candidate & !border_mask != 0 {
-            continue;
-        }
-        let d = offset_of(candidate, side);
-        if bits & neighbour_bit(d) == 0 {
-            continue;
-        }
-        let nb = brick + d;
-        let ni = (nb.x as u32 + bricks.x * (nb.y as u32 + bricks.y * nb.z as u32)) as usize;
-        let [nx, ny, nz, _] = layout[ni];
-        // Nearest low-res sample (even position) of the neighbour to the texel's position.
-        let mut sample = IVec3::ZERO;
-        for a in 0..3 {
-            sample[a] = match d[a] {
-                -1 => n * brick[a],
-                1 => n * (brick[a] + 1),
-                _ => {
-                    // Texel t sits at n*b - 1 + t + 0.5; nearest even integer, inside the neighbour.
-                    let p = n * brick[a] - 1 + t[a] as i32; // position - 0.5
-                    let even = 2 * ((p + 1).div_euclid(2)); // p + 0.5 rounded to even
-                    even.clamp(n * nb[a], n * (nb[a] + 1))
-                }
-            };
-        }
-        let texel = (sample.as_vec3() * 0.5 + Vec3::new(nx, ny, nz))
-            .floor()
-            .as_ivec3();
-        return Some(cache.texel(texel));
+    let (d, ni) = first_marked_neighbour(bits, border_mask, side, brick, bricks)?;
+    let nb = brick + d;
+    let [nx, ny, nz, _] = layout[ni];
+    // Nearest low-res sample (even position) of the neighbour to the texel's position.
+    let mut sample = IVec3::ZERO;
+    for a in 0..3 {
+        sample[a] = match d[a] {
+            -1 => n * brick[a],
+            1 => n * (brick[a] + 1),
+            _ => {
+                // Texel t sits at n*b - 1 + t + 0.5; nearest even integer, inside the neighbour.
+                let p = n * brick[a] - 1 + t[a] as i32; // position - 0.5
+                let even = 2 * ((p + 1).div_euclid(2)); // p + 0.5 rounded to even
+                even.clamp(n * nb[a], n * (nb[a] + 1))
+            }
+        };
     }
-    None
+    let texel = (sample.as_vec3() * 0.5 + Vec3::new(nx, ny, nz))
+        .floor()
+        .as_ivec3();
+    Some(cache.texel(texel))
+}
+
+/// The first neighbour, in [`FIXUP_PRECEDENCE`] over the features inside `mask` (faces, then
+/// edges, then the corner) on sides `side`, whose bit is set in `bits`: its offset from `brick`
+/// and its linear index in a grid of `bricks`. Shared by the border fixup and the skeleton fixup
+/// (`reference::level_cache`); mirrors their loops in fixup.comp and skeleton_fixup.comp.
+pub fn first_marked_neighbour(
+    bits: u32,
+    mask: u32,
+    side: IVec3,
+    brick: IVec3,
+    bricks: UVec3,
+) -> Option<(IVec3, usize)> {
+    FIXUP_PRECEDENCE
+        .iter()
+        .filter(|&&candidate| candidate & !mask == 0)
+        .map(|&candidate| offset_of(candidate, side))
+        .find(|&d| bits & neighbour_bit(d) != 0)
+        .map(|d| {
+            let nb = brick + d;
+            let ni = (nb.x as u32 + bricks.x * (nb.y as u32 + bricks.y * nb.z as u32)) as usize;
+            (d, ni)
+        })
 }
 
 /// The CPU mirror of a GPU brick cache: the cache image filled from the volume exactly as the

@@ -1,7 +1,7 @@
 //! Reconstruction of the scalar field. Mirrors `glsl/include/sampling.glsl`.
 
 use crate::volume::Volume;
-use glam::Vec3;
+use glam::{IVec3, Vec3};
 
 /// Trilinear sample at normalised texture coordinate `tex` (`[0,1]^3` spans the volume; voxel
 /// centres at (i + 0.5) / dims), clamp-to-edge outside: what `texture()` on a linearly filtered
@@ -88,6 +88,21 @@ pub fn sample_tricubic(field: &dyn Fn(Vec3) -> Option<f32>, x: Vec3) -> f32 {
         sum += w.x * w.y * w.z * field(p).unwrap_or(centre);
     }
     sum
+}
+
+/// Trilinear interpolation at grid coordinate `u` (samples at integer coordinates) of the
+/// samples `value(k)`, in f64 with one rounding at the end.
+pub(super) fn trilinear(u: Vec3, value: impl Fn(IVec3) -> f32) -> f32 {
+    let base = u.floor();
+    let f = (u - base).as_dvec3();
+    let b = base.as_ivec3();
+    let v = |d: IVec3| f64::from(value(b + d));
+    let lerp = |a: f64, c: f64, t: f64| a + (c - a) * t;
+    let c00 = lerp(v(IVec3::new(0, 0, 0)), v(IVec3::new(1, 0, 0)), f.x);
+    let c10 = lerp(v(IVec3::new(0, 1, 0)), v(IVec3::new(1, 1, 0)), f.x);
+    let c01 = lerp(v(IVec3::new(0, 0, 1)), v(IVec3::new(1, 0, 1)), f.x);
+    let c11 = lerp(v(IVec3::new(0, 1, 1)), v(IVec3::new(1, 1, 1)), f.x);
+    lerp(lerp(c00, c10, f.y), lerp(c01, c11, f.y), f.z) as f32
 }
 
 #[cfg(test)]

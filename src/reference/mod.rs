@@ -9,7 +9,7 @@ mod modes;
 mod sampling;
 
 pub use camera::{clip_ray, depth_limit, generate_ray, intersect_box, safe_inverse, Ray};
-pub use level_cache::{skeleton_fixup_value, LevelCacheError, LevelReferenceCache};
+pub use level_cache::{skeleton_fixup_value, slots_needed, LevelCacheError, LevelReferenceCache};
 pub use level_field::{
     block_bricks, block_origin, level_band, LevelField, LevelFieldError, LevelGrid, SamplePlacement,
 };

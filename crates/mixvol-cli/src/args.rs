@@ -91,6 +91,10 @@ pub enum LevelsArg {
     Checker,
     /// Bricks with x below the middle are low-res.
     Half,
+    /// Levels 0, 1, 2, ... by distance from the first corner brick, one level coarser at each
+    /// doubling of the distance (0, 1, 2, 2, 3, 3, 3, 3, ...), drawn through the three-level
+    /// cache (block levels past 2 with bricks of at least 8 voxels; `render` only).
+    Staircase,
 }
 
 #[derive(ValueEnum, Copy, Clone, Debug, PartialEq)]

@@ -77,7 +77,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
                 config: r.mixed.config()?,
             })?;
             let grid = BrickGrid::new(volume.dims(), r.mixed.brick_size)?;
-            let levels = level_pattern(&grid, pattern);
+            let levels = level_pattern(&grid, pattern)?;
             // The churn partner: the same pattern with hi and lo swapped.
             patterns.push(swapped(&levels));
             patterns.insert(0, levels);

@@ -43,7 +43,7 @@ pub fn junction(args: &JunctionArgs) -> Result<()> {
         .collect();
     let tf = TransferFunction::from_control_points(&stripes)?;
     let grid = BrickGrid::new(volume.dims(), 16)?;
-    let levels = level_pattern(&grid, LevelsArg::Half);
+    let levels = level_pattern(&grid, LevelsArg::Half)?;
     // Looking down -z at the junction plane x = 0 (world), 8 voxels wide, through a slab two
     // voxels thick (near/far clip) so the image shows the field itself, like a slice.
     let camera = Camera {

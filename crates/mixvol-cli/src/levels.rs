@@ -3,9 +3,12 @@
 use crate::args::LevelsArg;
 use mixvol::bricks::BrickGrid;
 use mixvol::bricks::Level;
+use mixvol::{Error, Result};
 
-/// The level of every brick of `grid` under `pattern`, in linear brick order.
-pub fn level_pattern(grid: &BrickGrid, pattern: LevelsArg) -> Vec<Level> {
+/// The level of every brick of `grid` under a two-level `pattern`, in linear brick order; an
+/// error for [`LevelsArg::Staircase`], which draws through the three-level cache
+/// ([`staircase`]).
+pub fn level_pattern(grid: &BrickGrid, pattern: LevelsArg) -> Result<Vec<Level>> {
     let half = grid.bricks_per_axis().x / 2;
     (0..grid.brick_count())
         .map(|i| {
@@ -15,12 +18,30 @@ pub fn level_pattern(grid: &BrickGrid, pattern: LevelsArg) -> Vec<Level> {
                 LevelsArg::AllLo => false,
                 LevelsArg::Checker => (b.x + b.y + b.z).is_multiple_of(2),
                 LevelsArg::Half => b.x >= half,
+                LevelsArg::Staircase => {
+                    return Err(Error::InvalidInput(
+                        "--levels staircase draws through the three-level cache, which only \
+                         `render` sets up (`cargo bench --bench levels` times it)"
+                            .into(),
+                    ))
+                }
             };
-            if hi {
-                Level::Hi
-            } else {
-                Level::Lo
-            }
+            Ok(if hi { Level::Hi } else { Level::Lo })
+        })
+        .collect()
+}
+
+/// The `--levels staircase` plan of `grid`: level 0 at the first corner brick, then
+/// `floor(log2 d) + 1` for a brick `d` bricks (Chebyshev) away, so each level past 2 comes in the
+/// aligned blocks the three-level cache stores whole; capped at level 2 for bricks below 8
+/// voxels (they take no block levels).
+pub fn staircase(grid: &BrickGrid) -> Vec<Option<u32>> {
+    let deepest = if grid.brick_size() < 8 { 2 } else { u32::MAX };
+    (0..grid.brick_count())
+        .map(|i| {
+            let d = grid.brick_coords(i).max_element();
+            let level = if d == 0 { 0 } else { 32 - d.leading_zeros() };
+            Some(level.min(deepest))
         })
         .collect()
 }

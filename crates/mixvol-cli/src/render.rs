@@ -2,6 +2,7 @@
 //! frame, the frame timing, and with camera-driven residency a per-frame residency log; and
 //! optionally the CPU reference for comparison.
 
+use crate::args::LevelsArg;
 use crate::args::RenderArgs;
 use crate::camera_path::{dolly, load_path, orbit};
 use crate::compare::Difference;
@@ -10,14 +11,17 @@ use crate::frame_log::{write_log, FrameRow};
 use crate::input::{
     model_transform, open_input_with_meta, orientation_line, window_line, window_of, Input,
 };
-use crate::levels::level_pattern;
+use crate::levels::{level_pattern, staircase};
 use crate::stats::{peak_rss_bytes, Summary};
 pub use crate::stream::Streaming;
 use mixvol::bricks::BrickGrid;
+use mixvol::cache::ThreeLevelGeometry;
 use mixvol::gpu::{ContextDesc, GpuContext, MessageLog};
 use mixvol::optics::TransferFunction;
 use mixvol::plan::PlanOptions;
-use mixvol::reference::{self, ReferenceCache};
+use mixvol::reference::{
+    self, slots_needed, LevelField, LevelGrid, LevelReferenceCache, ReferenceCache,
+};
 use mixvol::renderer::{
     Frame, FrameReport, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource,
 };
@@ -45,6 +49,9 @@ pub struct Scene {
     pub planned: bool,
     /// The brick-cache configuration, when one is used.
     pub config: Option<MixedConfig>,
+    /// The level of every brick when the three-level cache draws the volume
+    /// (`--levels staircase`).
+    pub level_plan: Option<Vec<Option<u32>>>,
 }
 
 /// The views of `--orbit`, `--dolly`, `--path`, or the single `--eye` view.
@@ -171,6 +178,7 @@ pub fn set_up_scene(
                     streamer: None,
                     planned: true,
                     config: Some(config),
+                    level_plan: None,
                 });
             }
             let Some(pattern) = args.mixed.levels else {
@@ -180,18 +188,43 @@ pub fn set_up_scene(
                     streamer: None,
                     planned: false,
                     config: None,
+                    level_plan: None,
                 });
             };
             let config = MixedConfig {
                 transition,
                 ..args.mixed.config()?
             };
+            let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)?;
+            if pattern == LevelsArg::Staircase {
+                let plan = staircase(&grid);
+                renderer.set_source(VolumeSource::Levels {
+                    volume: &volume,
+                    levels: &plan,
+                    config,
+                })?;
+                let deepest = plan.iter().flatten().max().copied().unwrap_or(0);
+                let per_level: Vec<usize> = (0..=deepest)
+                    .map(|k| plan.iter().filter(|l| **l == Some(k)).count())
+                    .collect();
+                println!(
+                    "three-level cache: {} bricks of {}^3 at levels 0..={deepest} ({per_level:?} bricks per level)",
+                    grid.brick_count(),
+                    args.mixed.brick_size,
+                );
+                return Ok(Scene {
+                    volume: Some(volume),
+                    streamer: None,
+                    planned: false,
+                    config: Some(config),
+                    level_plan: Some(plan),
+                });
+            }
             renderer.set_source(VolumeSource::Mixed {
                 volume: volume.clone(),
                 config,
             })?;
-            let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)?;
-            let report = renderer.set_levels(&level_pattern(&grid, pattern))?;
+            let report = renderer.set_levels(&level_pattern(&grid, pattern)?)?;
             println!(
                 "brick cache: {} hi + {} lo bricks of {}^3, {} uploaded ({:.1} MB), {} fixed up; pack {:.1} ms, upload+fixup {:.1} ms",
                 report.hi_bricks,
@@ -208,6 +241,7 @@ pub fn set_up_scene(
                 streamer: None,
                 planned: false,
                 config: Some(config),
+                level_plan: None,
             })
         }
     }
@@ -235,6 +269,7 @@ fn planned_scene<S: Streaming + 'static>(
         streamer: Some(streamer),
         planned: true,
         config: Some(config),
+        level_plan: None,
     })
 }
 
@@ -576,8 +611,22 @@ fn compare(
         .as_ref()
         .ok_or_else(|| Error::InvalidInput("--compare needs an in-memory volume".into()))?;
     let params = renderer.params(camera, settings, args.width, args.height)?;
-    let reference = match (renderer.brick_cache(), &scene.config) {
-        (Some(cache), Some(config)) => {
+    let reference = match (renderer.brick_cache(), &scene.config, &scene.level_plan) {
+        (None, Some(config), Some(plan)) => {
+            // The three-level cache's CPU mirror (the slots' places do not change the field).
+            let grid = BrickGrid::new(volume.dims(), config.brick_size)?;
+            let deepest = plan.iter().flatten().max().copied().unwrap_or(0);
+            let grids = LevelGrid::vertex_pyramid(volume, deepest + 1);
+            let field = LevelField::new(&grid, &grids, plan)
+                .map_err(|e| Error::InvalidInput(e.to_string()))?;
+            let slots = u32::try_from(slots_needed(&field)).unwrap_or(u32::MAX);
+            let geometry =
+                ThreeLevelGeometry::choose(config.brick_size, 4, u64::MAX, 16384, slots)?;
+            let cache = LevelReferenceCache::build(&field, &geometry, config.transition)
+                .map_err(|e| Error::InvalidInput(e.to_string()))?;
+            reference::render_mixed_scene(&cache.view(), config.transition, tf, settings, &params)?
+        }
+        (Some(cache), Some(config), _) => {
             let cache = ReferenceCache::build(
                 volume,
                 config.filter,

@@ -127,6 +127,61 @@ fn a_volume_under_a_gpu_budget_mixes_levels_and_matches_the_cpu_reference() {
 }
 
 #[test]
+fn a_staircase_of_five_levels_renders_through_the_three_level_cache() {
+    let dir = temp_dir("staircase");
+    let png = dir.join("s.png");
+    let (out, text) = run(&[
+        "render",
+        "--dims",
+        "128,128,128",
+        "--brick-size",
+        "8",
+        "--levels",
+        "staircase",
+        "--width",
+        "64",
+        "--height",
+        "64",
+        "--compare",
+        "--validation",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{text}");
+    // 16^3 bricks: levels 0-4, the last two in blocks of 2^3 and 4^3 bricks.
+    assert!(
+        text.contains(
+            "three-level cache: 4096 bricks of 8^3 at levels 0..=4 ([1, 7, 56, 448, 3584] bricks per level)"
+        ),
+        "{text}"
+    );
+    // The tolerances of the two-level test above.
+    let max = number_after(&text, "max per-channel difference");
+    let mean = number_after(&text, "mean");
+    assert!(max < 0.06, "GPU and CPU reference differ by {max}\n{text}");
+    assert!(mean < 4e-3, "mean difference {mean}\n{text}");
+    assert!(text.contains("validation: 0 warnings/errors"), "{text}");
+    assert!(covered(&pixels(&png), BACKGROUND) > 0.2, "{text}");
+
+    // The bench draws the two-level patterns only.
+    let (out, text) = run(&[
+        "bench",
+        "--dims",
+        "32,32,32",
+        "--brick-size",
+        "8",
+        "--levels",
+        "staircase",
+    ]);
+    assert!(!out.status.success(), "{text}");
+    assert!(
+        text.contains("--levels staircase draws through the three-level cache"),
+        "{text}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn an_orbit_writes_every_frame_and_a_per_frame_log() {
     let dir = temp_dir("orbit");
     let frames = dir.join("frames");

@@ -230,6 +230,27 @@ impl Renderer {
         self.flush()
     }
 
+    /// Chooses the level of every brick of a three-level source from `camera` (see
+    /// [`VolumePass::plan_brick_levels`]), uploads a changed plan and runs the fixups, and waits.
+    pub fn plan_brick_levels(
+        &mut self,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+        target_pixels: f32,
+    ) -> Result<crate::plan::LevelChoice> {
+        let choice = self
+            .pass
+            .plan_brick_levels(camera, width, height, target_pixels)?;
+        self.flush()?;
+        Ok(choice)
+    }
+
+    /// The level of every brick a three-level source draws (`None` for other sources).
+    pub fn brick_levels(&self) -> Option<&[Option<u32>]> {
+        self.pass.brick_levels()
+    }
+
     /// Stages a residency change without submitting it: the next [`Renderer::render`] records
     /// the uploads and the fixup in its own command buffer (so the frame's timings include them).
     /// Renders no longer plan residency from the camera, as with [`Renderer::set_levels`].

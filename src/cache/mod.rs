@@ -73,7 +73,9 @@ pub use tables::{
     compute_neighbour_bits, layout_entry, neighbour_bit, neighbour_bit_index, neighbour_offset,
     EMPTY, NEIGHBOUR_COUNT,
 };
-pub use three_level::{LevelSlot, ThreeLevelGeometry, THREE_LEVELS};
+pub use three_level::{
+    block_bricks, block_origin, slots_for_plan, LevelSlot, ThreeLevelGeometry, THREE_LEVELS,
+};
 
 use crate::bricks::Level;
 

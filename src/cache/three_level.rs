@@ -31,6 +31,44 @@ use glam::UVec3;
 /// level-2 size).
 pub const THREE_LEVELS: u32 = 3;
 
+/// Bricks per axis of a block of `level`: 1 up to level 2, `2^(level - 2)` past it (a stored
+/// brick of level `k >= 2` holds `n/4 + 1` samples per axis every `2^k` voxels, so it covers
+/// `2^(k - 2)` bricks; module docs).
+pub fn block_bricks(level: u32) -> u32 {
+    1 << level.saturating_sub(2).min(30)
+}
+
+/// The first brick of the block of `level` holding `brick`.
+pub fn block_origin(brick: UVec3, level: u32) -> UVec3 {
+    let block = block_bricks(level);
+    brick / block * block
+}
+
+/// The slots a plan takes in the three-level packing: one per level-0 brick, one per eight
+/// level-1 bricks, one per sixty-four stored bricks of level 2 or coarser (a block counts once).
+/// `levels` holds one entry per brick of a grid of `bricks` per axis (x fastest), `None` for a
+/// brick that is not drawn.
+pub fn slots_for_plan(bricks: UVec3, levels: &[Option<u32>]) -> u64 {
+    let mut per_class = [0u64; THREE_LEVELS as usize];
+    for (i, level) in levels.iter().enumerate() {
+        let Some(level) = *level else {
+            continue;
+        };
+        let i = i as u32;
+        let b = UVec3::new(
+            i % bricks.x,
+            (i / bricks.x) % bricks.y,
+            i / (bricks.x * bricks.y),
+        );
+        if block_origin(b, level) == b {
+            per_class[level.min(THREE_LEVELS - 1) as usize] += 1;
+        }
+    }
+    (0..THREE_LEVELS)
+        .map(|k| per_class[k as usize].div_ceil(u64::from(ThreeLevelGeometry::bricks_per_slot(k))))
+        .sum()
+}
+
 /// Where a brick of the three-level packing lives: slot `slot`, at sub-slot `index` (`0` for
 /// level 0, `0..8` for level 1, `0..64` for level 2 and up) of the size of level `level`.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Hash)]

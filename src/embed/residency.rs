@@ -25,7 +25,8 @@ use crate::bricks::Level;
 use crate::error::{Error, Result};
 use crate::lod::{CullParams, LodView, ValueCulling};
 use crate::plan::{
-    cull_params, FrameInput, FramePlan, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
+    choose_levels, cull_params, FrameInput, FramePlan, LevelChoice, PlanBudget, PlanOptions,
+    PlanReport, ResidencyPlanner,
 };
 use crate::scene::{Camera, RenderSettings};
 use crate::volume::ScalarType;
@@ -223,5 +224,45 @@ impl VolumePass {
             plan_ms,
             update_ms: start.elapsed().as_secs_f64() * 1e3,
         })
+    }
+}
+
+impl VolumePass {
+    /// Chooses the level of every brick of a three-level source ([`VolumeSource::Levels`]) for a
+    /// frame of `camera` (world space) at `width` x `height` pixels, with drawn voxels at most
+    /// `target_pixels` on screen where the cache allows ([`crate::plan::choose_levels`], every
+    /// brick active: no value culling yet), and stages the plan when it changed (the next
+    /// [`VolumePass::record`] uploads it). Errors: another kind of source, a bad view or
+    /// target, a cache too small for the coarsest plan.
+    ///
+    /// [`VolumeSource::Levels`]: super::VolumeSource::Levels
+    pub fn plan_brick_levels(
+        &mut self,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+        target_pixels: f32,
+    ) -> Result<LevelChoice> {
+        let camera = self.model_transform().volume_camera(camera);
+        let Source::Levels(state) = &mut self.source else {
+            return Err(Error::InvalidInput(
+                "plan_brick_levels needs a three-level source (VolumeSource::Levels)".into(),
+            ));
+        };
+        let view = LodView::new(&camera, width, height)?;
+        let active = vec![true; state.bricks.grid().brick_count()];
+        let choice = choose_levels(
+            &state.bricks,
+            &view,
+            &active,
+            state.level_count(),
+            state.slot_count(),
+            target_pixels,
+        )
+        .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
+        if choice.levels != state.current {
+            state.stage(&choice.levels)?;
+        }
+        Ok(choice)
     }
 }

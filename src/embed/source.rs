@@ -57,13 +57,16 @@ pub enum VolumeSource<'a> {
     /// A volume drawn through the paper's three-level brick cache (`(n+4)^3` slots holding one
     /// level-0, eight level-1 or sixty-four level-2 bricks; `crate::cache::ThreeLevelGeometry`)
     /// at the levels the host gives, one per brick: `Some(0)` full resolution, `Some(k)` the
-    /// vertex level `k` of `crate::reference::LevelGrid::vertex_pyramid`, `None` not drawn.
-    /// Face-, edge- and corner-adjacent drawn bricks must differ by at most one level; past
+    /// vertex level `k` of `crate::reference::LevelGrid::vertex_pyramid`, `None` not drawn (an
+    /// empty slice: every brick at the coarsest level, a start for
+    /// `VolumePass::plan_brick_levels`). Face-, edge- and corner-adjacent drawn bricks must
+    /// differ by at most one level; past
     /// level 2 (bricks of at least 8 voxels) the bricks of a level come in aligned blocks of
     /// `crate::reference::block_bricks(k)` per axis, each stored as one level-2-sized brick, up to
     /// the level whose block covers the grid's longest axis.
     /// The cache holds f32 texels; `config.filter` is not used (the levels are the vertex
-    /// pyramid). The planner does not drive it: renders draw these levels until the next
+    /// pyramid). The two-level planner does not drive it; `VolumePass::plan_brick_levels`
+    /// chooses levels from a camera, else renders draw these levels until the next
     /// `set_source` (issue 19).
     Levels {
         /// The volume.
@@ -225,6 +228,10 @@ pub(crate) struct LevelState {
     grid: crate::bricks::BrickGrid,
     grids: Vec<LevelGrid>,
     geometry: ThreeLevelGeometry,
+    /// The brick grid in world space (for [`VolumePass::plan_brick_levels`]).
+    pub(super) bricks: BrickGeometry,
+    /// The level of every brick drawn now.
+    pub(super) current: Vec<Option<u32>>,
     dims: UVec3,
     spacing: glam::Vec3,
     value_range: (f32, f32),
@@ -248,11 +255,22 @@ fn pyramid_levels(grid: &crate::bricks::BrickGrid) -> u32 {
 impl LevelState {
     /// Stages `levels`: checks the plan (rule, levels, slots) first, so a refused plan leaves
     /// the drawn one as it is.
-    fn stage(&mut self, levels: &[Option<u32>]) -> Result<()> {
+    pub(super) fn stage(&mut self, levels: &[Option<u32>]) -> Result<()> {
         let field = LevelField::new(&self.grid, &self.grids, levels)
             .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
         self.facts = stage_three_level(&mut self.gpu, &field, &self.geometry)?;
+        self.current = levels.to_vec();
         Ok(())
+    }
+
+    /// Levels the source builds (0 up to this, exclusive).
+    pub(super) fn level_count(&self) -> u32 {
+        self.grids.len() as u32
+    }
+
+    /// Slots of the cache.
+    pub(super) fn slot_count(&self) -> u64 {
+        u64::from(self.geometry.slot_count())
     }
 }
 
@@ -467,9 +485,13 @@ impl VolumePass {
             u32::try_from(grid.brick_count()).unwrap_or(u32::MAX),
         )?;
         let grids = LevelGrid::vertex_pyramid(volume, pyramid_levels(&grid));
+        // An empty plan: every brick at the coarsest level.
+        let coarsest = vec![Some(grids.len() as u32 - 1); grid.brick_count()];
+        let levels = if levels.is_empty() { &coarsest } else { levels };
         // The plan is checked before the cache is allocated.
         LevelField::new(&grid, &grids, levels)
             .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
+        let bricks = BrickGeometry::new(grid, volume.spacing())?;
         // Free the old source's GPU memory before allocating the new cache.
         self.source = Source::None;
         let gpu = new_three_level_cache(
@@ -484,6 +506,8 @@ impl VolumePass {
             grid,
             grids,
             geometry,
+            bricks,
+            current: Vec::new(),
             dims: volume.dims(),
             spacing: volume.spacing(),
             value_range: volume.value_range(),
@@ -514,6 +538,14 @@ impl VolumePass {
             ));
         };
         state.stage(levels)
+    }
+
+    /// The level of every brick a three-level source draws (`None` for other sources).
+    pub fn brick_levels(&self) -> Option<&[Option<u32>]> {
+        match &self.source {
+            Source::Levels(state) => Some(&state.current),
+            _ => None,
+        }
     }
 
     /// Refuses a `config` whose cache geometry cannot exist (a slot beyond the device's 3D image

@@ -131,8 +131,10 @@ use targets::{targets, Bricks, Changes, Counts};
 pub use frame::{
     cull_params, upload_bytes, FrameInput, FramePlan, PlanBudget, PlanOptions, PlanReport,
 };
+pub use levels::{choose_levels, LevelChoice, LevelChoiceError};
 
 mod frame;
+mod levels;
 mod loaded;
 mod order;
 mod screen_error;

@@ -22,8 +22,9 @@
 //! place, as one dispatch would. A brick whose coarser neighbours change must be uploaded again
 //! before the skeleton fixup: the fixup overwrites the brick's own samples and cannot restore them.
 
-use super::level_field::{block_bricks, block_origin, LevelField, SamplePlacement};
+use super::level_field::{LevelField, SamplePlacement};
 use super::mixed::{first_marked_neighbour, fixup_value, touching, CacheImage, MixedVolume};
+use crate::cache::{block_bricks, block_origin, slots_for_plan};
 use crate::cache::{LevelSlot, ThreeLevelGeometry, THREE_LEVELS};
 use crate::scene::Transition;
 use glam::{IVec3, UVec3};
@@ -141,7 +142,7 @@ impl LevelReferenceCache {
             }
         }
         let per_level = stored.clone().map(|s| s.len());
-        let needed = slots_for(per_level);
+        let needed = slots_needed(field);
         if needed > u64::from(geometry.slot_count()) {
             return Err(LevelCacheError::OverBudget {
                 needed,
@@ -293,37 +294,14 @@ impl LevelReferenceCache {
     }
 }
 
-/// Slots a cache needs for `per_level` stored bricks of level 0, level 1, and level 2 or
-/// coarser (1, 8 and 64 per slot).
-fn slots_for(per_level: [usize; 3]) -> u64 {
-    (0..THREE_LEVELS)
-        .map(|k| {
-            let per_slot = u64::from(ThreeLevelGeometry::bricks_per_slot(k));
-            (per_level[k as usize] as u64).div_ceil(per_slot)
-        })
-        .sum()
-}
-
-/// The cache slots the drawn bricks of `field` take in the three-level packing: one per level-0
-/// brick, one per eight level-1 bricks, one per sixty-four stored bricks of level 2 or coarser
-/// (a block counts once).
+/// The cache slots the drawn bricks of `field` take in the three-level packing
+/// ([`slots_for_plan`]).
 pub fn slots_needed(field: &LevelField) -> u64 {
     let bricks = field.bricks_per_axis();
-    let mut per_level = [0usize; 3];
-    for i in 0..bricks.element_product() as usize {
-        if let Some(level) = field.brick_level(i) {
-            let i = i as u32;
-            let b = UVec3::new(
-                i % bricks.x,
-                (i / bricks.x) % bricks.y,
-                i / (bricks.x * bricks.y),
-            );
-            if block_origin(b, level) == b {
-                per_level[level.min(THREE_LEVELS - 1) as usize] += 1;
-            }
-        }
-    }
-    slots_for(per_level)
+    let levels: Vec<Option<u32>> = (0..bricks.element_product() as usize)
+        .map(|i| field.brick_level(i))
+        .collect();
+    slots_for_plan(bricks, &levels)
 }
 
 /// The texels `t` of a box of `edge` per axis for which `on_boundary(t_a)` holds on some axis.

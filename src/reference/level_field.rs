@@ -93,6 +93,7 @@
 
 use crate::bricks::BrickGrid;
 use crate::cache::tables::coarser_neighbour_bits;
+use crate::cache::{block_bricks, block_origin};
 use crate::lod::check_level_rule_with;
 use crate::scene::Transition;
 use glam::{BVec3, IVec3, UVec3, Vec3};
@@ -590,19 +591,6 @@ impl<'a> LevelField<'a> {
             self.brick_size as f32,
         ))
     }
-}
-
-/// Bricks per axis of a block of `level`: 1 up to level 2, `2^(level - 2)` past it (a brick of
-/// level `k >= 2` stores `n/4 + 1` samples per axis every `2^k` voxels, so it covers
-/// `2^(k - 2)` bricks; module docs).
-pub fn block_bricks(level: u32) -> u32 {
-    1 << level.saturating_sub(2).min(30)
-}
-
-/// The first brick of the block of `level` holding `brick`.
-pub fn block_origin(brick: UVec3, level: u32) -> UVec3 {
-    let block = block_bricks(level);
-    brick / block * block
 }
 
 /// Checks that every drawn brick of a block level lies in an aligned block (clipped to the grid)

@@ -8,11 +8,10 @@ mod mixed;
 mod modes;
 mod sampling;
 
+pub use crate::cache::{block_bricks, block_origin};
 pub use camera::{clip_ray, depth_limit, generate_ray, intersect_box, safe_inverse, Ray};
 pub use level_cache::{skeleton_fixup_value, slots_needed, LevelCacheError, LevelReferenceCache};
-pub use level_field::{
-    block_bricks, block_origin, level_band, LevelField, LevelFieldError, LevelGrid, SamplePlacement,
-};
+pub use level_field::{level_band, LevelField, LevelFieldError, LevelGrid, SamplePlacement};
 pub use mixed::{
     active_axes, band, band_bounds, brick_of, feature_touches_low_res, fixup_brick, fixup_value,
     low_res_border_coord, neighbour_bit, sample_hi_res_transition, sample_in_brick, sample_mixed,

@@ -95,6 +95,9 @@ pub enum LevelsArg {
     /// doubling of the distance (0, 1, 2, 2, 3, 3, 3, 3, ...), drawn through the three-level
     /// cache (block levels past 2 with bricks of at least 8 voxels; `render` only).
     Staircase,
+    /// Levels 0, 1, 2, ... chosen from the camera for every view (drawn voxels at most a pixel
+    /// on screen where --cache-mb allows), drawn through the three-level cache (`render` only).
+    Camera,
 }
 
 #[derive(ValueEnum, Copy, Clone, Debug, PartialEq)]

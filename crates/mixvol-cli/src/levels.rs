@@ -6,8 +6,8 @@ use mixvol::bricks::Level;
 use mixvol::{Error, Result};
 
 /// The level of every brick of `grid` under a two-level `pattern`, in linear brick order; an
-/// error for [`LevelsArg::Staircase`], which draws through the three-level cache
-/// ([`staircase`]).
+/// error for [`LevelsArg::Staircase`] ([`staircase`]) and [`LevelsArg::Camera`], which draw
+/// through the three-level cache.
 pub fn level_pattern(grid: &BrickGrid, pattern: LevelsArg) -> Result<Vec<Level>> {
     let half = grid.bricks_per_axis().x / 2;
     (0..grid.brick_count())
@@ -18,11 +18,12 @@ pub fn level_pattern(grid: &BrickGrid, pattern: LevelsArg) -> Result<Vec<Level>>
                 LevelsArg::AllLo => false,
                 LevelsArg::Checker => (b.x + b.y + b.z).is_multiple_of(2),
                 LevelsArg::Half => b.x >= half,
-                LevelsArg::Staircase => {
+                LevelsArg::Staircase | LevelsArg::Camera => {
                     return Err(Error::InvalidInput(
-                        "--levels staircase draws through the three-level cache, which only \
-                         `render` sets up (`cargo bench --bench levels` times it)"
-                            .into(),
+                        "--levels staircase and --levels camera draw through the three-level \
+                         cache, which only `render` sets up (`cargo bench --bench levels` times \
+                         it)"
+                        .into(),
                     ))
                 }
             };

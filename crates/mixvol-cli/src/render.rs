@@ -49,9 +49,9 @@ pub struct Scene {
     pub planned: bool,
     /// The brick-cache configuration, when one is used.
     pub config: Option<MixedConfig>,
-    /// The level of every brick when the three-level cache draws the volume
-    /// (`--levels staircase`).
-    pub level_plan: Option<Vec<Option<u32>>>,
+    /// Whether every view chooses its levels from the camera (`--levels camera`: the
+    /// three-level cache).
+    pub camera_levels: bool,
 }
 
 /// The views of `--orbit`, `--dolly`, `--path`, or the single `--eye` view.
@@ -178,7 +178,7 @@ pub fn set_up_scene(
                     streamer: None,
                     planned: true,
                     config: Some(config),
-                    level_plan: None,
+                    camera_levels: false,
                 });
             }
             let Some(pattern) = args.mixed.levels else {
@@ -188,7 +188,7 @@ pub fn set_up_scene(
                     streamer: None,
                     planned: false,
                     config: None,
-                    level_plan: None,
+                    camera_levels: false,
                 });
             };
             let config = MixedConfig {
@@ -196,6 +196,26 @@ pub fn set_up_scene(
                 ..args.mixed.config()?
             };
             let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)?;
+            if pattern == LevelsArg::Camera {
+                // Every brick coarsest until the first view chooses.
+                renderer.set_source(VolumeSource::Levels {
+                    volume: &volume,
+                    levels: &[],
+                    config,
+                })?;
+                println!(
+                    "three-level cache: {} bricks of {}^3, levels chosen from the camera",
+                    grid.brick_count(),
+                    args.mixed.brick_size,
+                );
+                return Ok(Scene {
+                    volume: Some(volume),
+                    streamer: None,
+                    planned: false,
+                    config: Some(config),
+                    camera_levels: true,
+                });
+            }
             if pattern == LevelsArg::Staircase {
                 let plan = staircase(&grid);
                 renderer.set_source(VolumeSource::Levels {
@@ -217,7 +237,7 @@ pub fn set_up_scene(
                     streamer: None,
                     planned: false,
                     config: Some(config),
-                    level_plan: Some(plan),
+                    camera_levels: false,
                 });
             }
             renderer.set_source(VolumeSource::Mixed {
@@ -241,7 +261,7 @@ pub fn set_up_scene(
                 streamer: None,
                 planned: false,
                 config: Some(config),
-                level_plan: None,
+                camera_levels: false,
             })
         }
     }
@@ -269,7 +289,7 @@ fn planned_scene<S: Streaming + 'static>(
         streamer: Some(streamer),
         planned: true,
         config: Some(config),
-        level_plan: None,
+        camera_levels: false,
     })
 }
 
@@ -484,6 +504,17 @@ fn render_view(
     tf: &TransferFunction,
     args: &RenderArgs,
 ) -> Result<()> {
+    if scene.camera_levels {
+        let choice = renderer.plan_brick_levels(camera, args.width, args.height, 1.0)?;
+        let deepest = choice.levels.iter().flatten().max().copied().unwrap_or(0);
+        let per_level: Vec<usize> = (0..=deepest)
+            .map(|k| choice.levels.iter().filter(|l| **l == Some(k)).count())
+            .collect();
+        println!(
+            "levels from the camera: {per_level:?} bricks at levels 0..={deepest}, {} slots, drawn voxels at most {:.2} px",
+            choice.slots, choice.pixels_per_voxel
+        );
+    }
     if scene.planned {
         let (frames, converged) = converge(renderer, scene, camera, settings, args)?;
         if converged {
@@ -566,6 +597,9 @@ fn render_path(
     let mut rows = Vec::with_capacity(cameras.len());
     let mut last = None;
     for (i, camera) in cameras.iter().enumerate() {
+        if scene.camera_levels {
+            renderer.plan_brick_levels(camera, args.width, args.height, 1.0)?;
+        }
         let (frame, row) = frame_row(renderer, ctx, i, camera, settings, args)?;
         frame.save_png(&dir.join(format!("frame_{i:04}.png")), args.background)?;
         rows.push(row);
@@ -611,7 +645,11 @@ fn compare(
         .as_ref()
         .ok_or_else(|| Error::InvalidInput("--compare needs an in-memory volume".into()))?;
     let params = renderer.params(camera, settings, args.width, args.height)?;
-    let reference = match (renderer.brick_cache(), &scene.config, &scene.level_plan) {
+    let reference = match (
+        renderer.brick_cache(),
+        &scene.config,
+        renderer.brick_levels(),
+    ) {
         (None, Some(config), Some(plan)) => {
             // The three-level cache's CPU mirror (the slots' places do not change the field).
             let grid = BrickGrid::new(volume.dims(), config.brick_size)?;

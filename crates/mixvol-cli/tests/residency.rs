@@ -175,9 +175,76 @@ fn a_staircase_of_five_levels_renders_through_the_three_level_cache() {
     ]);
     assert!(!out.status.success(), "{text}");
     assert!(
-        text.contains("--levels staircase draws through the three-level cache"),
+        text.contains("--levels staircase and --levels camera draw through the three-level"),
         "{text}"
     );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn levels_chosen_from_the_camera_fit_the_cache_and_match_the_cpu_reference() {
+    let dir = temp_dir("camera_levels");
+    let png = dir.join("c.png");
+    // 1 MiB of f32 texels: 125 slots of 12^3 for 4096 bricks of 8^3, so the budget coarsens the
+    // plan past the one-pixel target.
+    let (out, text) = run(&[
+        "render",
+        "--dims",
+        "128,128,128",
+        "--brick-size",
+        "8",
+        "--levels",
+        "camera",
+        "--cache-mb",
+        "1",
+        "--width",
+        "64",
+        "--height",
+        "64",
+        "--compare",
+        "--validation",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("levels from the camera:"), "{text}");
+    let voxel_px = number_after(&text, "drawn voxels at most");
+    assert!(
+        voxel_px > 1.0,
+        "the budget should coarsen the plan: {voxel_px} px\n{text}"
+    );
+    let max = number_after(&text, "max per-channel difference");
+    let mean = number_after(&text, "mean");
+    assert!(max < 0.06, "GPU and CPU reference differ by {max}\n{text}");
+    assert!(mean < 4e-3, "mean difference {mean}\n{text}");
+    assert!(text.contains("validation: 0 warnings/errors"), "{text}");
+    assert!(covered(&pixels(&png), BACKGROUND) > 0.2, "{text}");
+
+    // An orbit chooses again at every view, validation-clean.
+    let frames = dir.join("orbit");
+    let (out, text) = run(&[
+        "render",
+        "--dims",
+        "64,64,64",
+        "--brick-size",
+        "8",
+        "--levels",
+        "camera",
+        "--cache-mb",
+        "1",
+        "--width",
+        "32",
+        "--height",
+        "32",
+        "--orbit",
+        "4",
+        "--frames-dir",
+        frames.to_str().unwrap(),
+        "--validation",
+    ]);
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("validation: 0 warnings/errors"), "{text}");
+    assert!(frames.join("frame_0003.png").exists(), "{text}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

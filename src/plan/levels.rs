@@ -1,0 +1,276 @@
+//! The level of every brick from the camera for any number of levels (issue 19, item 4, first
+//! part): what the three-level cache with block levels draws for one view under its slots.
+//!
+//! [`choose_levels`] runs these steps:
+//!
+//! 1. **Wanted level** per brick: the coarsest level `k` whose voxel (`2^k` hi-res voxels)
+//!    projects to at most `target_pixels` at the brick's nearest point, `floor(log2(target /
+//!    p0))` with `p0` the projected size of a hi-res voxel there, clamped to the levels. A
+//!    brick outside the frustum, or culled, wants the coarsest level (it draws nothing a ray
+//!    sees now, and asks for nothing).
+//! 2. **The rule and the blocks**: a brick is refined to at most one level coarser than any of
+//!    its 26 neighbours (a Chebyshev distance transform: two raster sweeps), and a block level's
+//!    aligned block is refined as a whole to its finest brick's level
+//!    ([`crate::cache::block_bricks`]); both are repeated until neither changes a level. Levels
+//!    only ever get finer, so the plan keeps every brick at least as fine as it wanted.
+//! 3. **Culled bricks** are not drawn, unless a drawn block covers them (its stored brick holds
+//!    them anyway; drawing them costs nothing).
+//! 4. **The budget**: when the plan needs more slots than the cache has
+//!    ([`crate::cache::slots_for_plan`]), the target grows by `2^b`, with the smallest `b` in
+//!    `[0, levels]` that fits found by bisection (slots never grow with `b`).
+//!
+//! It has no hysteresis, upload budget or streaming (the two-level [`super::ResidencyPlanner`]
+//! does): the host calls it per view and moves the cache with
+//! [`crate::embed::VolumePass::set_brick_levels`].
+
+use crate::cache::{block_bricks, block_origin, slots_for_plan};
+use crate::lod::{BrickGeometry, LodView};
+use glam::{IVec3, UVec3, Vec3};
+
+/// Why [`choose_levels`] cannot choose.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LevelChoiceError {
+    /// The culling result does not have one entry per brick.
+    #[error("{given} culling flags for a grid of {bricks} bricks")]
+    ActiveCount {
+        /// Entries given.
+        given: usize,
+        /// Bricks in the grid.
+        bricks: usize,
+    },
+    /// No level, more than 31, or block levels with bricks below 8 voxels.
+    #[error(
+        "{levels} levels with bricks of {brick_size} voxels: give 1 to 3 levels, or up to 31 \
+         with bricks of at least 8 voxels"
+    )]
+    Levels {
+        /// Levels given.
+        levels: u32,
+        /// Brick size of the grid.
+        brick_size: u32,
+    },
+    /// The target is not a positive finite number of pixels.
+    #[error("the target voxel size on screen must be a positive number of pixels, not {0}")]
+    Target(f32),
+    /// Even every brick at the coarsest level does not fit.
+    #[error("the plan needs {needed} slots with every brick at its coarsest level; the cache has {slots}")]
+    CacheTooSmall {
+        /// Slots the coarsest plan needs.
+        needed: u64,
+        /// Slots of the cache.
+        slots: u64,
+    },
+}
+
+/// What [`choose_levels`] chose.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LevelChoice {
+    /// The level of every brick (linear index), `None` for a brick that is not drawn.
+    pub levels: Vec<Option<u32>>,
+    /// Slots the plan takes.
+    pub slots: u64,
+    /// The on-screen voxel size the plan meets (in every brick in view but those at full
+    /// resolution already): the target, grown by what the budget forced.
+    pub pixels_per_voxel: f32,
+}
+
+/// Chooses the level of every brick of `geometry` for `view` among `levels` levels (module
+/// docs): `active[i]` false for a culled brick, `slots` the cache's slots, `target_pixels` the
+/// largest on-screen size of a drawn voxel wanted.
+///
+/// Errors: a culling result of another length, 0 levels (or more than 31, or more than 3 with
+/// bricks below 8 voxels), a target that is not a positive number, or a cache too small for the
+/// coarsest plan.
+pub fn choose_levels(
+    geometry: &BrickGeometry,
+    view: &LodView,
+    active: &[bool],
+    levels: u32,
+    slots: u64,
+    target_pixels: f32,
+) -> Result<LevelChoice, LevelChoiceError> {
+    let grid = geometry.grid();
+    if active.len() != grid.brick_count() {
+        return Err(LevelChoiceError::ActiveCount {
+            given: active.len(),
+            bricks: grid.brick_count(),
+        });
+    }
+    let n = grid.brick_size();
+    if levels == 0 || levels > 31 || (levels > 3 && n < 8) {
+        return Err(LevelChoiceError::Levels {
+            levels,
+            brick_size: n,
+        });
+    }
+    if !(target_pixels.is_finite() && target_pixels > 0.0) {
+        return Err(LevelChoiceError::Target(target_pixels));
+    }
+    // Per brick: log2 of the target over the projected hi-res voxel, or None for a brick that
+    // wants the coarsest level whatever the target.
+    let voxel = geometry.voxel_size().max_element();
+    let headroom: Vec<Option<f32>> = grid
+        .bricks()
+        .enumerate()
+        .map(|(i, b)| {
+            let (min, max) = geometry.brick_box(b);
+            if !active[i] || view.box_outside_frustum(min, max) {
+                return None;
+            }
+            let distance = (min - view.eye())
+                .max(view.eye() - max)
+                .max(Vec3::ZERO)
+                .length();
+            let pixels = voxel * view.pixels_per_world_unit(distance.max(voxel));
+            Some((target_pixels / pixels).log2())
+        })
+        .collect();
+    let plan = |bias: f32| plan_for(geometry, active, &headroom, levels, bias);
+    let coarsest = plan(levels as f32);
+    let needed = slots_for_plan(grid.bricks_per_axis(), &coarsest);
+    if needed > slots {
+        return Err(LevelChoiceError::CacheTooSmall { needed, slots });
+    }
+    let finest = plan(0.0);
+    let (bias, chosen) = if slots_for_plan(grid.bricks_per_axis(), &finest) <= slots {
+        (0.0, finest)
+    } else {
+        // The smallest bias that fits: `hi` always fits, `lo` never does.
+        let (mut lo, mut hi, mut best) = (0.0f32, levels as f32, coarsest);
+        for _ in 0..16 {
+            let mid = 0.5 * (lo + hi);
+            let candidate = plan(mid);
+            if slots_for_plan(grid.bricks_per_axis(), &candidate) <= slots {
+                (hi, best) = (mid, candidate);
+            } else {
+                lo = mid;
+            }
+        }
+        (hi, best)
+    };
+    Ok(LevelChoice {
+        slots: slots_for_plan(grid.bricks_per_axis(), &chosen),
+        levels: chosen,
+        pixels_per_voxel: target_pixels * bias.exp2(),
+    })
+}
+
+/// Steps 1-3 of the module docs with the target grown by `2^bias`.
+fn plan_for(
+    geometry: &BrickGeometry,
+    active: &[bool],
+    headroom: &[Option<f32>],
+    levels: u32,
+    bias: f32,
+) -> Vec<Option<u32>> {
+    let grid = geometry.grid();
+    let coarsest = levels - 1;
+    let mut level: Vec<u32> = headroom
+        .iter()
+        .map(|h| match h {
+            Some(h) => (h + bias).floor().clamp(0.0, coarsest as f32) as u32,
+            None => coarsest,
+        })
+        .collect();
+    let bricks = grid.bricks_per_axis();
+    loop {
+        let mut changed = keep_rule(bricks, &mut level);
+        changed |= keep_blocks(bricks, &mut level);
+        if !changed {
+            break;
+        }
+    }
+    // Culled bricks are drawn only where a drawn block covers them.
+    let drawn_block = |i: usize| {
+        let b = grid.brick_coords(i);
+        let block = block_bricks(level[i]);
+        if block == 1 {
+            return false;
+        }
+        let first = block_origin(b, level[i]);
+        let end = (first + UVec3::splat(block)).min(bricks);
+        (first.z..end.z).any(|z| {
+            (first.y..end.y)
+                .any(|y| (first.x..end.x).any(|x| active[grid.linear_index(UVec3::new(x, y, z))]))
+        })
+    };
+    (0..level.len())
+        .map(|i| (active[i] || drawn_block(i)).then_some(level[i]))
+        .collect()
+}
+
+/// Refines every brick to at most one level coarser than its finest neighbour: the Chebyshev
+/// distance transform of the levels, in a forward and a backward raster sweep over the 13
+/// neighbours before (after) each brick. Returns whether a level changed.
+fn keep_rule(bricks: UVec3, level: &mut [u32]) -> bool {
+    let size = bricks.as_ivec3();
+    let index = |b: IVec3| (b.x + size.x * (b.y + size.y * b.z)) as usize;
+    let before: Vec<IVec3> = (-1..=1)
+        .flat_map(|z| (-1..=1).flat_map(move |y| (-1..=1).map(move |x| IVec3::new(x, y, z))))
+        .filter(|d| (d.z, d.y, d.x) < (0, 0, 0))
+        .collect();
+    let mut changed = false;
+    let mut sweep = |order: &mut dyn Iterator<Item = IVec3>, sign: i32| {
+        for b in order {
+            let here = index(b);
+            for d in &before {
+                let nb = b + *d * sign;
+                if nb.cmpge(IVec3::ZERO).all() && nb.cmplt(size).all() {
+                    let bound = level[index(nb)] + 1;
+                    if level[here] > bound {
+                        level[here] = bound;
+                        changed = true;
+                    }
+                }
+            }
+        }
+    };
+    let forward = (0..size.z)
+        .flat_map(|z| (0..size.y).flat_map(move |y| (0..size.x).map(move |x| IVec3::new(x, y, z))));
+    sweep(&mut forward.clone(), 1);
+    let backward: Vec<IVec3> = forward.collect();
+    sweep(&mut backward.into_iter().rev(), -1);
+    changed
+}
+
+/// Refines every block of a block level whose bricks differ to its finest brick's level.
+/// Returns whether a level changed.
+fn keep_blocks(bricks: UVec3, level: &mut [u32]) -> bool {
+    let index = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
+    let mut changed = false;
+    for z in 0..bricks.z {
+        for y in 0..bricks.y {
+            for x in 0..bricks.x {
+                let b = UVec3::new(x, y, z);
+                let block = block_bricks(level[index(b)]);
+                let first = block_origin(b, level[index(b)]);
+                // Each block once: from its first brick, or from a brick whose first brick is
+                // at another level (the block is then mixed and would be missed).
+                if block == 1 || (first != b && level[index(first)] == level[index(b)]) {
+                    continue;
+                }
+                let end = (first + UVec3::splat(block)).min(bricks);
+                let mut finest = u32::MAX;
+                for bz in first.z..end.z {
+                    for by in first.y..end.y {
+                        for bx in first.x..end.x {
+                            finest = finest.min(level[index(UVec3::new(bx, by, bz))]);
+                        }
+                    }
+                }
+                for bz in first.z..end.z {
+                    for by in first.y..end.y {
+                        for bx in first.x..end.x {
+                            let i = index(UVec3::new(bx, by, bz));
+                            if level[i] != finest {
+                                level[i] = finest;
+                                changed = true;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    changed
+}

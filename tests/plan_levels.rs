@@ -1,0 +1,201 @@
+//! The level of every brick from the camera for any number of levels (`plan::choose_levels`,
+//! issue 19): the plans keep the one-level rule and the blocks, meet the on-screen target they
+//! report, fit the cache, get finer with more slots, and leave culled bricks undrawn unless a
+//! drawn block covers them.
+
+mod common;
+
+use common::levels::textured_volume;
+use common::Rng;
+use glam::{UVec3, Vec3};
+use mixvol::bricks::BrickGrid;
+use mixvol::cache::{block_bricks, block_origin, slots_for_plan};
+use mixvol::lod::{BrickGeometry, LodView};
+use mixvol::plan::{choose_levels, LevelChoiceError};
+use mixvol::reference::{LevelField, LevelGrid};
+use mixvol::scene::Camera;
+
+const N: u32 = 8;
+const LEVELS: u32 = 5;
+
+fn geometry(bricks: UVec3) -> BrickGeometry {
+    BrickGeometry::new(BrickGrid::new(bricks * N, N).unwrap(), Vec3::ONE).unwrap()
+}
+
+fn random_camera(rng: &mut Rng) -> Camera {
+    let eye = Vec3::new(rng.unit(), rng.unit(), rng.unit()) * 3.0 - Vec3::splat(1.5);
+    let target = Vec3::new(rng.unit(), rng.unit(), rng.unit()) * 0.6 - Vec3::splat(0.3);
+    Camera::perspective(eye, target, 30.0 + 40.0 * rng.unit())
+}
+
+/// The on-screen size of a hi-res voxel at the nearest point of `brick`, as the chooser sees it.
+fn hi_res_pixels(geometry: &BrickGeometry, view: &LodView, brick: UVec3) -> f32 {
+    let (min, max) = geometry.brick_box(brick);
+    let voxel = geometry.voxel_size().max_element();
+    let distance = (min - view.eye())
+        .max(view.eye() - max)
+        .max(Vec3::ZERO)
+        .length();
+    voxel * view.pixels_per_world_unit(distance.max(voxel))
+}
+
+#[test]
+fn chosen_plans_keep_the_rule_and_the_blocks_and_meet_their_target() {
+    let mut rng = Rng(0x91a4_0001);
+    let bricks = UVec3::new(16, 12, 10);
+    let geometry = geometry(bricks);
+    let grid = *geometry.grid();
+    let volume = textured_volume(&mut rng, bricks * N);
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let active = vec![true; grid.brick_count()];
+    let mut levels_seen = [false; LEVELS as usize];
+    for round in 0..24 {
+        let camera = random_camera(&mut rng);
+        let view = LodView::new(&camera, 128, 96).unwrap();
+        let slots = [2, 8, 64, 100_000][round % 4];
+        let choice = match choose_levels(&geometry, &view, &active, LEVELS, slots, 1.5) {
+            Ok(choice) => choice,
+            Err(LevelChoiceError::CacheTooSmall { needed, slots }) => {
+                assert!(needed > slots);
+                continue;
+            }
+            Err(e) => panic!("{e}"),
+        };
+        // The rule and the blocks: the level field accepts the plan.
+        LevelField::new(&grid, &grids, &choice.levels)
+            .unwrap_or_else(|e| panic!("round {round}: {e}"));
+        assert!(
+            choice.slots <= slots,
+            "round {round}: {} slots of {slots}",
+            choice.slots
+        );
+        assert_eq!(choice.slots, slots_for_plan(bricks, &choice.levels));
+        assert!(choice.pixels_per_voxel >= 1.5);
+        for (i, b) in grid.bricks().enumerate() {
+            let level = choice.levels[i].expect("every active brick is drawn");
+            levels_seen[level as usize] = true;
+            let (min, max) = geometry.brick_box(b);
+            if view.box_outside_frustum(min, max) {
+                continue;
+            }
+            // A drawn voxel of a brick in view projects to at most the reported size, unless
+            // the brick is at full resolution already.
+            let pixels = hi_res_pixels(&geometry, &view, b) * (1u32 << level) as f32;
+            assert!(
+                level == 0 || pixels <= choice.pixels_per_voxel * 1.0001,
+                "round {round}, brick {b}, level {level}: {pixels} px > {}",
+                choice.pixels_per_voxel
+            );
+        }
+    }
+    assert!(
+        levels_seen.iter().all(|&s| s),
+        "every level chosen somewhere: {levels_seen:?}"
+    );
+}
+
+#[test]
+fn more_slots_give_a_finer_plan_and_enough_slots_meet_the_target() {
+    let mut rng = Rng(0x91a4_0002);
+    let bricks = UVec3::splat(12);
+    let geometry = geometry(bricks);
+    let active = vec![true; geometry.grid().brick_count()];
+    for _ in 0..8 {
+        let camera = random_camera(&mut rng);
+        let view = LodView::new(&camera, 200, 200).unwrap();
+        let plans: Vec<_> = [4u64, 16, 64, 1_000_000]
+            .iter()
+            .filter_map(|&slots| choose_levels(&geometry, &view, &active, LEVELS, slots, 1.0).ok())
+            .collect();
+        assert!(plans.len() >= 2, "the larger budgets fit");
+        for pair in plans.windows(2) {
+            for (coarse, fine) in pair[0].levels.iter().zip(&pair[1].levels) {
+                assert!(fine <= coarse, "a larger budget never coarsens a brick");
+            }
+            assert!(pair[1].pixels_per_voxel <= pair[0].pixels_per_voxel);
+        }
+        let roomy = plans.last().unwrap();
+        assert_eq!(
+            roomy.pixels_per_voxel, 1.0,
+            "a roomy cache meets the target itself"
+        );
+    }
+}
+
+#[test]
+fn culled_bricks_are_drawn_only_inside_a_drawn_block() {
+    let bricks = UVec3::splat(16);
+    let geometry = geometry(bricks);
+    let grid = *geometry.grid();
+    // Far away: everything coarse, in blocks of 4^3 at level 4.
+    let camera = Camera::perspective(Vec3::new(0.0, 0.0, 40.0), Vec3::ZERO, 30.0);
+    let view = LodView::new(&camera, 64, 64).unwrap();
+    // Active: one brick of the first 4^3 block, and nothing else.
+    let mut active = vec![false; grid.brick_count()];
+    active[grid.linear_index(UVec3::new(1, 2, 3))] = true;
+    let choice = choose_levels(&geometry, &view, &active, LEVELS, 64, 1.0).unwrap();
+    for (i, b) in grid.bricks().enumerate() {
+        match choice.levels[i] {
+            Some(level) => {
+                assert_eq!(
+                    block_origin(b, level),
+                    UVec3::ZERO,
+                    "{b} is drawn at {level}"
+                );
+                assert_eq!(block_bricks(level), 4);
+            }
+            None => assert!(b.max_element() >= 4, "{b} inside the active brick's block"),
+        }
+    }
+    assert_eq!(choice.levels.iter().flatten().count(), 64);
+    assert_eq!(choice.slots, 1);
+    // Nothing active: nothing drawn.
+    let none = vec![false; grid.brick_count()];
+    let choice = choose_levels(&geometry, &view, &none, LEVELS, 1, 1.0).unwrap();
+    assert!(choice.levels.iter().all(Option::is_none));
+    assert_eq!(choice.slots, 0);
+}
+
+#[test]
+fn bad_choices_are_refused() {
+    let geometry = geometry(UVec3::splat(4));
+    let count = geometry.grid().brick_count();
+    let active = vec![true; count];
+    let camera = Camera::perspective(Vec3::new(0.0, 0.0, 2.0), Vec3::ZERO, 40.0);
+    let view = LodView::new(&camera, 64, 64).unwrap();
+    assert_eq!(
+        choose_levels(&geometry, &view, &active[1..], 3, 10, 1.0).unwrap_err(),
+        LevelChoiceError::ActiveCount {
+            given: count - 1,
+            bricks: count
+        }
+    );
+    assert!(matches!(
+        choose_levels(&geometry, &view, &active, 0, 10, 1.0),
+        Err(LevelChoiceError::Levels { levels: 0, .. })
+    ));
+    assert_eq!(
+        choose_levels(&geometry, &view, &active, 3, 10, f32::NAN)
+            .unwrap_err()
+            .to_string(),
+        "the target voxel size on screen must be a positive number of pixels, not NaN"
+    );
+    // 64 bricks at the coarsest of two levels need 8 slots.
+    assert_eq!(
+        choose_levels(&geometry, &view, &active, 2, 7, 1.0).unwrap_err(),
+        LevelChoiceError::CacheTooSmall {
+            needed: 8,
+            slots: 7
+        }
+    );
+    let small =
+        BrickGeometry::new(BrickGrid::new(UVec3::splat(16), 4).unwrap(), Vec3::ONE).unwrap();
+    let active = vec![true; small.grid().brick_count()];
+    assert!(matches!(
+        choose_levels(&small, &view, &active, 4, 10, 1.0),
+        Err(LevelChoiceError::Levels {
+            levels: 4,
+            brick_size: 4
+        })
+    ));
+}

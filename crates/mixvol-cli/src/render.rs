@@ -505,13 +505,15 @@ fn render_view(
     args: &RenderArgs,
 ) -> Result<()> {
     if scene.camera_levels {
+        let start = std::time::Instant::now();
         let choice = renderer.plan_brick_levels(camera, args.width, args.height, 1.0)?;
+        let plan_ms = start.elapsed().as_secs_f64() * 1e3;
         let deepest = choice.levels.iter().flatten().max().copied().unwrap_or(0);
         let per_level: Vec<usize> = (0..=deepest)
             .map(|k| choice.levels.iter().filter(|l| **l == Some(k)).count())
             .collect();
         println!(
-            "levels from the camera: {per_level:?} bricks at levels 0..={deepest}, {} slots, drawn voxels at most {:.2} px",
+            "levels from the camera: {per_level:?} bricks at levels 0..={deepest}, {} slots, drawn voxels at most {:.2} px; choice, upload and fixups {plan_ms:.1} ms",
             choice.slots, choice.pixels_per_voxel
         );
     }

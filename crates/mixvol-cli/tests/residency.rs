@@ -84,6 +84,17 @@ fn covered(img: &image::RgbaImage, background: [u8; 3]) -> f64 {
 
 const BACKGROUND: [u8; 3] = [20, 20, 26];
 
+/// A `render --compare --validation` run's verdict: the frame within the CPU reference's
+/// tolerances, validation-clean, and the PNG `png` showing the volume over a fifth of it.
+fn assert_matches_reference(text: &str, png: &Path) {
+    let max = number_after(text, "max per-channel difference");
+    let mean = number_after(text, "mean");
+    assert!(max < 0.06, "GPU and CPU reference differ by {max}\n{text}");
+    assert!(mean < 4e-3, "mean difference {mean}\n{text}");
+    assert!(text.contains("validation: 0 warnings/errors"), "{text}");
+    assert!(covered(&pixels(png), BACKGROUND) > 0.2, "{text}");
+}
+
 #[test]
 fn a_volume_under_a_gpu_budget_mixes_levels_and_matches_the_cpu_reference() {
     let dir = temp_dir("budget");
@@ -117,12 +128,7 @@ fn a_volume_under_a_gpu_budget_mixes_levels_and_matches_the_cpu_reference() {
     // Measured 2026-12-01 on lavapipe: max 0.045, mean 2.5e-3 for this plan, and the same
     // (0.0445, 2.7e-3) with every brick hi-res: 64x64 images of Marschner-Lobb carry the
     // GPU's 8-bit filtering differences at the ridges; a misplaced brick costs far more.
-    let max = number_after(&text, "max per-channel difference");
-    let mean = number_after(&text, "mean");
-    assert!(max < 0.06, "GPU and CPU reference differ by {max}\n{text}");
-    assert!(mean < 4e-3, "mean difference {mean}\n{text}");
-    assert!(text.contains("validation: 0 warnings/errors"), "{text}");
-    assert!(covered(&pixels(&png), BACKGROUND) > 0.2, "{text}");
+    assert_matches_reference(&text, &png);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -156,12 +162,7 @@ fn a_staircase_of_five_levels_renders_through_the_three_level_cache() {
         "{text}"
     );
     // The tolerances of the two-level test above.
-    let max = number_after(&text, "max per-channel difference");
-    let mean = number_after(&text, "mean");
-    assert!(max < 0.06, "GPU and CPU reference differ by {max}\n{text}");
-    assert!(mean < 4e-3, "mean difference {mean}\n{text}");
-    assert!(text.contains("validation: 0 warnings/errors"), "{text}");
-    assert!(covered(&pixels(&png), BACKGROUND) > 0.2, "{text}");
+    assert_matches_reference(&text, &png);
 
     // The bench draws the two-level patterns only.
     let (out, text) = run(&[
@@ -213,12 +214,7 @@ fn levels_chosen_from_the_camera_fit_the_cache_and_match_the_cpu_reference() {
         voxel_px > 1.0,
         "the budget should coarsen the plan: {voxel_px} px\n{text}"
     );
-    let max = number_after(&text, "max per-channel difference");
-    let mean = number_after(&text, "mean");
-    assert!(max < 0.06, "GPU and CPU reference differ by {max}\n{text}");
-    assert!(mean < 4e-3, "mean difference {mean}\n{text}");
-    assert!(text.contains("validation: 0 warnings/errors"), "{text}");
-    assert!(covered(&pixels(&png), BACKGROUND) > 0.2, "{text}");
+    assert_matches_reference(&text, &png);
 
     // An orbit chooses again at every view, validation-clean.
     let frames = dir.join("orbit");

@@ -17,7 +17,7 @@ use crate::gpu::{
     CacheRegion, CacheTables, DeviceShared, FieldProbe, GpuBrickCache, GpuContext, SlotPacking,
     StagingUpload, Submitter,
 };
-use crate::reference::{LevelField, LevelReferenceCache};
+use crate::reference::{LevelField, LevelPacking};
 use crate::scene::Transition;
 use crate::volume::ScalarType;
 use glam::{UVec3, Vec3};
@@ -75,8 +75,9 @@ pub(crate) fn stage_three_level(
     field: &LevelField,
     geometry: &ThreeLevelGeometry,
 ) -> Result<LevelPlanFacts> {
-    let packed = LevelReferenceCache::build(field, geometry, Transition::Discontinuous)
-        .map_err(|e| Error::InvalidInput(e.to_string()))?;
+    // The packing alone: each stored brick is packed straight into its upload region.
+    let packed =
+        LevelPacking::new(field, geometry).map_err(|e| Error::InvalidInput(e.to_string()))?;
     let slot_count = geometry.slot_count() as usize;
     let mut boxes = Vec::new();
     let mut reverse = vec![[EMPTY; crate::bricks::SUB_SLOTS_PER_SLOT as usize]; slot_count];
@@ -89,15 +90,7 @@ pub(crate) fn stage_three_level(
         };
         let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
         let extent = UVec3::splat(geometry.stored_edge(place.level));
-        let mut texels = Vec::with_capacity(extent.element_product() as usize);
-        for z in 0..extent.z {
-            for y in 0..extent.y {
-                for x in 0..extent.x {
-                    let t = (origin + UVec3::new(x, y, z)).as_ivec3();
-                    texels.push(packed.image.texel(t));
-                }
-            }
-        }
+        let texels = packed.stored_values(field, geometry, brick);
         boxes.push((
             origin,
             extent,
@@ -147,7 +140,7 @@ impl GpuLevelCache {
     /// [`Transition::Smooth`], runs the border and skeleton fixups on the GPU; waits for the
     /// GPU. The volume's extent is level 0's.
     ///
-    /// Errors: what [`LevelReferenceCache::build`] refuses (more than three levels, other sample
+    /// Errors: what [`LevelPacking::new`] refuses (more than three levels, other sample
     /// placements, another brick size, more slots than the cache has), a cache image the device
     /// cannot create, or a failed submission.
     pub fn new(

@@ -74,7 +74,8 @@ pub use tables::{
     EMPTY, NEIGHBOUR_COUNT,
 };
 pub use three_level::{
-    block_bricks, block_origin, slots_for_plan, LevelSlot, ThreeLevelGeometry, THREE_LEVELS,
+    block_bricks, block_origin, slots_for_classes, slots_for_plan, LevelSlot, ThreeLevelGeometry,
+    THREE_LEVELS,
 };
 
 use crate::bricks::Level;

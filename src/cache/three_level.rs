@@ -64,6 +64,12 @@ pub fn slots_for_plan(bricks: UVec3, levels: &[Option<u32>]) -> u64 {
             per_class[level.min(THREE_LEVELS - 1) as usize] += 1;
         }
     }
+    slots_for_classes(per_class)
+}
+
+/// The slots `per_class` stored bricks of level 0, level 1, and level 2 or coarser take: 1, 8
+/// and 64 per slot.
+pub fn slots_for_classes(per_class: [u64; THREE_LEVELS as usize]) -> u64 {
     (0..THREE_LEVELS)
         .map(|k| per_class[k as usize].div_ceil(u64::from(ThreeLevelGeometry::bricks_per_slot(k))))
         .sum()

@@ -24,7 +24,7 @@
 
 use super::level_field::{LevelField, SamplePlacement};
 use super::mixed::{first_marked_neighbour, fixup_value, touching, CacheImage, MixedVolume};
-use crate::cache::{block_bricks, block_origin, slots_for_plan};
+use crate::cache::{block_bricks, block_origin, slots_for_classes, slots_for_plan};
 use crate::cache::{LevelSlot, ThreeLevelGeometry, THREE_LEVELS};
 use crate::scene::Transition;
 use glam::{IVec3, UVec3};
@@ -63,11 +63,11 @@ pub enum LevelCacheError {
     },
 }
 
-/// A three-level cache image filled from a [`LevelField`]'s levels, with its tables.
+/// Where the drawn bricks of a [`LevelField`] go in a three-level cache, and the tables: the
+/// packing without the image. The GPU staging packs each stored brick from it
+/// ([`LevelPacking::stored_values`]); [`LevelReferenceCache`] fills its CPU image from it.
 #[derive(Clone, Debug)]
-pub struct LevelReferenceCache {
-    /// The cache image.
-    pub image: CacheImage,
+pub struct LevelPacking {
     /// Layout entry per brick ([`ThreeLevelGeometry::layout_entry`]).
     pub layout: Vec<[f32; 4]>,
     /// Coarser bits per brick ([`LevelField::coarser_bits`]): for a level-0 brick the 26
@@ -84,22 +84,15 @@ pub struct LevelReferenceCache {
     pub brick_size: u32,
 }
 
-impl LevelReferenceCache {
-    /// Packs every drawn brick of `field` into a cache of `geometry` (slots filled level by
-    /// level, in brick order) and, for [`Transition::Smooth`], runs both fixups.
-    ///
-    /// Any number of levels: past level 2 a stored brick holds a whole block (module docs of
-    /// `cache::three_level`).
+impl LevelPacking {
+    /// Places every drawn brick of `field` in a cache of `geometry`: slots filled by packing
+    /// class (level 0, level 1, level 2 and coarser), in brick order; past level 2 one stored
+    /// brick per block (module docs of `cache::three_level`).
     ///
     /// Errors: a level placed other than level 0 cell-centred and the others on vertices, a
     /// brick size other than the cache's, or more slots needed than the cache has.
-    pub fn build(
-        field: &LevelField,
-        geometry: &ThreeLevelGeometry,
-        transition: Transition,
-    ) -> Result<Self, LevelCacheError> {
-        let grids = field.grids();
-        for g in grids {
+    pub fn new(field: &LevelField, geometry: &ThreeLevelGeometry) -> Result<Self, LevelCacheError> {
+        for g in field.grids() {
             let expected = if g.level() == 0 {
                 SamplePlacement::CellCentred
             } else {
@@ -121,28 +114,19 @@ impl LevelReferenceCache {
         }
         let bricks = field.bricks_per_axis();
         let count = bricks.element_product() as usize;
-        let brick_coords = |i: usize| {
-            let i = i as u32;
-            UVec3::new(
-                i % bricks.x,
-                (i / bricks.x) % bricks.y,
-                i / (bricks.x * bricks.y),
-            )
-        };
+        let coords = |i: usize| brick_coords(bricks, i);
         let linear = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
-        // The stored bricks: each drawn brick that is the first of its block, by packing class
-        // (level 0, level 1, level 2 and coarser), in brick order.
-        let class = |level: u32| level.min(THREE_LEVELS - 1) as usize;
-        let mut stored: [Vec<usize>; 3] = Default::default();
+        // The stored bricks: each drawn brick that is the first of its block, by packing class.
+        let mut by_class: [Vec<usize>; 3] = Default::default();
         for i in 0..count {
             if let Some(level) = field.brick_level(i) {
-                if block_origin(brick_coords(i), level) == brick_coords(i) {
-                    stored[class(level)].push(i);
+                if block_origin(coords(i), level) == coords(i) {
+                    by_class[level.min(THREE_LEVELS - 1) as usize].push(i);
                 }
             }
         }
-        let per_level = stored.clone().map(|s| s.len());
-        let needed = slots_needed(field);
+        let per_level = by_class.clone().map(|s| s.len());
+        let needed = slots_for_classes(per_level.map(|c| c as u64));
         if needed > u64::from(geometry.slot_count()) {
             return Err(LevelCacheError::OverBudget {
                 needed,
@@ -150,13 +134,11 @@ impl LevelReferenceCache {
                 slots: geometry.slot_count(),
             });
         }
-
-        let mut image = CacheImage::new(geometry.extent());
         let mut places = vec![None; count];
         let mut layout = vec![[0.0; 4]; count];
-        let mut stored_bricks = Vec::new();
+        let mut stored = Vec::new();
         let mut next_slot = 0;
-        for (k, class_bricks) in stored.iter().enumerate() {
+        for (k, class_bricks) in by_class.iter().enumerate() {
             let per_slot = ThreeLevelGeometry::bricks_per_slot(k as u32);
             let mut filled = 0;
             for &i in class_bricks {
@@ -170,11 +152,10 @@ impl LevelReferenceCache {
                 if filled == per_slot {
                     (next_slot, filled) = (next_slot + 1, 0);
                 }
-                let first = brick_coords(i);
+                let first = coords(i);
                 let entry = geometry.layout_entry(first, place);
                 // Every brick of the block (clipped to the grid) shares the stored brick.
-                let block = UVec3::splat(block_bricks(level));
-                let end = (first + block).min(bricks);
+                let end = (first + UVec3::splat(block_bricks(level))).min(bricks);
                 for z in first.z..end.z {
                     for y in first.y..end.y {
                         for x in first.x..end.x {
@@ -184,39 +165,136 @@ impl LevelReferenceCache {
                         }
                     }
                 }
-                stored_bricks.push(i);
-                let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
-                let edge = geometry.stored_edge(level);
-                // Level 0: voxel n*b - 2 + t; level k: sample n*b0/2^k + t (module docs of
-                // `cache::three_level`); the grids clamp to their extent.
-                let first_sample = if level == 0 {
-                    (first * n).as_ivec3() - IVec3::splat(2)
-                } else {
-                    (first.as_ivec3() * n as i32) / (1 << level)
-                };
-                let g = &grids[level as usize];
-                let mut values = Vec::with_capacity(edge.pow(3) as usize);
-                for z in 0..edge as i32 {
-                    for y in 0..edge as i32 {
-                        for x in 0..edge as i32 {
-                            values.push(g.value(first_sample + IVec3::new(x, y, z)));
-                        }
-                    }
-                }
-                image.write_box(origin, UVec3::splat(edge), &values);
+                stored.push(i);
             }
             if filled > 0 {
                 next_slot += 1;
             }
         }
-        let neighbours: Vec<u32> = (0..count).map(|i| field.coarser_bits(i)).collect();
+        Ok(Self {
+            layout,
+            neighbours: (0..count).map(|i| field.coarser_bits(i)).collect(),
+            places,
+            stored,
+            bricks,
+            brick_size: n,
+        })
+    }
 
+    /// The texels of the stored brick held by `brick` (one of [`Self::stored`]), x fastest,
+    /// `stored_edge` of its level per axis: level 0 voxel `n*b - 2 + t`, level `k` sample
+    /// `n*b0/2^k + t` (module docs of `cache::three_level`), clamped by the grids. Empty for a
+    /// brick that is not drawn.
+    pub fn stored_values(
+        &self,
+        field: &LevelField,
+        geometry: &ThreeLevelGeometry,
+        brick: usize,
+    ) -> Vec<f32> {
+        let Some(place) = self.places[brick] else {
+            return Vec::new();
+        };
+        let (n, level) = (self.brick_size, place.level);
+        let first = brick_coords(self.bricks, brick);
+        let first_sample = if level == 0 {
+            (first * n).as_ivec3() - IVec3::splat(2)
+        } else {
+            (first.as_ivec3() * n as i32) / (1 << level)
+        };
+        let g = &field.grids()[level as usize];
+        let edge = geometry.stored_edge(level) as i32;
+        let mut values = Vec::with_capacity(edge.pow(3) as usize);
+        for z in 0..edge {
+            for y in 0..edge {
+                for x in 0..edge {
+                    values.push(g.value(first_sample + IVec3::new(x, y, z)));
+                }
+            }
+        }
+        values
+    }
+
+    /// Whether a brick of the block held by stored brick `brick` (one of [`Self::stored`]) has
+    /// a neighbour one level coarser: the block's fixup has work.
+    pub fn block_has_coarser_neighbour(&self, brick: usize) -> bool {
+        let Some(place) = self.places[brick] else {
+            return false;
+        };
+        let b = self.bricks;
+        let first = brick_coords(b, brick);
+        let end = (first + UVec3::splat(block_bricks(place.level))).min(b);
+        (first.z..end.z).any(|z| {
+            (first.y..end.y).any(|y| {
+                (first.x..end.x).any(|x| self.neighbours[(x + b.x * (y + b.y * z)) as usize] != 0)
+            })
+        })
+    }
+}
+
+/// Brick coordinates of linear index `i` in a grid of `bricks` per axis (x fastest).
+fn brick_coords(bricks: UVec3, i: usize) -> UVec3 {
+    let i = i as u32;
+    UVec3::new(
+        i % bricks.x,
+        (i / bricks.x) % bricks.y,
+        i / (bricks.x * bricks.y),
+    )
+}
+
+/// A three-level cache image filled from a [`LevelField`]'s levels, with its tables.
+#[derive(Clone, Debug)]
+pub struct LevelReferenceCache {
+    /// The cache image.
+    pub image: CacheImage,
+    /// Layout entry per brick ([`ThreeLevelGeometry::layout_entry`]).
+    pub layout: Vec<[f32; 4]>,
+    /// Coarser bits per brick ([`LevelField::coarser_bits`]): for a level-0 brick the 26
+    /// neighbour bits of the two-level cache.
+    pub neighbours: Vec<u32>,
+    /// Where each brick lives, `None` when not drawn (the bricks of a block share a place).
+    pub places: Vec<Option<LevelSlot>>,
+    /// The bricks that hold a stored brick, in packing order ([`LevelPacking::stored`]).
+    pub stored: Vec<usize>,
+    /// Bricks per axis.
+    pub bricks: UVec3,
+    /// Brick size.
+    pub brick_size: u32,
+}
+
+impl LevelReferenceCache {
+    /// Packs every drawn brick of `field` into a cache of `geometry` ([`LevelPacking::new`])
+    /// and, for [`Transition::Smooth`], runs both fixups.
+    ///
+    /// Errors: those of [`LevelPacking::new`].
+    pub fn build(
+        field: &LevelField,
+        geometry: &ThreeLevelGeometry,
+        transition: Transition,
+    ) -> Result<Self, LevelCacheError> {
+        let packing = LevelPacking::new(field, geometry)?;
+        let mut image = CacheImage::new(geometry.extent());
+        for &i in &packing.stored {
+            let Some(place) = packing.places[i] else {
+                continue;
+            };
+            let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
+            let edge = UVec3::splat(geometry.stored_edge(place.level));
+            image.write_box(origin, edge, &packing.stored_values(field, geometry, i));
+        }
+        let LevelPacking {
+            layout,
+            neighbours,
+            places,
+            stored,
+            bricks,
+            brick_size: n,
+        } = packing;
         if transition == Transition::Smooth {
-            for &i in &stored_bricks {
+            for &i in &stored {
                 let Some(place) = places[i] else {
                     continue;
                 };
-                let brick = brick_coords(i);
+                let brick = brick_coords(bricks, i);
                 let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
                 if place.level == 0 {
                     let bits = neighbours[i];
@@ -256,29 +334,9 @@ impl LevelReferenceCache {
             layout,
             neighbours,
             places,
-            stored: stored_bricks,
+            stored,
             bricks,
             brick_size: n,
-        })
-    }
-
-    /// Whether a brick of the block held by stored brick `brick` (one of [`Self::stored`]) has
-    /// a neighbour one level coarser: the block's fixup has work.
-    pub fn block_has_coarser_neighbour(&self, brick: usize) -> bool {
-        let Some(place) = self.places[brick] else {
-            return false;
-        };
-        let b = self.bricks;
-        let first = UVec3::new(
-            brick as u32 % b.x,
-            (brick as u32 / b.x) % b.y,
-            brick as u32 / (b.x * b.y),
-        );
-        let end = (first + UVec3::splat(block_bricks(place.level))).min(b);
-        (first.z..end.z).any(|z| {
-            (first.y..end.y).any(|y| {
-                (first.x..end.x).any(|x| self.neighbours[(x + b.x * (y + b.y * z)) as usize] != 0)
-            })
         })
     }
 

@@ -10,7 +10,9 @@ mod sampling;
 
 pub use crate::cache::{block_bricks, block_origin};
 pub use camera::{clip_ray, depth_limit, generate_ray, intersect_box, safe_inverse, Ray};
-pub use level_cache::{skeleton_fixup_value, slots_needed, LevelCacheError, LevelReferenceCache};
+pub use level_cache::{
+    skeleton_fixup_value, slots_needed, LevelCacheError, LevelPacking, LevelReferenceCache,
+};
 pub use level_field::{level_band, LevelField, LevelFieldError, LevelGrid, SamplePlacement};
 pub use mixed::{
     active_axes, band, band_bounds, brick_of, feature_touches_low_res, fixup_brick, fixup_value,

@@ -60,3 +60,12 @@ pub fn swapped(levels: &[Level]) -> Vec<Level> {
         })
         .collect()
 }
+
+/// The deepest level of `plan` and how many bricks are drawn at each level up to it.
+pub fn per_level_counts(plan: &[Option<u32>]) -> (u32, Vec<usize>) {
+    let deepest = plan.iter().flatten().max().copied().unwrap_or(0);
+    let counts = (0..=deepest)
+        .map(|k| plan.iter().filter(|l| **l == Some(k)).count())
+        .collect();
+    (deepest, counts)
+}

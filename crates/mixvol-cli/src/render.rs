@@ -11,7 +11,7 @@ use crate::frame_log::{write_log, FrameRow};
 use crate::input::{
     model_transform, open_input_with_meta, orientation_line, window_line, window_of, Input,
 };
-use crate::levels::{level_pattern, staircase};
+use crate::levels::{level_pattern, per_level_counts, staircase};
 use crate::stats::{peak_rss_bytes, Summary};
 pub use crate::stream::Streaming;
 use mixvol::bricks::BrickGrid;
@@ -196,39 +196,28 @@ pub fn set_up_scene(
                 ..args.mixed.config()?
             };
             let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)?;
-            if pattern == LevelsArg::Camera {
-                // Every brick coarsest until the first view chooses.
-                renderer.set_source(VolumeSource::Levels {
-                    volume: &volume,
-                    levels: &[],
-                    config,
-                })?;
-                println!(
-                    "three-level cache: {} bricks of {}^3, levels chosen from the camera",
-                    grid.brick_count(),
-                    args.mixed.brick_size,
-                );
-                return Ok(Scene {
-                    volume: Some(volume),
-                    streamer: None,
-                    planned: false,
-                    config: Some(config),
-                    camera_levels: true,
-                });
-            }
-            if pattern == LevelsArg::Staircase {
-                let plan = staircase(&grid);
+            if matches!(pattern, LevelsArg::Camera | LevelsArg::Staircase) {
+                // The camera's plan starts with every brick coarsest (an empty plan) until the
+                // first view chooses.
+                let camera_levels = pattern == LevelsArg::Camera;
+                let plan = if camera_levels {
+                    Vec::new()
+                } else {
+                    staircase(&grid)
+                };
                 renderer.set_source(VolumeSource::Levels {
                     volume: &volume,
                     levels: &plan,
                     config,
                 })?;
-                let deepest = plan.iter().flatten().max().copied().unwrap_or(0);
-                let per_level: Vec<usize> = (0..=deepest)
-                    .map(|k| plan.iter().filter(|l| **l == Some(k)).count())
-                    .collect();
+                let drawn = if camera_levels {
+                    "levels chosen from the camera".to_string()
+                } else {
+                    let (deepest, per_level) = per_level_counts(&plan);
+                    format!("at levels 0..={deepest} ({per_level:?} bricks per level)")
+                };
                 println!(
-                    "three-level cache: {} bricks of {}^3 at levels 0..={deepest} ({per_level:?} bricks per level)",
+                    "three-level cache: {} bricks of {}^3 {drawn}",
                     grid.brick_count(),
                     args.mixed.brick_size,
                 );
@@ -237,7 +226,7 @@ pub fn set_up_scene(
                     streamer: None,
                     planned: false,
                     config: Some(config),
-                    camera_levels: false,
+                    camera_levels,
                 });
             }
             renderer.set_source(VolumeSource::Mixed {
@@ -508,10 +497,7 @@ fn render_view(
         let start = std::time::Instant::now();
         let choice = renderer.plan_brick_levels(camera, args.width, args.height, 1.0)?;
         let plan_ms = start.elapsed().as_secs_f64() * 1e3;
-        let deepest = choice.levels.iter().flatten().max().copied().unwrap_or(0);
-        let per_level: Vec<usize> = (0..=deepest)
-            .map(|k| choice.levels.iter().filter(|l| **l == Some(k)).count())
-            .collect();
+        let (deepest, per_level) = per_level_counts(&choice.levels);
         println!(
             "levels from the camera: {per_level:?} bricks at levels 0..={deepest}, {} slots, drawn voxels at most {:.2} px; choice, upload and fixups {plan_ms:.1} ms",
             choice.slots, choice.pixels_per_voxel

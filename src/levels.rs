@@ -67,17 +67,30 @@ pub(crate) fn new_three_level_cache(
     )
 }
 
-/// Stages the drawn bricks of `field` into `gpu` (a cache of `geometry`): every drawn brick
-/// packed (not fixed up: the GPU runs the fixups when the cache is smooth), the tables and the
-/// jobs of both fixups. The next [`GpuBrickCache::record`] uploads them.
-pub(crate) fn stage_three_level(
+/// Stages the drawn bricks of `field` into `gpu` (a cache of `geometry`), packed from the
+/// field's grids: [`stage_three_level`] with [`LevelPacking::stored_values`].
+pub(crate) fn stage_field(
     gpu: &mut GpuBrickCache,
     field: &LevelField,
     geometry: &ThreeLevelGeometry,
 ) -> Result<LevelPlanFacts> {
-    // The packing alone: each stored brick is packed straight into its upload region.
     let packed =
-        LevelPacking::new(field, geometry).map_err(|e| Error::InvalidInput(e.to_string()))?;
+        LevelPacking::for_field(field, geometry).map_err(|e| Error::InvalidInput(e.to_string()))?;
+    stage_three_level(gpu, &packed, geometry, &mut |brick| {
+        Ok(packed.stored_values(field, geometry, brick))
+    })
+}
+
+/// Stages the drawn bricks of `packed` into `gpu` (a cache of `geometry`): every stored brick
+/// (`texels(brick)` for each of [`LevelPacking::stored`], `stored_edge^3` values x fastest), not
+/// fixed up (the GPU runs the fixups when the cache is smooth), the tables and the jobs of both
+/// fixups. The next [`GpuBrickCache::record`] uploads them.
+pub(crate) fn stage_three_level(
+    gpu: &mut GpuBrickCache,
+    packed: &LevelPacking,
+    geometry: &ThreeLevelGeometry,
+    texels: &mut dyn FnMut(usize) -> Result<Vec<f32>>,
+) -> Result<LevelPlanFacts> {
     let slot_count = geometry.slot_count() as usize;
     let mut boxes = Vec::new();
     let mut reverse = vec![[EMPTY; crate::bricks::SUB_SLOTS_PER_SLOT as usize]; slot_count];
@@ -90,11 +103,19 @@ pub(crate) fn stage_three_level(
         };
         let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
         let extent = UVec3::splat(geometry.stored_edge(place.level));
-        let texels = packed.stored_values(field, geometry, brick);
+        let values = texels(brick)?;
+        let expected = extent.element_product() as usize;
+        if values.len() != expected {
+            return Err(Error::InvalidInput(format!(
+                "stored brick {brick} (level {}): {} texels, expected {expected}",
+                place.level,
+                values.len()
+            )));
+        }
         boxes.push((
             origin,
             extent,
-            bytemuck::cast_slice::<f32, u8>(&texels).to_vec(),
+            bytemuck::cast_slice::<f32, u8>(&values).to_vec(),
         ));
         let index = brick as u32;
         if place.level == 0 {
@@ -140,7 +161,7 @@ impl GpuLevelCache {
     /// [`Transition::Smooth`], runs the border and skeleton fixups on the GPU; waits for the
     /// GPU. The volume's extent is level 0's.
     ///
-    /// Errors: what [`LevelPacking::new`] refuses (more than three levels, other sample
+    /// Errors: what [`LevelPacking::for_field`] refuses (more than three levels, other sample
     /// placements, another brick size, more slots than the cache has), a cache image the device
     /// cannot create, or a failed submission.
     pub fn new(
@@ -153,7 +174,7 @@ impl GpuLevelCache {
         let smooth = transition == Transition::Smooth;
         let brick_count = field.bricks_per_axis().element_product() as usize;
         let mut gpu = new_three_level_cache(shared, geometry, brick_count, smooth, 1)?;
-        stage_three_level(&mut gpu, field, geometry)?;
+        stage_field(&mut gpu, field, geometry)?;
         let mut submitter = Submitter::new(shared)?;
         let mut staging = StagingUpload::new(shared, "three-level bricks");
         submitter.run(|_, cmd| gpu.record(cmd, 0, &mut staging, None).map(|_| ()))?;

@@ -74,8 +74,9 @@ pub use tables::{
     EMPTY, NEIGHBOUR_COUNT,
 };
 pub use three_level::{
-    block_bricks, block_origin, slots_for_classes, slots_for_plan, LevelSlot, ThreeLevelGeometry,
-    THREE_LEVELS,
+    block_bricks, block_origin, min_brick_size_for_levels, pyramid_levels, slots_for_classes,
+    slots_for_plan, stored_brick_edge, stored_bricks_per_axis, stored_first_sample, LevelSlot,
+    ThreeLevelGeometry, THREE_LEVELS,
 };
 
 use crate::bricks::Level;

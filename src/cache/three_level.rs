@@ -25,7 +25,7 @@
 
 use super::geometry::{check_brick_size, choose_extent, whole_slots};
 use super::CacheError;
-use glam::UVec3;
+use glam::{IVec3, UVec3};
 
 /// Levels of the three-level packing: its three sizes of stored brick (levels past 2 use the
 /// level-2 size).
@@ -42,6 +42,59 @@ pub fn block_bricks(level: u32) -> u32 {
 pub fn block_origin(brick: UVec3, level: u32) -> UVec3 {
     let block = block_bricks(level);
     brick / block * block
+}
+
+/// The smallest brick size that takes `levels` levels: up to three levels a brick must hold a
+/// whole cell of the coarsest (`2^(levels - 1)`); past three, the block levels need bricks of at
+/// least 8 voxels (their blocks' faces then lie on the next level's samples).
+pub fn min_brick_size_for_levels(levels: u32) -> u32 {
+    if levels <= THREE_LEVELS {
+        1 << levels.saturating_sub(1)
+    } else {
+        8
+    }
+}
+
+/// The levels a volume of bricks of `brick_size`, `bricks` per axis, gets by default: levels
+/// 0-2, and past them (bricks of 8 voxels or more) as many block levels as it takes for one
+/// block to cover the grid's longest axis; fewer when the bricks are too small for three.
+pub fn pyramid_levels(brick_size: u32, bricks: UVec3) -> u32 {
+    if brick_size < min_brick_size_for_levels(THREE_LEVELS + 1) {
+        let fitting = (1..=THREE_LEVELS)
+            .rev()
+            .find(|&l| brick_size >= min_brick_size_for_levels(l));
+        return fitting.unwrap_or(1);
+    }
+    let longest = bricks.max_element().max(1);
+    // block_bricks(k) = 2^(k - 2) >= longest.
+    THREE_LEVELS.max(2 + longest.next_power_of_two().trailing_zeros() + 1)
+}
+
+/// Stored bricks per axis of `level` for a grid of `bricks` per axis: one per block
+/// ([`block_bricks`]), the last block clipped by the grid.
+pub fn stored_bricks_per_axis(bricks: UVec3, level: u32) -> UVec3 {
+    let block = block_bricks(level);
+    (bricks + UVec3::splat(block - 1)) / block
+}
+
+/// Texels per axis a stored brick of `level` holds for bricks of `brick_size`: `n + 4` at level
+/// 0 (two border texels per side), `n / 2^min(level, 2) + 1` vertex samples above (module docs).
+pub fn stored_brick_edge(brick_size: u32, level: u32) -> u32 {
+    match level {
+        0 => brick_size + 4,
+        k => (brick_size >> k.min(THREE_LEVELS - 1)) + 1,
+    }
+}
+
+/// The level-`level` sample index of texel 0 of the stored brick whose block starts at brick
+/// `first` (module docs): voxel `n*b - 2` at level 0, sample `n*b0 / 2^level` above. Samples past
+/// the level's grid are clamped to it by whoever reads them.
+pub fn stored_first_sample(first: UVec3, brick_size: u32, level: u32) -> IVec3 {
+    if level == 0 {
+        (first * brick_size).as_ivec3() - IVec3::splat(2)
+    } else {
+        (first.as_ivec3() * brick_size as i32) / (1 << level.min(30))
+    }
 }
 
 /// The slots a plan takes in the three-level packing: one per level-0 brick, one per eight
@@ -174,10 +227,7 @@ impl ThreeLevelGeometry {
     /// Texels per axis a brick of `level` stores: `n + 4` at level 0 (two border texels per
     /// side), `n / 2^level + 1` vertex samples above.
     pub fn stored_edge(&self, level: u32) -> u32 {
-        match level {
-            0 => self.slot_edge(),
-            k => (self.brick_size >> k.min(THREE_LEVELS - 1)) + 1,
-        }
+        stored_brick_edge(self.brick_size, level)
     }
 
     /// Slot coordinates of linear slot index `slot` (x fastest).

@@ -6,20 +6,21 @@ use super::VolumePass;
 use crate::bricks::{
     fallback_levels, BrickSource, DownsampleFilter, Level, RgbaBrickSource, VolumeBrickSource,
 };
-use crate::cache::{BrickCache, CacheGeometry, ThreeLevelGeometry, THREE_LEVELS};
+use crate::cache::{BrickCache, CacheGeometry, ThreeLevelGeometry};
 use crate::error::{Error, Result};
 use crate::gpu::{Access, TimestampPool};
 use crate::gpu::{
     CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image, ImageDesc, SlotPacking,
 };
 use crate::gpu::{RaycastVariant, StagingUpload};
-use crate::levels::{new_three_level_cache, stage_three_level, LevelPlanFacts};
+use crate::levels::{new_three_level_cache, stage_field, stage_three_level, LevelPlanFacts};
 use crate::lod::BrickGeometry;
 use crate::optics::SamplingModel;
 use crate::plan::ResidencyPlanner;
-use crate::reference::{LevelField, LevelGrid};
+use crate::reference::{LevelField, LevelGrid, LevelPacking, LevelPlan};
 use crate::scene::Transition;
 use crate::scene::{Camera, RayFeatures, RaycastParams, RenderSettings};
+use crate::store::LevelStore;
 use crate::volume::{RgbaVolume, ScalarType, Volume};
 use ash::vk;
 use glam::UVec3;
@@ -76,6 +77,19 @@ pub enum VolumeSource<'a> {
         /// Brick size, cache budget and transition.
         config: MixedConfig,
     },
+    /// A level store drawn through the three-level brick cache, as [`VolumeSource::Levels`]
+    /// draws a volume: every drawn brick is read from the file (one positioned read, CRC-checked)
+    /// and packed straight into its slot, so the volume never sits in RAM. `levels` as for
+    /// [`VolumeSource::Levels`], out of the store's levels (empty: every brick at the coarsest);
+    /// `config.brick_size` must be the store's, `config.filter` is not used.
+    LevelStore {
+        /// The open store.
+        store: Arc<LevelStore>,
+        /// The level of each brick (linear brick index).
+        levels: &'a [Option<u32>],
+        /// Brick size (the store's), cache budget and transition.
+        config: MixedConfig,
+    },
     /// A pre-classified volume through the brick cache, its bricks holding the weighted channels
     /// for `model` (an RGBA32F cache image; the fixup and the smooth transition blend work on all
     /// four channels alike). Frames must ask for the same sampling model (set the source again
@@ -113,6 +127,17 @@ impl std::fmt::Debug for VolumeSource<'_> {
             } => f
                 .debug_struct("Levels")
                 .field("dims", &volume.dims())
+                .field("bricks", &levels.len())
+                .field("config", config)
+                .finish(),
+            VolumeSource::LevelStore {
+                store,
+                levels,
+                config,
+            } => f
+                .debug_struct("LevelStore")
+                .field("path", &store.path())
+                .field("dims", &store.header().dims)
                 .field("bricks", &levels.len())
                 .field("config", config)
                 .finish(),
@@ -226,7 +251,7 @@ pub(crate) struct LevelState {
     /// The brick grid, every level's samples and the cache geometry (a new plan is packed from
     /// them).
     grid: crate::bricks::BrickGrid,
-    grids: Vec<LevelGrid>,
+    data: LevelData,
     geometry: ThreeLevelGeometry,
     /// The brick grid in world space (for [`VolumePass::plan_brick_levels`]).
     pub(super) bricks: BrickGeometry,
@@ -241,31 +266,61 @@ pub(crate) struct LevelState {
     facts: LevelPlanFacts,
 }
 
-/// The levels a three-level source builds for `grid`: 0-2, and past them (bricks of 8 voxels or
-/// more) as many block levels as it takes for one block to cover the grid's longest axis.
-fn pyramid_levels(grid: &crate::bricks::BrickGrid) -> u32 {
-    if grid.brick_size() < 8 {
-        return THREE_LEVELS;
+/// What a three-level source needs to know of its volume besides the stored bricks.
+struct LevelSourceFacts {
+    grid: crate::bricks::BrickGrid,
+    spacing: glam::Vec3,
+    value_range: (f32, f32),
+    is_float: bool,
+}
+
+/// Where a three-level source's stored bricks come from.
+enum LevelData {
+    /// Every level's samples in RAM ([`VolumeSource::Levels`]).
+    Grids(Vec<LevelGrid>),
+    /// A level store on disk ([`VolumeSource::LevelStore`]).
+    Store(Arc<LevelStore>),
+}
+
+impl LevelData {
+    /// Levels there are (0 up to this, exclusive).
+    fn level_count(&self) -> u32 {
+        match self {
+            LevelData::Grids(grids) => grids.len() as u32,
+            LevelData::Store(store) => store.level_count(),
+        }
     }
-    let longest = grid.bricks_per_axis().max_element().max(1);
-    // block_bricks(k) = 2^(k - 2) >= longest.
-    THREE_LEVELS.max(2 + longest.next_power_of_two().trailing_zeros() + 1)
 }
 
 impl LevelState {
     /// Stages `levels`: checks the plan (rule, levels, slots) first, so a refused plan leaves
     /// the drawn one as it is.
     pub(super) fn stage(&mut self, levels: &[Option<u32>]) -> Result<()> {
-        let field = LevelField::new(&self.grid, &self.grids, levels)
-            .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
-        self.facts = stage_three_level(&mut self.gpu, &field, &self.geometry)?;
+        let refused =
+            |e: &dyn std::fmt::Display| Error::InvalidInput(format!("three-level source: {e}"));
+        self.facts = match &self.data {
+            LevelData::Grids(grids) => {
+                let field = LevelField::new(&self.grid, grids, levels).map_err(|e| refused(&e))?;
+                stage_field(&mut self.gpu, &field, &self.geometry)?
+            }
+            LevelData::Store(store) => {
+                let plan = LevelPlan::new(&self.grid, store.level_count(), levels)
+                    .map_err(|e| refused(&e))?;
+                let packed = LevelPacking::new(&plan, &self.geometry).map_err(|e| refused(&e))?;
+                let grid = self.grid;
+                stage_three_level(&mut self.gpu, &packed, &self.geometry, &mut |brick| {
+                    let level = plan.brick_level(brick).unwrap_or(0);
+                    Ok(store.read_stored(level, grid.brick_coords(brick))?)
+                })?
+            }
+        };
         self.current = levels.to_vec();
         Ok(())
     }
 
     /// Levels the source builds (0 up to this, exclusive).
     pub(super) fn level_count(&self) -> u32 {
-        self.grids.len() as u32
+        self.data.level_count()
     }
 
     /// Slots of the cache.
@@ -456,6 +511,11 @@ impl VolumePass {
                 levels,
                 config,
             } => self.attach_levels(volume, levels, config),
+            VolumeSource::LevelStore {
+                store,
+                levels,
+                config,
+            } => self.attach_level_store(store, levels, config),
             VolumeSource::RgbaMixed {
                 volume,
                 model,
@@ -469,7 +529,6 @@ impl VolumePass {
     }
 
     /// Draws `volume` at `levels` through a new three-level cache ([`VolumeSource::Levels`]).
-    /// The cache holds as many slots as the budget allows, up to every brick at level 0.
     fn attach_levels(
         &mut self,
         volume: &Volume,
@@ -477,6 +536,55 @@ impl VolumePass {
         config: MixedConfig,
     ) -> Result<()> {
         let grid = crate::bricks::BrickGrid::new(volume.dims(), config.brick_size)?;
+        let grids = LevelGrid::vertex_pyramid(
+            volume,
+            crate::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis()),
+        );
+        let facts = LevelSourceFacts {
+            grid,
+            spacing: volume.spacing(),
+            value_range: volume.value_range(),
+            is_float: volume.scalar_type() == ScalarType::F32,
+        };
+        self.attach_level_data(LevelData::Grids(grids), facts, levels, config)
+    }
+
+    /// Draws the level store `store` at `levels` through a new three-level cache
+    /// ([`VolumeSource::LevelStore`]).
+    fn attach_level_store(
+        &mut self,
+        store: Arc<LevelStore>,
+        levels: &[Option<u32>],
+        config: MixedConfig,
+    ) -> Result<()> {
+        let header = *store.header();
+        if config.brick_size != header.brick_size {
+            return Err(Error::InvalidInput(format!(
+                "level store {}: written with bricks of {}, but config.brick_size is {}",
+                store.path().display(),
+                header.brick_size,
+                config.brick_size
+            )));
+        }
+        let facts = LevelSourceFacts {
+            grid: store.grid(),
+            spacing: header.spacing,
+            value_range: (header.value_range.min, header.value_range.max),
+            is_float: header.scalar == ScalarType::F32,
+        };
+        self.attach_level_data(LevelData::Store(store), facts, levels, config)
+    }
+
+    /// Draws `data` at `levels` through a new three-level cache. The cache holds as many slots
+    /// as the budget allows, up to every brick at level 0.
+    fn attach_level_data(
+        &mut self,
+        data: LevelData,
+        facts: LevelSourceFacts,
+        levels: &[Option<u32>],
+        config: MixedConfig,
+    ) -> Result<()> {
+        let grid = facts.grid;
         let geometry = ThreeLevelGeometry::choose(
             config.brick_size,
             4,
@@ -484,14 +592,13 @@ impl VolumePass {
             self.ctx.shared.info.limits.max_image_dimension3_d,
             u32::try_from(grid.brick_count()).unwrap_or(u32::MAX),
         )?;
-        let grids = LevelGrid::vertex_pyramid(volume, pyramid_levels(&grid));
         // An empty plan: every brick at the coarsest level.
-        let coarsest = vec![Some(grids.len() as u32 - 1); grid.brick_count()];
+        let coarsest = vec![Some(data.level_count() - 1); grid.brick_count()];
         let levels = if levels.is_empty() { &coarsest } else { levels };
         // The plan is checked before the cache is allocated.
-        LevelField::new(&grid, &grids, levels)
+        LevelPlan::new(&grid, data.level_count(), levels)
             .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
-        let bricks = BrickGeometry::new(grid, volume.spacing())?;
+        let bricks = BrickGeometry::new(grid, facts.spacing)?;
         // Free the old source's GPU memory before allocating the new cache.
         self.source = Source::None;
         let gpu = new_three_level_cache(
@@ -504,14 +611,14 @@ impl VolumePass {
         let mut state = LevelState {
             gpu,
             grid,
-            grids,
+            data,
             geometry,
             bricks,
             current: Vec::new(),
-            dims: volume.dims(),
-            spacing: volume.spacing(),
-            value_range: volume.value_range(),
-            is_float: volume.scalar_type() == ScalarType::F32,
+            dims: grid.dims(),
+            spacing: facts.spacing,
+            value_range: facts.value_range,
+            is_float: facts.is_float,
             brick_size: config.brick_size,
             transition: config.transition,
             facts: LevelPlanFacts {

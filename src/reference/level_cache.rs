@@ -23,6 +23,7 @@
 //! before the skeleton fixup: the fixup overwrites the brick's own samples and cannot restore them.
 
 use super::level_field::{LevelField, SamplePlacement};
+use super::level_plan::LevelPlan;
 use super::mixed::{first_marked_neighbour, fixup_value, touching, CacheImage, MixedVolume};
 use crate::cache::{block_bricks, block_origin, slots_for_classes, slots_for_plan};
 use crate::cache::{LevelSlot, ThreeLevelGeometry, THREE_LEVELS};
@@ -85,13 +86,14 @@ pub struct LevelPacking {
 }
 
 impl LevelPacking {
-    /// Places every drawn brick of `field` in a cache of `geometry`: slots filled by packing
-    /// class (level 0, level 1, level 2 and coarser), in brick order; past level 2 one stored
-    /// brick per block (module docs of `cache::three_level`).
+    /// [`LevelPacking::new`] for the plan of `field`, whose grids must be placed as the cache
+    /// stores them: level 0 cell-centred, every other level on vertices.
     ///
-    /// Errors: a level placed other than level 0 cell-centred and the others on vertices, a
-    /// brick size other than the cache's, or more slots needed than the cache has.
-    pub fn new(field: &LevelField, geometry: &ThreeLevelGeometry) -> Result<Self, LevelCacheError> {
+    /// Errors: a level placed otherwise, and what [`LevelPacking::new`] refuses.
+    pub fn for_field(
+        field: &LevelField,
+        geometry: &ThreeLevelGeometry,
+    ) -> Result<Self, LevelCacheError> {
         for g in field.grids() {
             let expected = if g.level() == 0 {
                 SamplePlacement::CellCentred
@@ -105,21 +107,30 @@ impl LevelPacking {
                 });
             }
         }
-        let n = field.brick_size();
+        Self::new(field.plan(), geometry)
+    }
+
+    /// Places every drawn brick of `plan` in a cache of `geometry`: slots filled by packing
+    /// class (level 0, level 1, level 2 and coarser), in brick order; past level 2 one stored
+    /// brick per block (module docs of `cache::three_level`).
+    ///
+    /// Errors: a brick size other than the cache's, or more slots needed than the cache has.
+    pub fn new(plan: &LevelPlan, geometry: &ThreeLevelGeometry) -> Result<Self, LevelCacheError> {
+        let n = plan.brick_size();
         if n != geometry.brick_size() {
             return Err(LevelCacheError::BrickSize {
                 field: n,
                 cache: geometry.brick_size(),
             });
         }
-        let bricks = field.bricks_per_axis();
+        let bricks = plan.bricks_per_axis();
         let count = bricks.element_product() as usize;
         let coords = |i: usize| brick_coords(bricks, i);
         let linear = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
         // The stored bricks: each drawn brick that is the first of its block, by packing class.
         let mut by_class: [Vec<usize>; 3] = Default::default();
         for i in 0..count {
-            if let Some(level) = field.brick_level(i) {
+            if let Some(level) = plan.brick_level(i) {
                 if block_origin(coords(i), level) == coords(i) {
                     by_class[level.min(THREE_LEVELS - 1) as usize].push(i);
                 }
@@ -142,7 +153,7 @@ impl LevelPacking {
             let per_slot = ThreeLevelGeometry::bricks_per_slot(k as u32);
             let mut filled = 0;
             for &i in class_bricks {
-                let level = field.brick_level(i).unwrap_or(0);
+                let level = plan.brick_level(i).unwrap_or(0);
                 let place = LevelSlot {
                     slot: next_slot,
                     level,
@@ -173,7 +184,7 @@ impl LevelPacking {
         }
         Ok(Self {
             layout,
-            neighbours: (0..count).map(|i| field.coarser_bits(i)).collect(),
+            neighbours: (0..count).map(|i| plan.coarser_bits(i)).collect(),
             places,
             stored,
             bricks,
@@ -194,24 +205,9 @@ impl LevelPacking {
         let Some(place) = self.places[brick] else {
             return Vec::new();
         };
-        let (n, level) = (self.brick_size, place.level);
         let first = brick_coords(self.bricks, brick);
-        let first_sample = if level == 0 {
-            (first * n).as_ivec3() - IVec3::splat(2)
-        } else {
-            (first.as_ivec3() * n as i32) / (1 << level)
-        };
-        let g = &field.grids()[level as usize];
-        let edge = geometry.stored_edge(level) as i32;
-        let mut values = Vec::with_capacity(edge.pow(3) as usize);
-        for z in 0..edge {
-            for y in 0..edge {
-                for x in 0..edge {
-                    values.push(g.value(first_sample + IVec3::new(x, y, z)));
-                }
-            }
-        }
-        values
+        debug_assert_eq!(geometry.brick_size(), self.brick_size);
+        field.grids()[place.level as usize].stored_brick(first, self.brick_size)
     }
 
     /// Whether a brick of the block held by stored brick `brick` (one of [`Self::stored`]) has
@@ -262,16 +258,16 @@ pub struct LevelReferenceCache {
 }
 
 impl LevelReferenceCache {
-    /// Packs every drawn brick of `field` into a cache of `geometry` ([`LevelPacking::new`])
+    /// Packs every drawn brick of `field` into a cache of `geometry` ([`LevelPacking::for_field`])
     /// and, for [`Transition::Smooth`], runs both fixups.
     ///
-    /// Errors: those of [`LevelPacking::new`].
+    /// Errors: those of [`LevelPacking::for_field`].
     pub fn build(
         field: &LevelField,
         geometry: &ThreeLevelGeometry,
         transition: Transition,
     ) -> Result<Self, LevelCacheError> {
-        let packing = LevelPacking::new(field, geometry)?;
+        let packing = LevelPacking::for_field(field, geometry)?;
         let mut image = CacheImage::new(geometry.extent());
         for &i in &packing.stored {
             let Some(place) = packing.places[i] else {

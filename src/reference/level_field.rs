@@ -91,10 +91,8 @@
 //! level-`k - 1` brick reads only the level-`k` samples it touches, which touch no level-`k + 1`
 //! brick (the rule).
 
+use super::level_plan::LevelPlan;
 use crate::bricks::BrickGrid;
-use crate::cache::tables::coarser_neighbour_bits;
-use crate::cache::{block_bricks, block_origin};
-use crate::lod::check_level_rule_with;
 use crate::scene::Transition;
 use glam::{BVec3, IVec3, UVec3, Vec3};
 
@@ -331,6 +329,24 @@ impl LevelGrid {
         trilinear(u, |k| self.value(k))
     }
 
+    /// The texels of the stored brick of this level whose block starts at brick `first`, for
+    /// bricks of `brick_size` (`crate::cache::stored_brick_edge` per axis, x fastest, from sample
+    /// `crate::cache::stored_first_sample`, clamped to the grid): what the three-level cache and
+    /// the level store hold for it.
+    pub fn stored_brick(&self, first: UVec3, brick_size: u32) -> Vec<f32> {
+        let start = crate::cache::stored_first_sample(first, brick_size, self.level);
+        let edge = crate::cache::stored_brick_edge(brick_size, self.level) as i32;
+        let mut values = Vec::with_capacity(edge.pow(3) as usize);
+        for z in 0..edge {
+            for y in 0..edge {
+                for x in 0..edge {
+                    values.push(self.value(start + IVec3::new(x, y, z)));
+                }
+            }
+        }
+        values
+    }
+
     /// The next coarser level (`level + 1`) with `placement`, covering a volume of `volume_dims`
     /// hi-res voxels: per axis, a new sample that coincides with one of this level's samples is
     /// the tent `1/4, 1/2, 1/4` over it and its two neighbours, one that lies halfway between two
@@ -392,11 +408,8 @@ impl LevelGrid {
 /// field of the module docs.
 #[derive(Clone, Debug)]
 pub struct LevelField<'a> {
-    brick_size: u32,
-    bricks: UVec3,
     grids: &'a [LevelGrid],
-    brick_levels: &'a [Option<u32>],
-    coarser_bits: Vec<u32>,
+    plan: LevelPlan,
 }
 
 impl<'a> LevelField<'a> {
@@ -409,7 +422,7 @@ impl<'a> LevelField<'a> {
     pub fn new(
         grid: &BrickGrid,
         grids: &'a [LevelGrid],
-        brick_levels: &'a [Option<u32>],
+        brick_levels: &[Option<u32>],
     ) -> Result<Self, LevelFieldError> {
         if grids.is_empty() {
             return Err(LevelFieldError::NoLevels);
@@ -425,11 +438,6 @@ impl<'a> LevelField<'a> {
             });
         }
         let n = grid.brick_size();
-        let min_brick_size = if grids.len() <= 3 {
-            1u32 << (grids.len() - 1)
-        } else {
-            8
-        };
         // A cell-centred level's band (half a cell) must fit in half a brick.
         let cell_centred = grids
             .iter()
@@ -437,51 +445,29 @@ impl<'a> LevelField<'a> {
             .map(|g| 1u32 << g.level)
             .max()
             .unwrap_or(1);
-        let min_brick_size = min_brick_size.max(cell_centred);
-        if grids.len() > 31 || n < min_brick_size {
+        let levels = u32::try_from(grids.len()).unwrap_or(u32::MAX);
+        let min_brick_size = crate::cache::min_brick_size_for_levels(levels).max(cell_centred);
+        if n < min_brick_size {
             return Err(LevelFieldError::TooManyLevels {
                 levels: grids.len(),
                 min_brick_size,
                 brick_size: n,
             });
         }
-        if brick_levels.len() != grid.brick_count() {
-            return Err(LevelFieldError::BrickLevelCount {
-                given: brick_levels.len(),
-                bricks: grid.brick_count(),
-            });
-        }
-        if let Some((brick, level)) = brick_levels
-            .iter()
-            .enumerate()
-            .find_map(|(i, l)| l.filter(|&l| l as usize >= grids.len()).map(|l| (i, l)))
-        {
-            return Err(LevelFieldError::UnknownLevel {
-                brick,
-                level,
-                levels: grids.len(),
-            });
-        }
-        if !check_level_rule_with(grid, |i| brick_levels[i]) {
-            return Err(LevelFieldError::LevelRule);
-        }
-        check_blocks(grid, brick_levels)?;
-        let coarser_bits = grid
-            .bricks()
-            .map(|b| coarser_neighbour_bits(grid, b, |i| brick_levels[i]))
-            .collect();
         Ok(Self {
-            brick_size: n,
-            bricks: grid.bricks_per_axis(),
             grids,
-            brick_levels,
-            coarser_bits,
+            plan: LevelPlan::new(grid, levels, brick_levels)?,
         })
+    }
+
+    /// The checked plan: every brick's level and coarser bits.
+    pub fn plan(&self) -> &LevelPlan {
+        &self.plan
     }
 
     /// The coarser bits of linear brick `i` (see [`coarser_neighbour_bits`]).
     pub fn coarser_bits(&self, brick: usize) -> u32 {
-        self.coarser_bits[brick]
+        self.plan.coarser_bits(brick)
     }
 
     /// The level grids, levels 0, 1, ... in order.
@@ -491,32 +477,34 @@ impl<'a> LevelField<'a> {
 
     /// Brick size `n` in hi-res voxels.
     pub fn brick_size(&self) -> u32 {
-        self.brick_size
+        self.plan.brick_size()
     }
 
     /// Bricks per axis.
     pub fn bricks_per_axis(&self) -> UVec3 {
-        self.bricks
+        self.plan.bricks_per_axis()
     }
 
     /// The level of linear brick `brick`, `None` when it is not drawn.
     pub fn brick_level(&self, brick: usize) -> Option<u32> {
-        self.brick_levels[brick]
+        self.plan.brick_levels()[brick]
     }
 
     /// Whether a drawn brick of level `level` has hi-res point `p` in its closed box.
     fn level_touches(&self, p: Vec3, level: u32) -> bool {
-        let n = self.brick_size as f32;
-        let last = self.bricks.as_ivec3() - IVec3::ONE;
+        let n = self.plan.brick_size() as f32;
+        let last = self.plan.bricks_per_axis().as_ivec3() - IVec3::ONE;
         // Per axis, the bricks whose closed span [n b, n (b + 1)] holds p.
         let low = ((p / n).ceil().as_ivec3() - IVec3::ONE).clamp(IVec3::ZERO, last);
         let high = (p / n).floor().as_ivec3().clamp(IVec3::ZERO, last);
         for z in low.z..=high.z {
             for y in low.y..=high.y {
                 for x in low.x..=high.x {
-                    let i =
-                        (x as u32 + self.bricks.x * (y as u32 + self.bricks.y * z as u32)) as usize;
-                    if self.brick_levels[i] == Some(level) {
+                    let i = (x as u32
+                        + self.plan.bricks_per_axis().x
+                            * (y as u32 + self.plan.bricks_per_axis().y * z as u32))
+                        as usize;
+                    if self.plan.brick_levels()[i] == Some(level) {
                         return true;
                     }
                 }
@@ -550,9 +538,12 @@ impl<'a> LevelField<'a> {
     /// [`LevelField::sample`]. Equal to `sample(x, Transition::Smooth)` when every level above 0
     /// is on vertices.
     pub fn sample_fixed_up(&self, x: Vec3) -> Option<f32> {
-        let b = brick_of(x, self.brick_size, self.bricks);
-        let bi = (b.x as u32 + self.bricks.x * (b.y as u32 + self.bricks.y * b.z as u32)) as usize;
-        let level = self.brick_levels[bi]?;
+        let b = brick_of(x, self.plan.brick_size(), self.plan.bricks_per_axis());
+        let bi = (b.x as u32
+            + self.plan.bricks_per_axis().x
+                * (b.y as u32 + self.plan.bricks_per_axis().y * b.z as u32))
+            as usize;
+        let level = self.plan.brick_levels()[bi]?;
         let own = &self.grids[level as usize];
         if own.placement != SamplePlacement::Vertex {
             return self.sample(x, Transition::Smooth);
@@ -564,16 +555,19 @@ impl<'a> LevelField<'a> {
 
     /// The field at hi-res point `x`, or `None` in a brick that is not drawn.
     pub fn sample(&self, x: Vec3, transition: Transition) -> Option<f32> {
-        let b = brick_of(x, self.brick_size, self.bricks);
-        let bi = (b.x as u32 + self.bricks.x * (b.y as u32 + self.bricks.y * b.z as u32)) as usize;
-        let level = self.brick_levels[bi]? as usize;
+        let b = brick_of(x, self.plan.brick_size(), self.plan.bricks_per_axis());
+        let bi = (b.x as u32
+            + self.plan.bricks_per_axis().x
+                * (b.y as u32 + self.plan.bricks_per_axis().y * b.z as u32))
+            as usize;
+        let level = self.plan.brick_levels()[bi]? as usize;
         let own = &self.grids[level];
-        let bits = self.coarser_bits[bi];
+        let bits = self.plan.coarser_bits(bi);
         if transition == Transition::Discontinuous || bits == 0 {
             return Some(own.trilinear(x));
         }
         if own.placement == SamplePlacement::Vertex
-            && own.band_width() > 0.5 * self.brick_size as f32
+            && own.band_width() > 0.5 * self.plan.brick_size() as f32
         {
             // A block level: its band (one cell) is wider than half a brick; only the fixed-up
             // construction is defined there (module docs).
@@ -581,46 +575,16 @@ impl<'a> LevelField<'a> {
         }
         // bits != 0: a level-(k+1) neighbour exists, so its grid does too (checked in new).
         let coarser = &self.grids[level + 1];
-        let origin = b.as_vec3() * self.brick_size as f32;
+        let origin = b.as_vec3() * self.plan.brick_size() as f32;
         Some(blend_towards_coarser(
             own,
             coarser,
             x - origin,
             origin,
             bits,
-            self.brick_size as f32,
+            self.plan.brick_size() as f32,
         ))
     }
-}
-
-/// Checks that every drawn brick of a block level lies in an aligned block (clipped to the grid)
-/// whose bricks are all drawn at that level.
-fn check_blocks(grid: &BrickGrid, brick_levels: &[Option<u32>]) -> Result<(), LevelFieldError> {
-    for (brick, b) in grid.bricks().enumerate() {
-        let Some(level) = brick_levels[brick] else {
-            continue;
-        };
-        let block = block_bricks(level);
-        if block == 1 {
-            continue;
-        }
-        let first = block_origin(b, level);
-        let last = (first + UVec3::splat(block)).min(grid.bricks_per_axis());
-        for z in first.z..last.z {
-            for y in first.y..last.y {
-                for x in first.x..last.x {
-                    if brick_levels[grid.linear_index(UVec3::new(x, y, z))] != Some(level) {
-                        return Err(LevelFieldError::BrokenBlock {
-                            brick,
-                            level,
-                            block,
-                        });
-                    }
-                }
-            }
-        }
-    }
-    Ok(())
 }
 
 /// Band axes of local point `q` for a band of width `w` in a brick of size `n`: (band mask,

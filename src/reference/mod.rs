@@ -4,6 +4,7 @@
 mod camera;
 mod level_cache;
 mod level_field;
+mod level_plan;
 mod mixed;
 mod modes;
 mod sampling;
@@ -14,6 +15,7 @@ pub use level_cache::{
     skeleton_fixup_value, slots_needed, LevelCacheError, LevelPacking, LevelReferenceCache,
 };
 pub use level_field::{level_band, LevelField, LevelFieldError, LevelGrid, SamplePlacement};
+pub use level_plan::LevelPlan;
 pub use mixed::{
     active_axes, band, band_bounds, brick_of, feature_touches_low_res, fixup_brick, fixup_value,
     low_res_border_coord, neighbour_bit, sample_hi_res_transition, sample_in_brick, sample_mixed,

@@ -310,19 +310,19 @@ impl Writer<'_> {
 }
 
 /// Little-endian u32 at `at` of a slice long enough (callers pass fixed-size headers).
-fn le_u32(b: &[u8], at: usize) -> u32 {
+pub(crate) fn le_u32(b: &[u8], at: usize) -> u32 {
     let mut a = [0u8; 4];
     a.copy_from_slice(&b[at..at + 4]);
     u32::from_le_bytes(a)
 }
 
-fn le_u64(b: &[u8], at: usize) -> u64 {
+pub(crate) fn le_u64(b: &[u8], at: usize) -> u64 {
     let mut a = [0u8; 8];
     a.copy_from_slice(&b[at..at + 8]);
     u64::from_le_bytes(a)
 }
 
-fn le_f32(b: &[u8], at: usize) -> f32 {
+pub(crate) fn le_f32(b: &[u8], at: usize) -> f32 {
     f32::from_bits(le_u32(b, at))
 }
 

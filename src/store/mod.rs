@@ -29,6 +29,7 @@
 
 pub mod backend;
 pub mod format;
+pub mod levels;
 pub mod reader;
 pub mod slab_writer;
 pub mod streamer;
@@ -36,6 +37,9 @@ pub mod writer;
 
 pub use backend::BrickBackend;
 pub use format::{StoreHeader, FORMAT_VERSION, HEADER_SIZE, MAGIC};
+pub use levels::{
+    default_store_levels, write_level_store, LevelStore, LevelStoreHeader, LevelWriteSummary,
+};
 pub use reader::BrickStore;
 pub use slab_writer::{plan_slab_write, slab_store_desc, write_store_from_slabs, SlabPlan};
 pub use streamer::{BrickStreamer, StreamStats, StreamerConfig};
@@ -112,6 +116,37 @@ pub enum StoreError {
         stored: u32,
         /// The CRC-32 of the bytes read.
         computed: u32,
+    },
+    /// A stored brick of a level store does not match the CRC-32 the store recorded for it.
+    #[error(
+        "{path}: stored brick {entry} (level {level}) is corrupt: its bytes hash to CRC-32 \
+         {computed:#010x} but the store recorded {stored:#010x} (write the store again)"
+    )]
+    StoredBrickChecksum {
+        /// The store file.
+        path: PathBuf,
+        /// The level.
+        level: u32,
+        /// Index of the stored brick in the table.
+        entry: usize,
+        /// The CRC-32 the store recorded.
+        stored: u32,
+        /// The CRC-32 of the bytes read.
+        computed: u32,
+    },
+    /// A level or brick outside a level store.
+    #[error(
+        "level {level} brick {brick:?} is outside the store's {levels} levels of {bricks:?} bricks"
+    )]
+    LevelOutOfRange {
+        /// The level asked for.
+        level: u32,
+        /// The brick asked for.
+        brick: [u32; 3],
+        /// Levels in the store.
+        levels: u32,
+        /// Bricks per axis.
+        bricks: [u32; 3],
     },
     /// `Level::Absent` was asked for; only `Hi` and `Lo` have bytes.
     #[error("brick {brick}: level Absent has no bytes")]

@@ -1,0 +1,22 @@
+//! The level store: a volume's every level, as the three-level brick cache stores them, in one
+//! checked file (issue 19, item 4). Where the two-level store ([`super::BrickStore`]) holds a
+//! hi-res and a low-res brick per brick, a level store holds, per level `k`, one stored brick
+//! per brick up to level 2 and one per aligned block of `block_bricks(k)^3` bricks past it
+//! (`crate::cache::three_level`), so a volume is drawn at any mix of levels without the
+//! volume in RAM: [`crate::renderer::VolumeSource::LevelStore`] packs each drawn brick straight
+//! from the file.
+//!
+//! - [`write_level_store`] writes one from an in-memory volume (level by level, two levels in
+//!   RAM at a time), into `<path>.partial`, renamed into place once complete.
+//! - [`LevelStore`] opens and checks one and reads stored bricks ([`LevelStore::read_stored`],
+//!   CRC-checked) and their value ranges.
+//!
+//! The format is specified in [`format`] and, byte by byte, in `docs/brick-store.md`.
+
+pub mod format;
+mod reader;
+mod writer;
+
+pub use format::{LevelStoreHeader, LEVEL_FORMAT_VERSION, LEVEL_MAGIC};
+pub use reader::LevelStore;
+pub use writer::{default_store_levels, write_level_store, LevelWriteSummary};

@@ -1,0 +1,188 @@
+//! Drawing a level store (issue 19, item 4): `VolumeSource::LevelStore` reads every drawn brick
+//! from the file, and its frames equal those of the same volume drawn from RAM
+//! (`VolumeSource::Levels`) and the CPU reference over the levels read back from the store, at
+//! host-set levels, after residency changes and at levels chosen from the camera, under the
+//! validation layers.
+
+mod common;
+
+use common::levels::{staircase_plan, textured_volume};
+use common::Rng;
+use glam::{UVec3, Vec3, Vec4};
+use mixvol::bricks::DownsampleFilter;
+use mixvol::cache::ThreeLevelGeometry;
+use mixvol::reference::{self, LevelField, LevelReferenceCache};
+use mixvol::renderer::{Frame, MixedConfig, Renderer, TargetFormat, VolumeSource};
+use mixvol::scene::{Camera, RenderSettings, Transition};
+use mixvol::store::{write_level_store, LevelStore};
+use mixvol::volume::{ScalarType, SyntheticField, Volume};
+use std::path::PathBuf;
+use std::sync::Arc;
+
+const N: u32 = 8;
+const W: u32 = 48;
+
+fn temp_path(name: &str) -> PathBuf {
+    std::env::temp_dir().join(format!(
+        "mixvol-level-store-gpu-{name}-{}.mvl",
+        std::process::id()
+    ))
+}
+
+fn config(budget: u64) -> MixedConfig {
+    MixedConfig {
+        brick_size: N,
+        filter: DownsampleFilter::Mean2,
+        cache_budget_bytes: budget,
+        transition: Transition::Smooth,
+    }
+}
+
+fn camera() -> Camera {
+    Camera::perspective(Vec3::new(1.1, 0.8, 1.5), Vec3::ZERO, 40.0)
+}
+
+fn settings() -> RenderSettings {
+    RenderSettings {
+        samples_per_voxel: 1.5,
+        ..RenderSettings::default()
+    }
+}
+
+/// The CPU reference frame of `renderer`'s current levels over the grids read back from `store`.
+fn reference_frame(renderer: &Renderer, store: &LevelStore) -> Vec<Vec4> {
+    let grids = store.read_grids().unwrap();
+    let levels = renderer.brick_levels().unwrap().to_vec();
+    let field = LevelField::new(&store.grid(), &grids, &levels).unwrap();
+    let geometry = ThreeLevelGeometry::new(N, UVec3::splat(128)).unwrap();
+    let cpu = LevelReferenceCache::build(&field, &geometry, Transition::Smooth).unwrap();
+    let params = renderer.params(&camera(), &settings(), W, W).unwrap();
+    let tf = mixvol::optics::TransferFunction::preset(mixvol::optics::TfPreset::Bands);
+    reference::render_mixed(&cpu.view(), Transition::Smooth, &tf, &params)
+}
+
+fn assert_matches(name: &str, frame: &Frame, expected: &[Vec4]) {
+    let d = common::diff(&frame.pixels, expected, 1.0 / 255.0);
+    eprintln!("{name}: {d:?}");
+    assert!(
+        d.mean < 1e-3 && d.max < 6.0 / 255.0 && d.large_fraction < 0.005,
+        "{name}: GPU frame differs from the reference: {d:?}"
+    );
+    let covered = expected.iter().filter(|p| p.w > 0.05).count();
+    assert!(
+        covered > expected.len() / 10,
+        "{name}: the frame shows the volume"
+    );
+}
+
+fn renderer_for(ctx: &mixvol::gpu::GpuContext, source: VolumeSource<'_>) -> Renderer {
+    let tf = mixvol::optics::TransferFunction::preset(mixvol::optics::TfPreset::Bands);
+    let mut renderer = Renderer::new(ctx, TargetFormat::Rgba32Float).unwrap();
+    renderer.set_transfer_function(&tf).unwrap();
+    renderer.set_source(source).unwrap();
+    renderer
+}
+
+/// An f32 volume drawn from its level store gives the very frames it gives from RAM, at a
+/// five-level staircase, after moving to other levels, and at the levels the camera chooses;
+/// each matches the CPU reference over the store's levels.
+#[test]
+fn a_level_store_draws_as_the_volume_in_ram() {
+    let ctx = common::validated_context();
+    {
+        let mut rng = Rng(0x1e7e_1570_6900_0001);
+        let volume = textured_volume(&mut rng, UVec3::new(4 * N, 4 * N, 3 * N));
+        let path = temp_path("f32");
+        write_level_store(&path, &volume, N, None, &mut |_, _| {}).unwrap();
+        let store = Arc::new(LevelStore::open(&path).unwrap());
+        assert_eq!(store.level_count(), 5);
+        let bricks = store.grid().bricks_per_axis();
+        let budget = 96 * 96 * 48 * 4;
+        let plans = [
+            ("staircase", staircase_plan(bricks, 0, 5)),
+            ("staircase shifted", staircase_plan(bricks, 1, 5)),
+            ("coarsest", vec![Some(4); store.grid().brick_count()]),
+        ];
+        let mut from_store = renderer_for(
+            &ctx,
+            VolumeSource::LevelStore {
+                store: store.clone(),
+                levels: &plans[0].1,
+                config: config(budget),
+            },
+        );
+        let mut from_ram = renderer_for(
+            &ctx,
+            VolumeSource::Levels {
+                volume: &volume,
+                levels: &plans[0].1,
+                config: config(budget),
+            },
+        );
+        for (name, levels) in &plans {
+            from_store.set_brick_levels(levels).unwrap();
+            from_ram.set_brick_levels(levels).unwrap();
+            let a = from_store.render(&camera(), &settings(), W, W).unwrap();
+            let b = from_ram.render(&camera(), &settings(), W, W).unwrap();
+            assert_eq!(a.pixels, b.pixels, "{name}: store and RAM frames are equal");
+            assert_matches(name, &a, &reference_frame(&from_store, &store));
+        }
+        // Levels chosen from the camera (four pixels per drawn voxel wanted: a mix of levels).
+        from_store.plan_brick_levels(&camera(), W, W, 4.0).unwrap();
+        from_ram.plan_brick_levels(&camera(), W, W, 4.0).unwrap();
+        let chosen = from_store.brick_levels().unwrap().to_vec();
+        assert_eq!(Some(chosen.as_slice()), from_ram.brick_levels());
+        let distinct: std::collections::BTreeSet<_> = chosen.iter().flatten().collect();
+        assert!(distinct.len() >= 2, "the camera mixes levels: {distinct:?}");
+        let a = from_store.render(&camera(), &settings(), W, W).unwrap();
+        let b = from_ram.render(&camera(), &settings(), W, W).unwrap();
+        assert_eq!(a.pixels, b.pixels, "camera: store and RAM frames are equal");
+        assert_matches("camera", &a, &reference_frame(&from_store, &store));
+        drop((from_store, from_ram));
+        let _ = std::fs::remove_file(&path);
+    }
+    common::finish(ctx);
+}
+
+/// A u8 store (a quarter of the bytes) draws its rounded levels: the frame matches the CPU
+/// reference over the levels read back, and a store of other bricks than the config's is refused.
+#[test]
+fn a_u8_level_store_matches_the_reference_of_its_levels() {
+    let ctx = common::validated_context();
+    {
+        let volume: Volume = SyntheticField::MarschnerLobb
+            .generate(UVec3::new(4 * N, 3 * N, 4 * N), ScalarType::U8)
+            .unwrap();
+        let path = temp_path("u8");
+        write_level_store(&path, &volume, N, None, &mut |_, _| {}).unwrap();
+        let store = Arc::new(LevelStore::open(&path).unwrap());
+        let bricks = store.grid().bricks_per_axis();
+        let levels = staircase_plan(bricks, 0, store.level_count());
+        let renderer = renderer_for(
+            &ctx,
+            VolumeSource::LevelStore {
+                store: store.clone(),
+                levels: &levels,
+                config: config(96 * 96 * 48 * 4),
+            },
+        );
+        let mut renderer = renderer;
+        let frame = renderer.render(&camera(), &settings(), W, W).unwrap();
+        assert_matches("u8 staircase", &frame, &reference_frame(&renderer, &store));
+        let wrong = MixedConfig {
+            brick_size: 16,
+            ..config(96 * 96 * 48 * 4)
+        };
+        let err = renderer
+            .set_source(VolumeSource::LevelStore {
+                store: store.clone(),
+                levels: &levels,
+                config: wrong,
+            })
+            .unwrap_err();
+        assert!(err.to_string().contains("bricks of 8"), "{err}");
+        drop(renderer);
+        let _ = std::fs::remove_file(&path);
+    }
+    common::finish(ctx);
+}

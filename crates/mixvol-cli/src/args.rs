@@ -570,6 +570,16 @@ pub struct ConvertArgs {
     /// SeriesInstanceUID or its SeriesNumber.
     #[arg(long)]
     pub series: Option<String>,
+    /// Write a level store instead: every level of the volume as the three-level cache stores
+    /// it, drawn by `mixvol render STORE` at levels chosen from the camera. The volume is read
+    /// whole: it plus about 4.5 bytes per voxel must fit --ram-budget-mb. --filter does not
+    /// apply (the levels are the vertex pyramid).
+    #[arg(long)]
+    pub all_levels: bool,
+    /// Levels of a level store (default: 0-2 and block levels until one block covers the
+    /// longest axis; more than 3 need bricks of at least 8).
+    #[arg(long, requires = "all_levels")]
+    pub level_count: Option<u32>,
     /// Replace an existing STORE (atomically, once the new store is complete).
     #[arg(long)]
     pub force: bool,

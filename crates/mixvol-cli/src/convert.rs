@@ -46,6 +46,9 @@ pub fn convert(args: &ConvertArgs) -> Result<()> {
             args.ram_budget_mb
         ))
     })?;
+    if args.all_levels {
+        return crate::convert_levels::convert_levels(args, budget);
+    }
     let filter = args.filter;
     let start = Instant::now();
     let (summary, input_bytes, plan, what) = if let Some(field) = SyntheticField::parse(&args.input)
@@ -120,7 +123,7 @@ pub fn convert(args: &ConvertArgs) -> Result<()> {
 /// file): a series is sorted along its normal, checked and reoriented as a whole, so it is not
 /// read in slabs; its size, from the headers, is checked against `budget` before any pixel data
 /// is decoded. `None` for every other input. `--series` on another input is an error.
-fn load_dicom_input(args: &ConvertArgs, budget: u64) -> Result<Option<LoadedVolume>> {
+pub(crate) fn load_dicom_input(args: &ConvertArgs, budget: u64) -> Result<Option<LoadedVolume>> {
     let path = Path::new(&args.input);
     let is_dicom =
         !ZarrLocation::is_url(&args.input) && FileFormat::detect(path) == Some(FileFormat::Dicom);
@@ -154,7 +157,7 @@ fn load_dicom_input(args: &ConvertArgs, budget: u64) -> Result<Option<LoadedVolu
 }
 
 /// Refuses an existing STORE without `--force`, and a STORE that is a folder.
-fn check_destination(store: &Path, force: bool) -> Result<()> {
+pub(crate) fn check_destination(store: &Path, force: bool) -> Result<()> {
     match std::fs::symlink_metadata(store) {
         Ok(meta) if meta.is_dir() => Err(Error::InvalidInput(format!(
             "STORE {} is a folder; give the path of the store file to write",
@@ -170,7 +173,7 @@ fn check_destination(store: &Path, force: bool) -> Result<()> {
 
 /// Opens INPUT for slab reading: a file with a header or an OME-Zarr folder, else headerless raw
 /// data described by `--dims`, `--scalar`, `--spacing`, `--header-bytes`, `--big-endian`.
-fn open_input(args: &ConvertArgs) -> Result<Box<dyn SlabReader + Send>> {
+pub(crate) fn open_input(args: &ConvertArgs) -> Result<Box<dyn SlabReader + Send>> {
     // A URL first, never looked up as a local file: s3:// and http(s):// name remote OME-Zarr
     // images (timeouts and retries from MIXVOL_REMOTE_*), file:// a local path.
     let local;
@@ -249,7 +252,7 @@ fn input_voxel_bytes(reader: &dyn SlabReader) -> u64 {
 }
 
 /// `path (format, stored type)` for the summary.
-fn describe_input(reader: &dyn SlabReader) -> String {
+pub(crate) fn describe_input(reader: &dyn SlabReader) -> String {
     match reader.meta() {
         Some(m) => format!(
             "{} ({:?}, {}{})",
@@ -284,12 +287,12 @@ fn print_plan(desc: &StoreDesc, plan: &SlabPlan) {
     );
 }
 
-fn mib(bytes: u64) -> f64 {
+pub(crate) fn mib(bytes: u64) -> f64 {
     bytes as f64 / f64::from(1 << 20)
 }
 
 /// A brick-count progress bar on stderr, hidden when stderr is not a terminal.
-fn progress_bar() -> ProgressBar {
+pub(crate) fn progress_bar() -> ProgressBar {
     let target = if std::io::stderr().is_terminal() {
         ProgressDrawTarget::stderr()
     } else {
@@ -304,7 +307,7 @@ fn progress_bar() -> ProgressBar {
     bar
 }
 
-fn update(bar: &ProgressBar, done: u64, total: u64) {
+pub(crate) fn update(bar: &ProgressBar, done: u64, total: u64) {
     if bar.length() != Some(total) {
         bar.set_length(total);
     }

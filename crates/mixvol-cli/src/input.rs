@@ -5,7 +5,8 @@ use crate::args::RenderArgs;
 use crate::parse::parse_floats;
 use mixvol::gpu::GpuContext;
 use mixvol::scene::ModelTransform;
-use mixvol::store::{BrickStore, MAGIC};
+use mixvol::store::levels::LEVEL_MAGIC;
+use mixvol::store::{BrickStore, LevelStore, MAGIC};
 use mixvol::volume::formats::{
     load_dicom, load_tiff_with, load_zarr_at, load_zarr_level, DicomOptions, FileFormat,
     RemoteOptions, SeriesSelector, ZarrLocation,
@@ -168,6 +169,9 @@ pub enum Input {
     Volume(Arc<Volume>),
     /// A brick store (`mixvol convert` writes them), opened and validated.
     Store(Box<BrickStore>),
+    /// A level store (`mixvol convert --all-levels` writes them), opened and checked: drawn
+    /// through the three-level cache at levels chosen from the camera or `--levels staircase`.
+    LevelStore(Arc<LevelStore>),
     /// An OME-Zarr image streamed chunk by chunk (`--stream`): where it is, its level, and
     /// what its metadata says (dimensions, scalar type).
     Zarr {
@@ -182,18 +186,33 @@ pub enum Input {
     },
 }
 
-/// True when `path` is a regular file that starts with the brick store's magic bytes.
-pub fn is_brick_store(path: &Path) -> bool {
+impl Input {
+    /// The in-memory volume, `None` for a store or a streamed image.
+    pub fn volume(&self) -> Option<&Volume> {
+        match self {
+            Input::Volume(v) => Some(v),
+            Input::Store(_) | Input::LevelStore(_) | Input::Zarr { .. } => None,
+        }
+    }
+}
+
+/// The first 8 bytes of `path` when it is a regular file that has them.
+fn magic_of(path: &Path) -> Option<[u8; 8]> {
     use std::io::Read;
     // The regular-file check comes first: opening a FIFO would block.
     if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
-        return false;
+        return None;
     }
     let mut magic = [0u8; 8];
     std::fs::File::open(path)
         .and_then(|mut f| f.read_exact(&mut magic))
-        .is_ok()
-        && magic == MAGIC
+        .ok()
+        .map(|()| magic)
+}
+
+/// True when `path` is a regular file that starts with the brick store's magic bytes.
+pub fn is_brick_store(path: &Path) -> bool {
+    magic_of(path) == Some(MAGIC)
 }
 
 /// Opens `--volume`: a brick store when the file is one, else [`load_volume`]; with the
@@ -229,12 +248,18 @@ pub fn open_input_with_meta(args: &RenderArgs) -> Result<(Input, Option<VolumeMe
             Some(meta),
         ));
     }
-    if !ZarrLocation::is_url(&args.volume) && is_brick_store(path) {
+    let magic = (!ZarrLocation::is_url(&args.volume))
+        .then(|| magic_of(path))
+        .flatten();
+    if magic == Some(MAGIC) || magic == Some(LEVEL_MAGIC) {
         if args.zarr_level.is_some() {
             return Err(Error::InvalidInput(format!(
                 "--zarr-level applies to OME-Zarr images; '{}' is a brick store",
                 args.volume
             )));
+        }
+        if magic == Some(LEVEL_MAGIC) {
+            return Ok((Input::LevelStore(Arc::new(LevelStore::open(path)?)), None));
         }
         return Ok((Input::Store(Box::new(BrickStore::open(path)?)), None));
     }

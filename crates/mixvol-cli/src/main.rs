@@ -7,6 +7,7 @@ mod bench;
 mod camera_path;
 mod compare;
 mod convert;
+mod convert_levels;
 mod files;
 mod frame_log;
 mod input;

@@ -99,13 +99,7 @@ pub fn bench_path(args: &BenchArgs) -> Result<()> {
     let settings = r.optics.apply(RenderSettings {
         samples_per_voxel: r.samples_per_voxel,
         early_termination: r.early_termination,
-        value_window: crate::input::window_of(
-            r,
-            match &input {
-                crate::input::Input::Volume(v) => Some(&**v),
-                crate::input::Input::Store(_) | crate::input::Input::Zarr { .. } => None,
-            },
-        )?,
+        value_window: crate::input::window_of(r, input.volume())?,
         ..RenderSettings::default()
     })?;
     let tf = TransferFunction::preset(r.preset.unwrap_or(r.tf));

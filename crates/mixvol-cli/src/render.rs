@@ -26,7 +26,7 @@ use mixvol::renderer::{
     Frame, FrameReport, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource,
 };
 use mixvol::scene::{Camera, RenderSettings, Transition};
-use mixvol::store::{BrickStore, BrickStreamer, StreamerConfig};
+use mixvol::store::{BrickStore, BrickStreamer, LevelStore, StreamerConfig};
 use mixvol::volume::Volume;
 use mixvol::{Error, Result};
 use std::sync::Arc;
@@ -52,6 +52,9 @@ pub struct Scene {
     /// Whether every view chooses its levels from the camera (`--levels camera`: the
     /// three-level cache).
     pub camera_levels: bool,
+    /// The level store drawn, when the input is one (the CPU reference of `--compare` reads
+    /// its levels back).
+    pub level_store: Option<Arc<LevelStore>>,
 }
 
 /// The views of `--orbit`, `--dolly`, `--path`, or the single `--eye` view.
@@ -154,6 +157,38 @@ pub fn set_up_scene(
             };
             planned_scene(renderer, streamer, config, residency, ram)
         }
+        Input::LevelStore(store) => {
+            if r.gpu_budget_mb.is_some() {
+                return Err(Error::InvalidInput(
+                    "a level store is drawn through the three-level cache under --cache-mb; \
+                     --gpu-budget-mb sizes the two-level cache of a brick store or volume"
+                        .into(),
+                ));
+            }
+            let pattern = args.mixed.levels.unwrap_or(LevelsArg::Camera);
+            let config = MixedConfig {
+                brick_size: store.header().brick_size,
+                transition,
+                ..args.mixed.config()?
+            };
+            let grid = store.grid();
+            let (plan, camera_levels) = three_level_plan(&grid, pattern, store.level_count())?;
+            renderer.set_source(VolumeSource::LevelStore {
+                store: store.clone(),
+                levels: &plan,
+                config,
+            })?;
+            let note = format!(" from {} levels on disk", store.level_count());
+            print_three_level(&grid, &plan, camera_levels, &note);
+            Ok(Scene {
+                volume: None,
+                streamer: None,
+                planned: false,
+                config: Some(config),
+                camera_levels,
+                level_store: Some(store.clone()),
+            })
+        }
         Input::Volume(volume) => {
             let volume = volume.clone();
             if let Some(gpu_mb) = r.gpu_budget_mb {
@@ -179,6 +214,7 @@ pub fn set_up_scene(
                     planned: true,
                     config: Some(config),
                     camera_levels: false,
+                    level_store: None,
                 });
             }
             let Some(pattern) = args.mixed.levels else {
@@ -189,6 +225,7 @@ pub fn set_up_scene(
                     planned: false,
                     config: None,
                     camera_levels: false,
+                    level_store: None,
                 });
             };
             let config = MixedConfig {
@@ -197,36 +234,22 @@ pub fn set_up_scene(
             };
             let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)?;
             if matches!(pattern, LevelsArg::Camera | LevelsArg::Staircase) {
-                // The camera's plan starts with every brick coarsest (an empty plan) until the
-                // first view chooses.
-                let camera_levels = pattern == LevelsArg::Camera;
-                let plan = if camera_levels {
-                    Vec::new()
-                } else {
-                    staircase(&grid)
-                };
+                let levels =
+                    mixvol::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis());
+                let (plan, camera_levels) = three_level_plan(&grid, pattern, levels)?;
                 renderer.set_source(VolumeSource::Levels {
                     volume: &volume,
                     levels: &plan,
                     config,
                 })?;
-                let drawn = if camera_levels {
-                    "levels chosen from the camera".to_string()
-                } else {
-                    let (deepest, per_level) = per_level_counts(&plan);
-                    format!("at levels 0..={deepest} ({per_level:?} bricks per level)")
-                };
-                println!(
-                    "three-level cache: {} bricks of {}^3 {drawn}",
-                    grid.brick_count(),
-                    args.mixed.brick_size,
-                );
+                print_three_level(&grid, &plan, camera_levels, "");
                 return Ok(Scene {
                     volume: Some(volume),
                     streamer: None,
                     planned: false,
                     config: Some(config),
                     camera_levels,
+                    level_store: None,
                 });
             }
             renderer.set_source(VolumeSource::Mixed {
@@ -251,12 +274,53 @@ pub fn set_up_scene(
                 planned: false,
                 config: Some(config),
                 camera_levels: false,
+                level_store: None,
             })
         }
     }
 }
 
-/// Prints the brick cache a camera-driven scene renders through.
+/// The first plan of a three-level scene of `grid` with `levels` levels: empty for
+/// `--levels camera` (every brick coarsest until the first view chooses; the flag returned),
+/// the staircase capped at the last level for `--levels staircase`. Other patterns are
+/// two-level ones, an error here.
+fn three_level_plan(
+    grid: &BrickGrid,
+    pattern: LevelsArg,
+    levels: u32,
+) -> Result<(Vec<Option<u32>>, bool)> {
+    match pattern {
+        LevelsArg::Camera => Ok((Vec::new(), true)),
+        LevelsArg::Staircase => {
+            let last = levels.saturating_sub(1);
+            let plan = staircase(grid)
+                .into_iter()
+                .map(|l| l.map(|k| k.min(last)))
+                .collect();
+            Ok((plan, false))
+        }
+        other => Err(Error::InvalidInput(format!(
+            "--levels {other:?} is a two-level pattern; a level store is drawn with --levels \
+             camera (the default) or --levels staircase"
+        ))),
+    }
+}
+
+/// Prints the three-level cache a scene draws through.
+fn print_three_level(grid: &BrickGrid, plan: &[Option<u32>], camera_levels: bool, note: &str) {
+    let drawn = if camera_levels {
+        "levels chosen from the camera".to_string()
+    } else {
+        let (deepest, per_level) = per_level_counts(plan);
+        format!("at levels 0..={deepest} ({per_level:?} bricks per level)")
+    };
+    println!(
+        "three-level cache: {} bricks of {}^3 {drawn}{note}",
+        grid.brick_count(),
+        grid.brick_size(),
+    );
+}
+
 /// Draws `streamer` (a brick store's or a streamed image's) through camera-driven residency
 /// under `residency`, and prints the cache set-up (`ram`: the whole RAM budget).
 fn planned_scene<S: Streaming + 'static>(
@@ -279,6 +343,7 @@ fn planned_scene<S: Streaming + 'static>(
         planned: true,
         config: Some(config),
         camera_levels: false,
+        level_store: None,
     })
 }
 
@@ -382,6 +447,7 @@ pub fn render(args: &RenderArgs) -> Result<()> {
     let (dims, scalar, volume_for_window) = match &input {
         Input::Volume(v) => (v.dims(), v.scalar_type(), Some(&**v)),
         Input::Store(s) => (s.grid().dims(), s.scalar(), None),
+        Input::LevelStore(s) => (s.header().dims, s.header().scalar, None),
         Input::Zarr { dims, scalar, .. } => (*dims, *scalar, None),
     };
     println!(
@@ -393,6 +459,8 @@ pub fn render(args: &RenderArgs) -> Result<()> {
         scalar,
         if matches!(input, Input::Zarr { .. }) {
             " (streamed OME-Zarr)"
+        } else if matches!(input, Input::LevelStore(_)) {
+            " (level store)"
         } else if volume_for_window.is_none() {
             " (brick store)"
         } else {
@@ -628,10 +696,6 @@ fn compare(
     args: &RenderArgs,
     frame: &Frame,
 ) -> Result<()> {
-    let volume = scene
-        .volume
-        .as_ref()
-        .ok_or_else(|| Error::InvalidInput("--compare needs an in-memory volume".into()))?;
     let params = renderer.params(camera, settings, args.width, args.height)?;
     let reference = match (
         renderer.brick_cache(),
@@ -639,10 +703,21 @@ fn compare(
         renderer.brick_levels(),
     ) {
         (None, Some(config), Some(plan)) => {
-            // The three-level cache's CPU mirror (the slots' places do not change the field).
-            let grid = BrickGrid::new(volume.dims(), config.brick_size)?;
+            // The three-level cache's CPU mirror (the slots' places do not change the field),
+            // over the levels of the volume or those read back from the level store.
             let deepest = plan.iter().flatten().max().copied().unwrap_or(0);
-            let grids = LevelGrid::vertex_pyramid(volume, deepest + 1);
+            let (grid, grids) = match (&scene.level_store, &scene.volume) {
+                (Some(store), _) => {
+                    let mut grids = store.read_grids()?;
+                    grids.truncate(deepest as usize + 1);
+                    (store.grid(), grids)
+                }
+                (None, Some(volume)) => (
+                    BrickGrid::new(volume.dims(), config.brick_size)?,
+                    LevelGrid::vertex_pyramid(volume, deepest + 1),
+                ),
+                (None, None) => return Err(no_volume()),
+            };
             let field = LevelField::new(&grid, &grids, plan)
                 .map_err(|e| Error::InvalidInput(e.to_string()))?;
             let slots = u32::try_from(slots_needed(&field)).unwrap_or(u32::MAX);
@@ -653,6 +728,7 @@ fn compare(
             reference::render_mixed_scene(&cache.view(), config.transition, tf, settings, &params)?
         }
         (Some(cache), Some(config), _) => {
+            let volume = scene.volume.as_ref().ok_or_else(no_volume)?;
             let cache = ReferenceCache::build(
                 volume,
                 config.filter,
@@ -662,7 +738,10 @@ fn compare(
             )?;
             reference::render_mixed_scene(&cache.view(), config.transition, tf, settings, &params)?
         }
-        _ => reference::render_scene(volume, tf, settings, &params)?,
+        _ => {
+            let volume = scene.volume.as_ref().ok_or_else(no_volume)?;
+            reference::render_scene(volume, tf, settings, &params)?
+        }
     };
     let d = Difference::between(&reference, &frame.pixels);
     println!(
@@ -673,6 +752,10 @@ fn compare(
         100.0 * d.above_one_step
     );
     Ok(())
+}
+
+fn no_volume() -> Error {
+    Error::InvalidInput("--compare needs an in-memory volume or a level store".into())
 }
 
 /// With `verbose`, prints the count and every warning or error the validation layers

@@ -22,7 +22,7 @@
 
 use crate::args::BenchArgs;
 use crate::files::write_text;
-use crate::input::{model_transform, open_input_with_meta, window_of, Input};
+use crate::input::{model_transform, open_input_with_meta, window_of};
 use crate::render::set_up_scene;
 use glam::{Quat, Vec3};
 use mixvol::gpu::{ContextDesc, GpuContext};
@@ -292,13 +292,7 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
     let settings = r.optics.apply(RenderSettings {
         samples_per_voxel: r.samples_per_voxel,
         early_termination: r.early_termination,
-        value_window: window_of(
-            r,
-            match &input {
-                Input::Volume(v) => Some(&**v),
-                Input::Store(_) | Input::Zarr { .. } => None,
-            },
-        )?,
+        value_window: window_of(r, input.volume())?,
         ..RenderSettings::default()
     })?;
     let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;

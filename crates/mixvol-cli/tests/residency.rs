@@ -244,6 +244,126 @@ fn levels_chosen_from_the_camera_fit_the_cache_and_match_the_cpu_reference() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `convert --all-levels` writes a level store from a file read slab by slab into RAM, and
+/// `render STORE` draws it through the three-level cache: at levels chosen from the camera (the
+/// default) and at the staircase, each matching the CPU reference over the levels read back
+/// from the store, validation-clean. Two-level options and a budget too small for the levels
+/// are refused with the reason.
+#[test]
+fn a_level_store_renders_at_camera_levels_and_matches_the_cpu_reference() {
+    let dir = temp_dir("level_store");
+    let raw = dir.join("ml.raw");
+    let volume = SyntheticField::MarschnerLobb
+        .generate(glam::UVec3::splat(96), ScalarType::U8)
+        .unwrap();
+    std::fs::write(&raw, volume.data().as_bytes()).unwrap();
+    let store = dir.join("ml.mvl");
+    let convert = |extra: &[&str]| {
+        let mut a = vec![
+            "convert",
+            raw.to_str().unwrap(),
+            store.to_str().unwrap(),
+            "--dims",
+            "96,96,96",
+            "--brick-size",
+            "8",
+            "--all-levels",
+        ];
+        a.extend_from_slice(extra);
+        run(&a)
+    };
+    let (out, text) = convert(&[]);
+    assert!(out.status.success(), "{text}");
+    // 12^3 bricks: levels 0-2 and block levels 3-6 (a block of 16 bricks covers 12).
+    assert!(text.contains("bricks of 8): 7 levels"), "{text}");
+    assert!(!dir.join("ml.mvl.partial").exists());
+    let png = dir.join("camera.png");
+    let (out, text) = run(&[
+        "render",
+        "--volume",
+        store.to_str().unwrap(),
+        "--cache-mb",
+        "1",
+        "--width",
+        "64",
+        "--height",
+        "64",
+        "--compare",
+        "--validation",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("(level store)"), "{text}");
+    assert!(
+        text.contains("levels chosen from the camera from 7 levels on disk"),
+        "{text}"
+    );
+    assert!(text.contains("levels from the camera:"), "{text}");
+    assert_matches_reference(&text, &png);
+    let png = dir.join("staircase.png");
+    let (out, text) = run(&[
+        "render",
+        "--volume",
+        store.to_str().unwrap(),
+        "--levels",
+        "staircase",
+        "--width",
+        "64",
+        "--height",
+        "64",
+        "--compare",
+        "--validation",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("at levels 0..=4"), "{text}");
+    assert_matches_reference(&text, &png);
+
+    for (extra, reason) in [
+        (
+            vec!["--gpu-budget-mb", "64"],
+            "three-level cache under --cache-mb",
+        ),
+        (vec!["--levels", "checker"], "is a two-level pattern"),
+    ] {
+        let mut a = vec![
+            "render",
+            "--volume",
+            store.to_str().unwrap(),
+            "--width",
+            "16",
+            "--height",
+            "16",
+        ];
+        a.extend_from_slice(&extra);
+        let (out, text) = run(&a);
+        assert!(!out.status.success(), "{extra:?} is refused\n{text}");
+        assert!(text.contains(reason), "{text}");
+    }
+    let (out, text) = convert(&[]);
+    assert!(!out.status.success() && text.contains("exists"), "{text}");
+    let (out, text) = convert(&["--force", "--ram-budget-mb", "1"]);
+    assert!(!out.status.success(), "{text}");
+    assert!(text.contains("built from the whole volume"), "{text}");
+    assert!(store.exists(), "a refused convert leaves the old store");
+    let (out, text) = run(&[
+        "convert",
+        raw.to_str().unwrap(),
+        dir.join("two.mvl").to_str().unwrap(),
+        "--dims",
+        "96,96,96",
+        "--level-count",
+        "4",
+    ]);
+    assert!(
+        !out.status.success() && text.contains("--all-levels"),
+        "{text}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn an_orbit_writes_every_frame_and_a_per_frame_log() {
     let dir = temp_dir("orbit");

@@ -1,0 +1,158 @@
+//! `mixvol convert INPUT STORE --all-levels`: any supported volume into a level store (every
+//! level, as the three-level cache stores it; `mixvol::store::levels`).
+//!
+//! The level pyramid is built from the whole volume, so the input is read whole (slab by slab
+//! into RAM for files, as it is for synthetic fields and DICOM series) after checking that the
+//! volume plus the two levels the writer holds at a time fit `--ram-budget-mb`. The store is
+//! written to `STORE.partial` and renamed at the end, as `convert` does.
+
+use crate::args::ConvertArgs;
+use crate::convert::{describe_input, load_dicom_input, mib, open_input, progress_bar, update};
+use crate::stats::peak_rss_bytes;
+use mixvol::store::{default_store_levels, write_level_store, LevelWriteSummary};
+use mixvol::volume::{read_whole, SyntheticField, Volume};
+use mixvol::{Error, Result};
+use serde_json::json;
+use std::time::Instant;
+
+/// Bytes per voxel the level writer holds besides the volume: level 0 as f32 and level 1
+/// (an eighth of it) while level 1 is built.
+const WRITER_BYTES_PER_VOXEL: f64 = 4.5;
+
+/// Runs `mixvol convert --all-levels` under a RAM budget of `budget` bytes.
+pub fn convert_levels(args: &ConvertArgs, budget: u64) -> Result<()> {
+    // `convert` checked the destination and that INPUT is not STORE.
+    let store = args.store.as_path();
+    let start = Instant::now();
+    let (volume, what) = read_input(args, budget)?;
+    let levels = match args.level_count {
+        Some(l) => l,
+        None => default_store_levels(volume.dims(), args.brick_size)?,
+    };
+    let bar = progress_bar();
+    let summary = write_level_store(
+        store,
+        &volume,
+        args.brick_size,
+        Some(levels),
+        &mut |done, total| update(&bar, done, total),
+    )?;
+    bar.finish_and_clear();
+    report(args, &summary, &what, start)
+}
+
+/// The bytes a volume of `voxels` voxels of `voxel_bytes` each needs to be written as a level
+/// store, checked against `budget` (a message naming the input and the budget when it does not
+/// fit).
+fn check_budget(
+    input: &str,
+    voxels: u64,
+    voxel_bytes: u64,
+    budget: u64,
+    budget_mb: u64,
+) -> Result<()> {
+    let needed = voxels as f64 * (voxel_bytes as f64 + WRITER_BYTES_PER_VOXEL);
+    if needed > budget as f64 {
+        return Err(Error::InvalidInput(format!(
+            "INPUT {input}: a level store is built from the whole volume: {voxels} voxels of \
+             {voxel_bytes} byte(s) plus {WRITER_BYTES_PER_VOXEL} bytes each for the levels need \
+             {:.0} MiB, more than --ram-budget-mb {budget_mb}",
+            needed / f64::from(1 << 20)
+        )));
+    }
+    Ok(())
+}
+
+/// INPUT read whole (after the budget check) and how to describe it.
+fn read_input(args: &ConvertArgs, budget: u64) -> Result<(Volume, String)> {
+    if let Some(field) = SyntheticField::parse(&args.input) {
+        let dims = args.dims.unwrap_or(glam::UVec3::splat(128));
+        let scalar = args.scalar.unwrap_or(mixvol::volume::ScalarType::U8);
+        let voxels = u64::from(dims.x) * u64::from(dims.y) * u64::from(dims.z);
+        check_budget(
+            &args.input,
+            voxels,
+            scalar.size_bytes() as u64,
+            budget,
+            args.ram_budget_mb,
+        )?;
+        return Ok((
+            field.generate(dims, scalar)?,
+            format!("synthetic {}", args.input),
+        ));
+    }
+    // A DICOM series is loaded within the budget by the loader itself; the levels come on top.
+    if let Some(loaded) = load_dicom_input(args, budget)? {
+        let v = &loaded.volume;
+        let voxels = u64::from(v.dims().element_product());
+        check_budget(
+            &args.input,
+            voxels,
+            v.scalar_type().size_bytes() as u64,
+            budget,
+            args.ram_budget_mb,
+        )?;
+        let what = format!("{} (DICOM series, {:?})", args.input, loaded.meta.stored);
+        return Ok((loaded.volume, what));
+    }
+    let mut reader = open_input(args)?;
+    let d = reader.dims();
+    let voxels = u64::from(d.x) * u64::from(d.y) * u64::from(d.z);
+    check_budget(
+        &args.input,
+        voxels,
+        reader.scalar().size_bytes() as u64,
+        budget,
+        args.ram_budget_mb,
+    )?;
+    let what = describe_input(&*reader);
+    Ok((read_whole(&mut *reader)?, what))
+}
+
+/// Prints the summary and writes `--stats-json`.
+fn report(
+    args: &ConvertArgs,
+    summary: &LevelWriteSummary,
+    what: &str,
+    start: Instant,
+) -> Result<()> {
+    let h = &summary.header;
+    let seconds = start.elapsed().as_secs_f64().max(1e-9);
+    let peak = peak_rss_bytes();
+    println!("input: {what}");
+    println!(
+        "level store: {} ({}x{}x{} voxels, {:?}, bricks of {}): {} levels, {} stored bricks, {:.1} MiB",
+        summary.path.display(),
+        h.dims.x,
+        h.dims.y,
+        h.dims.z,
+        h.scalar,
+        h.brick_size,
+        h.levels,
+        h.stored_count,
+        mib(h.file_size)
+    );
+    println!(
+        "time: {seconds:.2} s (write {:.2} s); peak RSS {}",
+        summary.elapsed.as_secs_f64(),
+        peak.map_or("unknown".into(), |p| format!("{:.1} MiB", mib(p)))
+    );
+    if let Some(path) = &args.stats_json {
+        let stats = json!({
+            "input": what,
+            "store": summary.path,
+            "kind": "levels",
+            "dims": h.dims.to_array(),
+            "scalar": format!("{:?}", h.scalar),
+            "brick_size": h.brick_size,
+            "levels": h.levels,
+            "stored_bricks": h.stored_count,
+            "store_bytes": h.file_size,
+            "seconds": seconds,
+            "peak_rss_bytes": peak,
+            "ram_budget_bytes": args.ram_budget_mb * (1 << 20),
+        });
+        crate::files::write_text(path, &format!("{stats:#}\n"))?;
+    }
+    Ok(())
+}

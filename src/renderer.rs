@@ -222,12 +222,22 @@ impl Renderer {
         Ok(report)
     }
 
-    /// Moves a three-level source ([`VolumeSource::Levels`]) to `levels` (see
-    /// [`VolumePass::set_brick_levels`]): uploads every drawn brick, rewrites the tables, runs
-    /// both fixups and waits.
-    pub fn set_brick_levels(&mut self, levels: &[Option<u32>]) -> Result<()> {
-        self.pass.set_brick_levels(levels)?;
-        self.flush()
+    /// Moves a three-level source ([`VolumeSource::Levels`], [`VolumeSource::LevelStore`]) to
+    /// `levels` (see [`VolumePass::set_brick_levels`]): uploads the stored bricks that changed,
+    /// rewrites the tables, runs the fixups of the uploaded bricks and waits.
+    pub fn set_brick_levels(
+        &mut self,
+        levels: &[Option<u32>],
+    ) -> Result<crate::levels::LevelUpdateReport> {
+        let report = self.pass.set_brick_levels(levels)?;
+        self.flush()?;
+        Ok(report)
+    }
+
+    /// What the last residency change of a three-level source moved (see
+    /// [`VolumePass::last_level_update`]).
+    pub fn last_level_update(&self) -> Option<&crate::levels::LevelUpdateReport> {
+        self.pass.last_level_update()
     }
 
     /// Chooses the level of every brick of a three-level source from `camera` (see

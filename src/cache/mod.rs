@@ -60,6 +60,7 @@
 //! its texels.
 
 mod geometry;
+mod level_slots;
 mod residency;
 pub mod tables;
 mod three_level;
@@ -68,6 +69,7 @@ mod three_level;
 mod translation_tests;
 
 pub use geometry::{CacheGeometry, MIN_BRICK_SIZE};
+pub use level_slots::LevelSlots;
 pub use residency::{BrickCache, BrickUpload, CacheUpdate};
 pub use tables::{
     compute_neighbour_bits, layout_entry, neighbour_bit, neighbour_bit_index, neighbour_offset,

@@ -13,11 +13,13 @@ use crate::gpu::{
     CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image, ImageDesc, SlotPacking,
 };
 use crate::gpu::{RaycastVariant, StagingUpload};
-use crate::levels::{new_three_level_cache, stage_field, stage_three_level, LevelPlanFacts};
+use crate::levels::{
+    new_three_level_cache, stage_three_level, LevelPlanFacts, LevelResidency, LevelUpdateReport,
+};
 use crate::lod::BrickGeometry;
 use crate::optics::SamplingModel;
 use crate::plan::ResidencyPlanner;
-use crate::reference::{LevelField, LevelGrid, LevelPacking, LevelPlan};
+use crate::reference::{LevelField, LevelGrid, LevelPlan};
 use crate::scene::Transition;
 use crate::scene::{Camera, RayFeatures, RaycastParams, RenderSettings};
 use crate::store::LevelStore;
@@ -264,6 +266,10 @@ pub(crate) struct LevelState {
     brick_size: u32,
     transition: Transition,
     facts: LevelPlanFacts,
+    /// Which stored bricks the cache holds where (residency changes upload only what changed).
+    residency: LevelResidency,
+    /// What the last residency change moved.
+    pub(super) last_update: Option<LevelUpdateReport>,
 }
 
 /// What a three-level source needs to know of its volume besides the stored bricks.
@@ -294,28 +300,81 @@ impl LevelData {
 
 impl LevelState {
     /// Stages `levels`: checks the plan (rule, levels, slots) first, so a refused plan leaves
-    /// the drawn one as it is.
-    pub(super) fn stage(&mut self, levels: &[Option<u32>]) -> Result<()> {
+    /// the drawn one as it is; then uploads only what changed ([`LevelResidency`]).
+    pub(super) fn stage(&mut self, levels: &[Option<u32>]) -> Result<LevelUpdateReport> {
+        let start = Instant::now();
         let refused =
             |e: &dyn std::fmt::Display| Error::InvalidInput(format!("three-level source: {e}"));
-        self.facts = match &self.data {
-            LevelData::Grids(grids) => {
-                let field = LevelField::new(&self.grid, grids, levels).map_err(|e| refused(&e))?;
-                stage_field(&mut self.gpu, &field, &self.geometry)?
-            }
+        let plan = match &self.data {
+            LevelData::Grids(grids) => LevelField::new(&self.grid, grids, levels)
+                .map_err(|e| refused(&e))?
+                .plan()
+                .clone(),
             LevelData::Store(store) => {
-                let plan = LevelPlan::new(&self.grid, store.level_count(), levels)
-                    .map_err(|e| refused(&e))?;
-                let packed = LevelPacking::new(&plan, &self.geometry).map_err(|e| refused(&e))?;
-                let grid = self.grid;
-                stage_three_level(&mut self.gpu, &packed, &self.geometry, &mut |brick| {
-                    let level = plan.brick_level(brick).unwrap_or(0);
-                    Ok(store.read_stored(level, grid.brick_coords(brick))?)
-                })?
+                LevelPlan::new(&self.grid, store.level_count(), levels).map_err(|e| refused(&e))?
             }
         };
+        if self.gpu.has_pending() {
+            // A change staged but never recorded: the cache does not hold it.
+            self.gpu.discard_pending();
+            self.residency.invalidate();
+        }
+        let update = self
+            .residency
+            .update(&plan, &self.geometry)
+            .map_err(|e| refused(&e))?;
+        let packed = &update.packing;
+        let geometry = &self.geometry;
+        let mut uploaded_bytes = 0;
+        let staged = match &self.data {
+            LevelData::Grids(grids) => {
+                let field = LevelField::new(&self.grid, grids, levels).map_err(|e| refused(&e))?;
+                stage_three_level(
+                    &mut self.gpu,
+                    packed,
+                    geometry,
+                    &update.upload,
+                    &mut |brick| {
+                        let texels = packed.stored_values(&field, geometry, brick);
+                        uploaded_bytes += 4 * texels.len();
+                        Ok(texels)
+                    },
+                )
+            }
+            LevelData::Store(store) => {
+                let grid = self.grid;
+                stage_three_level(
+                    &mut self.gpu,
+                    packed,
+                    geometry,
+                    &update.upload,
+                    &mut |brick| {
+                        let level = packed.places[brick].map_or(0, |p| p.level);
+                        let texels = store.read_stored(level, grid.brick_coords(brick))?;
+                        uploaded_bytes += 4 * texels.len();
+                        Ok(texels)
+                    },
+                )
+            }
+        };
+        match staged {
+            Ok(facts) => self.facts = facts,
+            Err(e) => {
+                // The cache still holds the drawn plan, but not what the residency now says.
+                self.residency.invalidate();
+                return Err(e);
+            }
+        }
         self.current = levels.to_vec();
-        Ok(())
+        let report = LevelUpdateReport {
+            stored_bricks: packed.stored.len(),
+            uploaded_bricks: update.upload.len(),
+            uploaded_bytes,
+            repacked: update.repacked,
+            stage_ms: start.elapsed().as_secs_f64() * 1e3,
+        };
+        self.last_update = Some(report.clone());
+        Ok(report)
     }
 
     /// Levels the source builds (0 up to this, exclusive).
@@ -626,25 +685,39 @@ impl VolumePass {
                 any_coarse: false,
                 any_absent: true,
             },
+            residency: LevelResidency::new(&geometry, grid.brick_count()),
+            last_update: None,
         };
         state.stage(levels)?;
         self.source = Source::Levels(Box::new(state));
         Ok(())
     }
 
-    /// Moves a three-level source ([`VolumeSource::Levels`]) to `levels` (one per brick, the
-    /// rule kept): every drawn brick is packed and staged again with the new tables, and the next
-    /// [`VolumePass::record`] uploads them (one copy command, one region each) and runs both
-    /// fixups. Errors: another kind of source, a plan that breaks the one-level rule or names a
-    /// level past 2, or one that needs more slots than the cache has; the drawn plan is then
-    /// unchanged.
-    pub fn set_brick_levels(&mut self, levels: &[Option<u32>]) -> Result<()> {
+    /// Moves a three-level source ([`VolumeSource::Levels`], [`VolumeSource::LevelStore`]) to
+    /// `levels` (one per brick, the rule kept): the stored bricks that are new, or whose coarser
+    /// neighbours changed, are packed (or read from the store) into free sub-slots or their own,
+    /// every other one stays where it is (`crate::levels::LevelResidency`); the next
+    /// [`VolumePass::record`] uploads them (one copy command, one region each) with the new
+    /// tables and runs the fixups of the uploaded bricks. Returns what moved. Errors: another
+    /// kind of source, a plan that breaks the one-level rule or names a level the source does
+    /// not have, one that needs more slots than the cache has, or a stored brick that cannot be
+    /// read; the drawn plan is then unchanged.
+    pub fn set_brick_levels(&mut self, levels: &[Option<u32>]) -> Result<LevelUpdateReport> {
         let Source::Levels(state) = &mut self.source else {
             return Err(Error::InvalidInput(
                 "set_brick_levels needs a three-level source (VolumeSource::Levels)".into(),
             ));
         };
         state.stage(levels)
+    }
+
+    /// What the last residency change of a three-level source moved (`None` for other sources,
+    /// and before the first change).
+    pub fn last_level_update(&self) -> Option<&LevelUpdateReport> {
+        match &self.source {
+            Source::Levels(state) => state.last_update.as_ref(),
+            _ => None,
+        }
     }
 
     /// The level of every brick a three-level source draws (`None` for other sources).

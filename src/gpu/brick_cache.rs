@@ -393,6 +393,12 @@ impl GpuBrickCache {
         )
     }
 
+    /// Drops a staged update that was not recorded (its regions and jobs); the tables keep
+    /// what was staged last, so a new update must be staged before the next frame.
+    pub(crate) fn discard_pending(&mut self) {
+        self.pending = None;
+    }
+
     /// True when a staged update waits to be recorded.
     pub(crate) fn has_pending(&self) -> bool {
         self.pending.is_some()

@@ -26,7 +26,7 @@ use super::level_field::{LevelField, SamplePlacement};
 use super::level_plan::LevelPlan;
 use super::mixed::{first_marked_neighbour, fixup_value, touching, CacheImage, MixedVolume};
 use crate::cache::{block_bricks, block_origin, slots_for_classes, slots_for_plan};
-use crate::cache::{LevelSlot, ThreeLevelGeometry, THREE_LEVELS};
+use crate::cache::{LevelSlot, LevelSlots, ThreeLevelGeometry, THREE_LEVELS};
 use crate::scene::Transition;
 use glam::{IVec3, UVec3};
 
@@ -76,7 +76,7 @@ pub struct LevelPacking {
     pub neighbours: Vec<u32>,
     /// Where each brick lives, `None` when not drawn (the bricks of a block share a place).
     pub places: Vec<Option<LevelSlot>>,
-    /// The bricks that hold a stored brick, in packing order: every drawn brick up to level 2,
+    /// The bricks that hold a stored brick, in brick order: every drawn brick up to level 2,
     /// the first brick of each block past it.
     pub stored: Vec<usize>,
     /// Bricks per axis.
@@ -116,6 +116,31 @@ impl LevelPacking {
     ///
     /// Errors: a brick size other than the cache's, or more slots needed than the cache has.
     pub fn new(plan: &LevelPlan, geometry: &ThreeLevelGeometry) -> Result<Self, LevelCacheError> {
+        let wanted = Self::stored_levels(plan, geometry)?;
+        let mut by_class: [Vec<usize>; 3] = Default::default();
+        for (i, level) in wanted.iter().enumerate() {
+            if let Some(level) = level {
+                by_class[(*level).min(THREE_LEVELS - 1) as usize].push(i);
+            }
+        }
+        let mut slots = LevelSlots::new(geometry.slot_count());
+        let mut places = vec![None; wanted.len()];
+        for i in by_class.iter().flatten() {
+            // The budget was checked: every class fits.
+            places[*i] = wanted[*i].and_then(|level| slots.allocate(level));
+        }
+        Ok(Self::from_places(plan, geometry, &places))
+    }
+
+    /// Per brick, the level of the stored brick whose block starts at it (`None` where none
+    /// does: not drawn, or inside a block), after checking that `plan` suits a cache of
+    /// `geometry`.
+    ///
+    /// Errors: a brick size other than the cache's, or more slots needed than the cache has.
+    pub fn stored_levels(
+        plan: &LevelPlan,
+        geometry: &ThreeLevelGeometry,
+    ) -> Result<Vec<Option<u32>>, LevelCacheError> {
         let n = plan.brick_size();
         if n != geometry.brick_size() {
             return Err(LevelCacheError::BrickSize {
@@ -125,18 +150,17 @@ impl LevelPacking {
         }
         let bricks = plan.bricks_per_axis();
         let count = bricks.element_product() as usize;
-        let coords = |i: usize| brick_coords(bricks, i);
-        let linear = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
-        // The stored bricks: each drawn brick that is the first of its block, by packing class.
-        let mut by_class: [Vec<usize>; 3] = Default::default();
-        for i in 0..count {
-            if let Some(level) = plan.brick_level(i) {
-                if block_origin(coords(i), level) == coords(i) {
-                    by_class[level.min(THREE_LEVELS - 1) as usize].push(i);
-                }
-            }
-        }
-        let per_level = by_class.clone().map(|s| s.len());
+        let mut per_level = [0usize; 3];
+        let wanted: Vec<Option<u32>> = (0..count)
+            .map(|i| {
+                let level = plan.brick_level(i)?;
+                let b = brick_coords(bricks, i);
+                (block_origin(b, level) == b).then(|| {
+                    per_level[level.min(THREE_LEVELS - 1) as usize] += 1;
+                    level
+                })
+            })
+            .collect();
         let needed = slots_for_classes(per_level.map(|c| c as u64));
         if needed > u64::from(geometry.slot_count()) {
             return Err(LevelCacheError::OverBudget {
@@ -145,51 +169,51 @@ impl LevelPacking {
                 slots: geometry.slot_count(),
             });
         }
+        Ok(wanted)
+    }
+
+    /// The packing of `plan` with the stored brick whose block starts at brick `i` at
+    /// `stored_places[i]` (one entry per brick; `None` where no stored brick starts): every
+    /// brick of a block gets its block's place and layout entry. The places are taken as given
+    /// (a [`LevelSlots`] hands out places that do not overlap).
+    pub fn from_places(
+        plan: &LevelPlan,
+        geometry: &ThreeLevelGeometry,
+        stored_places: &[Option<LevelSlot>],
+    ) -> Self {
+        let bricks = plan.bricks_per_axis();
+        let count = bricks.element_product() as usize;
+        let linear = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
         let mut places = vec![None; count];
         let mut layout = vec![[0.0; 4]; count];
         let mut stored = Vec::new();
-        let mut next_slot = 0;
-        for (k, class_bricks) in by_class.iter().enumerate() {
-            let per_slot = ThreeLevelGeometry::bricks_per_slot(k as u32);
-            let mut filled = 0;
-            for &i in class_bricks {
-                let level = plan.brick_level(i).unwrap_or(0);
-                let place = LevelSlot {
-                    slot: next_slot,
-                    level,
-                    index: filled,
-                };
-                filled += 1;
-                if filled == per_slot {
-                    (next_slot, filled) = (next_slot + 1, 0);
-                }
-                let first = coords(i);
-                let entry = geometry.layout_entry(first, place);
-                // Every brick of the block (clipped to the grid) shares the stored brick.
-                let end = (first + UVec3::splat(block_bricks(level))).min(bricks);
-                for z in first.z..end.z {
-                    for y in first.y..end.y {
-                        for x in first.x..end.x {
-                            let j = linear(UVec3::new(x, y, z));
-                            places[j] = Some(place);
-                            layout[j] = entry;
-                        }
+        for (i, place) in stored_places.iter().enumerate().take(count) {
+            let Some(place) = *place else {
+                continue;
+            };
+            let first = brick_coords(bricks, i);
+            let entry = geometry.layout_entry(first, place);
+            // Every brick of the block (clipped to the grid) shares the stored brick.
+            let end = (first + UVec3::splat(block_bricks(place.level))).min(bricks);
+            for z in first.z..end.z {
+                for y in first.y..end.y {
+                    for x in first.x..end.x {
+                        let j = linear(UVec3::new(x, y, z));
+                        places[j] = Some(place);
+                        layout[j] = entry;
                     }
                 }
-                stored.push(i);
             }
-            if filled > 0 {
-                next_slot += 1;
-            }
+            stored.push(i);
         }
-        Ok(Self {
+        Self {
             layout,
             neighbours: (0..count).map(|i| plan.coarser_bits(i)).collect(),
             places,
             stored,
             bricks,
-            brick_size: n,
-        })
+            brick_size: plan.brick_size(),
+        }
     }
 
     /// The texels of the stored brick held by `brick` (one of [`Self::stored`]), x fastest,
@@ -249,7 +273,7 @@ pub struct LevelReferenceCache {
     pub neighbours: Vec<u32>,
     /// Where each brick lives, `None` when not drawn (the bricks of a block share a place).
     pub places: Vec<Option<LevelSlot>>,
-    /// The bricks that hold a stored brick, in packing order ([`LevelPacking::stored`]).
+    /// The bricks that hold a stored brick, in brick order ([`LevelPacking::stored`]).
     pub stored: Vec<usize>,
     /// Bricks per axis.
     pub bricks: UVec3,

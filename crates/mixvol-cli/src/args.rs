@@ -124,6 +124,10 @@ pub struct MixedArgs {
     /// camera-driven residency).
     #[arg(long, default_value_t = 256)]
     pub cache_mb: u64,
+    /// With --levels camera (and level stores): the largest on-screen size, in pixels, of a
+    /// drawn voxel; larger values draw coarser levels and take fewer slots.
+    #[arg(long, default_value_t = 1.0)]
+    pub voxel_px: f32,
 }
 
 /// Camera-driven residency: the budgets the planner draws a volume (or a brick store) under.

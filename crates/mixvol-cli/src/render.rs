@@ -306,6 +306,18 @@ fn three_level_plan(
     }
 }
 
+/// What a residency change of the three-level cache moved, as one line.
+fn level_update_line(u: &mixvol::levels::LevelUpdateReport) -> String {
+    format!(
+        "level residency: uploaded {} of {} stored bricks ({:.1} MB{}), staged in {:.1} ms",
+        u.uploaded_bricks,
+        u.stored_bricks,
+        u.uploaded_bytes as f64 / 1e6,
+        if u.repacked { ", packed afresh" } else { "" },
+        u.stage_ms
+    )
+}
+
 /// Prints the three-level cache a scene draws through.
 fn print_three_level(grid: &BrickGrid, plan: &[Option<u32>], camera_levels: bool, note: &str) {
     let drawn = if camera_levels {
@@ -563,13 +575,17 @@ fn render_view(
 ) -> Result<()> {
     if scene.camera_levels {
         let start = std::time::Instant::now();
-        let choice = renderer.plan_brick_levels(camera, args.width, args.height, 1.0)?;
+        let choice =
+            renderer.plan_brick_levels(camera, args.width, args.height, args.mixed.voxel_px)?;
         let plan_ms = start.elapsed().as_secs_f64() * 1e3;
         let (deepest, per_level) = per_level_counts(&choice.levels);
         println!(
             "levels from the camera: {per_level:?} bricks at levels 0..={deepest}, {} slots, drawn voxels at most {:.2} px; choice, upload and fixups {plan_ms:.1} ms",
             choice.slots, choice.pixels_per_voxel
         );
+        if let Some(u) = renderer.last_level_update() {
+            println!("{}", level_update_line(u));
+        }
     }
     if scene.planned {
         let (frames, converged) = converge(renderer, scene, camera, settings, args)?;
@@ -652,9 +668,15 @@ fn render_path(
     create_parent(&dir.join("frame_0000.png"))?;
     let mut rows = Vec::with_capacity(cameras.len());
     let mut last = None;
+    let mut level_moves = Vec::new();
     for (i, camera) in cameras.iter().enumerate() {
         if scene.camera_levels {
-            renderer.plan_brick_levels(camera, args.width, args.height, 1.0)?;
+            let before = renderer.brick_levels().map(<[_]>::to_vec);
+            renderer.plan_brick_levels(camera, args.width, args.height, args.mixed.voxel_px)?;
+            // A view whose plan did not change stages nothing.
+            if renderer.brick_levels() != before.as_deref() {
+                level_moves.extend(renderer.last_level_update().cloned());
+            }
         }
         let (frame, row) = frame_row(renderer, ctx, i, camera, settings, args)?;
         frame.save_png(&dir.join(format!("frame_{i:04}.png")), args.background)?;
@@ -670,6 +692,18 @@ fn render_path(
         csv.display()
     );
     print_timing(&rows, "first frame included");
+    if scene.camera_levels {
+        let uploaded: usize = level_moves.iter().map(|u| u.uploaded_bricks).sum();
+        let drawn: usize = level_moves.iter().map(|u| u.stored_bricks).sum();
+        let bytes: usize = level_moves.iter().map(|u| u.uploaded_bytes).sum();
+        let repacked = level_moves.iter().filter(|u| u.repacked).count();
+        println!(
+            "levels along the path: {} changes uploaded {uploaded} of the {drawn} stored bricks they \
+             draw ({:.1} MB; {repacked} packed afresh)",
+            level_moves.len(),
+            bytes as f64 / 1e6
+        );
+    }
     if scene.planned {
         let uploaded: f64 = rows.iter().map(|r| r.uploaded_mb).sum();
         let changed = rows.iter().filter(|r| r.uploaded_bricks > 0).count();

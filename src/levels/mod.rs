@@ -11,6 +11,10 @@
 //! [`GpuLevelCache`] to read the field and the cache back (the tests check the GPU cache, its
 //! fixups and its sampling against [`crate::reference::LevelReferenceCache`]).
 
+mod residency;
+
+pub use residency::{LevelResidency, LevelUpdate};
+
 use crate::cache::{ThreeLevelGeometry, EMPTY};
 use crate::error::{Error, Result};
 use crate::gpu::{
@@ -32,6 +36,22 @@ pub struct GpuLevelCache {
     _staging: StagingUpload,
     dims: UVec3,
     brick_size: u32,
+}
+
+/// What one residency change of a three-level source moved
+/// ([`crate::renderer::Renderer::set_brick_levels`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LevelUpdateReport {
+    /// Stored bricks the new plan draws (one per brick up to level 2, one per block past it).
+    pub stored_bricks: usize,
+    /// Stored bricks uploaded: new ones, and kept ones whose coarser neighbours changed.
+    pub uploaded_bricks: usize,
+    /// Bytes uploaded.
+    pub uploaded_bytes: usize,
+    /// Whether the cache was packed afresh (every stored brick uploaded).
+    pub repacked: bool,
+    /// CPU time to read or pack the uploaded bricks and stage the change, in milliseconds.
+    pub stage_ms: f64,
 }
 
 /// What the ray-caster variant needs to know of a staged three-level plan.
@@ -67,8 +87,9 @@ pub(crate) fn new_three_level_cache(
     )
 }
 
-/// Stages the drawn bricks of `field` into `gpu` (a cache of `geometry`), packed from the
-/// field's grids: [`stage_three_level`] with [`LevelPacking::stored_values`].
+/// Stages the drawn bricks of `field` into `gpu` (a cache of `geometry`), packed afresh from
+/// the field's grids: [`stage_three_level`] with every stored brick and
+/// [`LevelPacking::stored_values`].
 pub(crate) fn stage_field(
     gpu: &mut GpuBrickCache,
     field: &LevelField,
@@ -76,28 +97,43 @@ pub(crate) fn stage_field(
 ) -> Result<LevelPlanFacts> {
     let packed =
         LevelPacking::for_field(field, geometry).map_err(|e| Error::InvalidInput(e.to_string()))?;
-    stage_three_level(gpu, &packed, geometry, &mut |brick| {
+    stage_three_level(gpu, &packed, geometry, &packed.stored, &mut |brick| {
         Ok(packed.stored_values(field, geometry, brick))
     })
 }
 
-/// Stages the drawn bricks of `packed` into `gpu` (a cache of `geometry`): every stored brick
-/// (`texels(brick)` for each of [`LevelPacking::stored`], `stored_edge^3` values x fastest), not
-/// fixed up (the GPU runs the fixups when the cache is smooth), the tables and the jobs of both
-/// fixups. The next [`GpuBrickCache::record`] uploads them.
+/// Stages a residency change of `gpu` (a cache of `geometry`) to `packed`: the stored bricks
+/// `upload` (some of [`LevelPacking::stored`]; `texels(brick)` gives each one's
+/// `stored_edge^3` values, x fastest), not fixed up, the tables of every drawn brick, and the
+/// fixup jobs of the uploaded bricks that have coarser neighbours (the GPU runs them when the
+/// cache is smooth). Stored bricks not in `upload` must already sit at their places, fixed up
+/// for the same coarser bits ([`LevelResidency`]). The next [`GpuBrickCache::record`] uploads
+/// them.
 pub(crate) fn stage_three_level(
     gpu: &mut GpuBrickCache,
     packed: &LevelPacking,
     geometry: &ThreeLevelGeometry,
+    upload: &[usize],
     texels: &mut dyn FnMut(usize) -> Result<Vec<f32>>,
 ) -> Result<LevelPlanFacts> {
     let slot_count = geometry.slot_count() as usize;
-    let mut boxes = Vec::new();
     let mut reverse = vec![[EMPTY; crate::bricks::SUB_SLOTS_PER_SLOT as usize]; slot_count];
-    let mut fixup_slots = Vec::new();
-    let mut skeleton_bricks = Vec::new();
+    let mut any_transition = false;
     let mut any_coarse = false;
     for &brick in &packed.stored {
+        match packed.places[brick] {
+            Some(place) if place.level == 0 => {
+                reverse[place.slot as usize][0] = brick as u32;
+                any_transition |= packed.neighbours[brick] != 0;
+            }
+            Some(_) => any_coarse = true,
+            None => {}
+        }
+    }
+    let mut boxes = Vec::with_capacity(upload.len());
+    let mut fixup_slots = Vec::new();
+    let mut skeleton_bricks = Vec::new();
+    for &brick in upload {
         let Some(place) = packed.places[brick] else {
             continue;
         };
@@ -117,17 +153,12 @@ pub(crate) fn stage_three_level(
             extent,
             bytemuck::cast_slice::<f32, u8>(&values).to_vec(),
         ));
-        let index = brick as u32;
         if place.level == 0 {
-            reverse[place.slot as usize][0] = index;
             if packed.neighbours[brick] != 0 {
                 fixup_slots.push(place.slot);
             }
-        } else {
-            any_coarse = true;
-            if packed.block_has_coarser_neighbour(brick) {
-                skeleton_bricks.push(index);
-            }
+        } else if packed.block_has_coarser_neighbour(brick) {
+            skeleton_bricks.push(brick as u32);
         }
     }
     let regions: Vec<CacheRegion> = boxes
@@ -150,7 +181,7 @@ pub(crate) fn stage_three_level(
     };
     gpu.stage(&regions, &tables)?;
     Ok(LevelPlanFacts {
-        any_transition: !fixup_slots.is_empty(),
+        any_transition,
         any_coarse,
         any_absent: packed.places.iter().any(Option::is_none),
     })

@@ -1,0 +1,172 @@
+//! Residency changes of a three-level cache that keep what stays (issue 19, item 4): every
+//! stored brick still drawn at its level keeps its sub-slot and is not uploaded again, unless a
+//! fixup rewrote its texels for neighbours that changed.
+//!
+//! A stored brick's texels in the cache are its own samples with, where it has a coarser
+//! neighbour, the fixups' values: the border fixup rewrites a level-0 brick's inner border from
+//! its level-1 neighbours, the skeleton fixup a coarser brick's boundary samples from the next
+//! level (`crate::reference::LevelField::fixed_up_sample`). Those values depend only on which
+//! neighbours are one level coarser (the coarser bits of the block's bricks) and on those
+//! neighbours' samples, which are the same wherever they sit. So a change uploads:
+//! - every stored brick that is new (not drawn before at that level), into a free sub-slot;
+//! - every kept stored brick whose block's coarser bits changed (its fixed-up texels are stale:
+//!   uploaded again, and fixed up again when it has coarser neighbours now);
+//!
+//! and the fixups run on those bricks only. Bricks that stay keep their texels, fixed up or
+//! not. When the free sub-slots cannot take the new bricks (the occupied ones are scattered),
+//! or after a change that was staged but never recorded, everything is packed afresh.
+
+use crate::cache::{block_bricks, LevelSlot, LevelSlots, ThreeLevelGeometry};
+use crate::reference::{LevelCacheError, LevelPacking, LevelPlan};
+use glam::UVec3;
+
+/// What one residency change stages.
+#[derive(Clone, Debug)]
+pub struct LevelUpdate {
+    /// The packing of the new plan (tables and places of every drawn brick).
+    pub packing: LevelPacking,
+    /// The stored bricks to upload (and fix up), in brick order.
+    pub upload: Vec<usize>,
+    /// Whether everything was packed afresh (every stored brick is in `upload`).
+    pub repacked: bool,
+}
+
+/// The stored bricks a three-level cache holds and where, across residency changes.
+#[derive(Clone, Debug)]
+pub struct LevelResidency {
+    slots: LevelSlots,
+    /// Per brick: the place of the stored brick whose block starts at it.
+    stored: Vec<Option<LevelSlot>>,
+    /// Per brick: its coarser bits in the cache now.
+    bits: Vec<u32>,
+    /// Whether the cache holds what `stored` says (else the next change packs afresh).
+    valid: bool,
+}
+
+impl LevelResidency {
+    /// An empty cache of `geometry` for `brick_count` bricks.
+    pub fn new(geometry: &ThreeLevelGeometry, brick_count: usize) -> Self {
+        Self {
+            slots: LevelSlots::new(geometry.slot_count()),
+            stored: vec![None; brick_count],
+            bits: vec![0; brick_count],
+            valid: false,
+        }
+    }
+
+    /// Forgets what the cache holds: the next [`LevelResidency::update`] packs afresh (after a
+    /// staged change was discarded or failed half-way).
+    pub fn invalidate(&mut self) {
+        self.valid = false;
+    }
+
+    /// Moves the cache to `plan` (module docs): the packing, and the stored bricks to upload.
+    /// The residency is updated only when this succeeds.
+    ///
+    /// Errors: those of [`LevelPacking::stored_levels`] (another brick size, more slots than
+    /// the cache has).
+    pub fn update(
+        &mut self,
+        plan: &LevelPlan,
+        geometry: &ThreeLevelGeometry,
+    ) -> Result<LevelUpdate, LevelCacheError> {
+        let wanted = LevelPacking::stored_levels(plan, geometry)?;
+        let count = wanted.len();
+        if !self.valid || self.stored.len() != count {
+            return self.repack(plan, geometry);
+        }
+        let bricks = plan.bricks_per_axis();
+        let mut slots = self.slots.clone();
+        let mut stored = self.stored.clone();
+        for (i, place) in stored.iter_mut().enumerate() {
+            if let Some(p) = *place {
+                if wanted[i] != Some(p.level) {
+                    slots.release(p);
+                    *place = None;
+                }
+            }
+        }
+        let mut upload = Vec::new();
+        for (i, level) in wanted.iter().enumerate() {
+            let Some(level) = *level else {
+                continue;
+            };
+            if stored[i].is_some() {
+                if self.block_bits_changed(plan, bricks, i, level) {
+                    upload.push(i);
+                }
+                continue;
+            }
+            match slots.allocate(level) {
+                Some(place) => {
+                    stored[i] = Some(place);
+                    upload.push(i);
+                }
+                None => return self.repack(plan, geometry),
+            }
+        }
+        let packing = LevelPacking::from_places(plan, geometry, &stored);
+        self.slots = slots;
+        self.stored = stored;
+        self.bits = packing.neighbours.clone();
+        Ok(LevelUpdate {
+            packing,
+            upload,
+            repacked: false,
+        })
+    }
+
+    /// Whether a brick of the block of `level` starting at brick `first` has other coarser bits
+    /// in `plan` than in the cache now.
+    fn block_bits_changed(
+        &self,
+        plan: &LevelPlan,
+        bricks: UVec3,
+        first: usize,
+        level: u32,
+    ) -> bool {
+        let i = first as u32;
+        let start = UVec3::new(
+            i % bricks.x,
+            (i / bricks.x) % bricks.y,
+            i / (bricks.x * bricks.y),
+        );
+        let end = (start + UVec3::splat(block_bricks(level))).min(bricks);
+        (start.z..end.z).any(|z| {
+            (start.y..end.y).any(|y| {
+                (start.x..end.x).any(|x| {
+                    let j = (x + bricks.x * (y + bricks.y * z)) as usize;
+                    plan.coarser_bits(j) != self.bits[j]
+                })
+            })
+        })
+    }
+
+    /// Packs `plan` afresh ([`LevelPacking::new`]): every stored brick uploaded.
+    fn repack(
+        &mut self,
+        plan: &LevelPlan,
+        geometry: &ThreeLevelGeometry,
+    ) -> Result<LevelUpdate, LevelCacheError> {
+        let packing = LevelPacking::new(plan, geometry)?;
+        let mut slots = LevelSlots::new(geometry.slot_count());
+        let mut stored = vec![None; packing.places.len()];
+        // Take the packing's places so that later changes allocate around them.
+        for &i in &packing.stored {
+            if let Some(p) = packing.places[i] {
+                let taken = slots.take(p);
+                debug_assert!(taken, "a packing never places two stored bricks together");
+                stored[i] = Some(p);
+            }
+        }
+        self.slots = slots;
+        self.stored = stored;
+        self.bits = packing.neighbours.clone();
+        self.valid = true;
+        Ok(LevelUpdate {
+            upload: packing.stored.clone(),
+            packing,
+            repacked: true,
+        })
+    }
+}

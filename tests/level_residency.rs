@@ -84,6 +84,23 @@ fn random_plan(rng: &mut Rng, bricks: UVec3, levels: u32) -> Vec<Option<u32>> {
     plan
 }
 
+/// Level 0 at bricks (1,1,1) and (2,2,2) of a 4^3 grid, level 1 next to them (44 bricks),
+/// level 2 beyond (18 bricks).
+fn two_centres_plan(grid: &BrickGrid) -> Vec<Option<u32>> {
+    let centres = [IVec3::ONE, IVec3::splat(2)];
+    (0..grid.brick_count())
+        .map(|i| {
+            let b = grid.brick_coords(i).as_ivec3();
+            let d = centres
+                .iter()
+                .map(|c| (b - *c).abs().max_element())
+                .min()
+                .unwrap();
+            Some(d.min(2) as u32)
+        })
+        .collect()
+}
+
 /// Over a long random walk of plans (levels 0-4, block levels included), each change keeps the
 /// place of every stored brick that stays, gives new ones places no other stored brick holds,
 /// and uploads exactly the new stored bricks and the kept ones whose block's coarser bits
@@ -181,10 +198,12 @@ fn a_change_uploads_exactly_the_new_bricks_and_those_whose_neighbours_changed() 
     );
 }
 
-/// When the free sub-slots cannot take a change (the kept level-1 bricks leave no slot empty
-/// for the new ones), the residency packs afresh, within the slots the plan needs.
+/// When the free sub-slots cannot take a change (the kept level-1 bricks leave too few empty
+/// slots for the new ones), the bricks of the emptiest level-1 slot move into the others: a
+/// few bricks uploaded at new places instead of the whole cache. After a change that was staged
+/// but never drawn (`invalidate`), everything is packed afresh.
 #[test]
-fn a_change_the_free_sub_slots_cannot_take_packs_afresh() {
+fn a_change_the_free_sub_slots_cannot_take_moves_a_few_bricks() {
     let grid = BrickGrid::new(UVec3::new(4 * N, 4 * N, 4 * N), N).unwrap();
     // 5 x 2 x 1 = 10 slots of 12^3.
     let geometry = ThreeLevelGeometry::new(N, UVec3::new(64, 32, 16)).unwrap();
@@ -196,33 +215,49 @@ fn a_change_the_free_sub_slots_cannot_take_packs_afresh() {
         .update(&LevelPlan::new(&grid, 3, &all_one).unwrap(), &geometry)
         .unwrap();
     assert!(first.repacked);
+    let before = first.packing.places.clone();
     // Level 0 at bricks (1,1,1) and (2,2,2), level 1 next to them (44 bricks, one or more in
     // each of slots 0-7), level 2 beyond (18 bricks): 2 + 6 + 1 = 9 slots when packed afresh,
     // but only slots 8 and 9 are empty for the three new ones.
-    let centres = [IVec3::ONE, IVec3::splat(2)];
-    let two_centres: Vec<Option<u32>> = (0..grid.brick_count())
-        .map(|i| {
-            let b = grid.brick_coords(i).as_ivec3();
-            let d = centres
-                .iter()
-                .map(|c| (b - *c).abs().max_element())
-                .min()
-                .unwrap();
-            Some(d.min(2) as u32)
-        })
-        .collect();
+    let two_centres = two_centres_plan(&grid);
     let plan = LevelPlan::new(&grid, 3, &two_centres).unwrap();
     let update = residency.update(&plan, &geometry).unwrap();
-    assert!(update.repacked);
-    assert_eq!(update.upload.len(), 2 + 44 + 18);
-    // And the next change is incremental again.
+    assert!(!update.repacked);
+    let new: BTreeSet<usize> = (0..grid.brick_count())
+        .filter(|&i| two_centres[i] != Some(1))
+        .collect();
+    assert_eq!(new.len(), 2 + 18);
+    let upload: BTreeSet<usize> = update.upload.iter().copied().collect();
+    assert!(upload.is_superset(&new));
+    // Kept bricks are uploaded again when they moved or their coarser neighbours changed; the
+    // moves empty one level-1 slot (at most 8 bricks); the others stay where they were.
+    let moved: Vec<usize> = (0..grid.brick_count())
+        .filter(|&i| two_centres[i] == Some(1) && update.packing.places[i] != before[i])
+        .collect();
+    assert!(!moved.is_empty() && moved.len() <= 8, "moved {moved:?}");
+    assert!(moved.iter().all(|i| upload.contains(i)));
+    assert!(upload.len() < 64, "{} of 64 uploaded", upload.len());
+    let used: BTreeSet<u32> = update
+        .packing
+        .places
+        .iter()
+        .flatten()
+        .map(|p| p.slot)
+        .collect();
+    assert!(used.len() <= 10);
+    // The same plan again uploads nothing; after an invalidation, everything.
     let again = residency.update(&plan, &geometry).unwrap();
     assert!(!again.repacked && again.upload.is_empty());
+    residency.invalidate();
+    let fresh = residency.update(&plan, &geometry).unwrap();
+    assert!(fresh.repacked);
+    assert_eq!(fresh.upload.len(), 2 + 44 + 18);
 }
 
 /// On the GPU: a renderer moved through random changes (each uploading only what changed)
 /// draws, after every change, what a renderer set up afresh at that plan draws, under the
-/// validation layers; the changes upload fewer bricks than they draw.
+/// validation layers; in a roomy cache and in a tight one (10 slots) where bricks must move to
+/// make room. The changes upload fewer bricks than they draw.
 #[test]
 fn incremental_changes_draw_what_a_fresh_cache_draws() {
     let ctx = common::validated_context();
@@ -230,62 +265,83 @@ fn incremental_changes_draw_what_a_fresh_cache_draws() {
         let mut rng = Rng(0x0001_e7e1_2e51_0002);
         let volume = textured_volume(&mut rng, UVec3::new(4 * N, 4 * N, 4 * N));
         let bricks = UVec3::splat(4);
-        let config = MixedConfig {
-            brick_size: N,
-            filter: DownsampleFilter::Mean2,
-            cache_budget_bytes: 72 * 72 * 72 * 4,
-            transition: Transition::Smooth,
-        };
         let tf = mixvol::optics::TransferFunction::preset(mixvol::optics::TfPreset::Bands);
         let camera = Camera::perspective(Vec3::new(1.2, 0.9, 1.4), Vec3::ZERO, 40.0);
         let settings = RenderSettings::default();
-        let start = staircase_plan(bricks, 0, 4);
-        let mut moving = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
-        moving.set_transfer_function(&tf).unwrap();
-        moving
-            .set_source(VolumeSource::Levels {
-                volume: &volume,
-                levels: &start,
-                config,
-            })
-            .unwrap();
-        let mut fresh = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
-        fresh.set_transfer_function(&tf).unwrap();
-        let (mut stored, mut uploaded) = (0, 0);
-        for change in 0..24 {
-            let levels = random_plan(&mut rng, bricks, 4);
-            let report = moving.set_brick_levels(&levels).unwrap();
-            // The first change finds the source's own upload not yet recorded: it packs afresh.
-            assert_eq!(
-                report.repacked,
-                change == 0,
-                "change {change}: the cache has room"
-            );
-            stored += report.stored_bricks;
-            uploaded += report.uploaded_bricks;
-            // Now and then two more changes before the frame.
-            if change % 6 == 5 {
-                let other = random_plan(&mut rng, bricks, 4);
-                moving.set_brick_levels(&other).unwrap();
-                moving.set_brick_levels(&levels).unwrap();
-            }
-            let a = moving.render(&camera, &settings, 40, 40).unwrap();
-            fresh
+        // 72^3 f32 texels: a 64^3 cache of 125 slots; 128 KiB: 64 x 32 x 16, 10 slots.
+        for (name, budget) in [("roomy", 72 * 72 * 72 * 4), ("tight", 64 * 32 * 16 * 4)] {
+            let config = MixedConfig {
+                brick_size: N,
+                filter: DownsampleFilter::Mean2,
+                cache_budget_bytes: budget,
+                transition: Transition::Smooth,
+            };
+            let start = staircase_plan(bricks, 0, 4);
+            let mut moving = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
+            moving.set_transfer_function(&tf).unwrap();
+            moving
                 .set_source(VolumeSource::Levels {
                     volume: &volume,
-                    levels: &levels,
+                    levels: &start,
                     config,
                 })
                 .unwrap();
-            let b = fresh.render(&camera, &settings, 40, 40).unwrap();
-            let d = common::diff(&a.pixels, &b.pixels, 1e-4);
-            assert!(
-                d.max < 1e-4,
-                "change {change}: moved and fresh caches differ: {d:?}"
+            let mut fresh = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();
+            fresh.set_transfer_function(&tf).unwrap();
+            let (mut stored, mut uploaded, mut moved, mut drawn) = (0, 0, 0, 0);
+            // The tight cache starts with every brick at level 1 (slots 0-7), then a plan whose
+            // new bricks only fit once a level-1 slot is emptied.
+            let grid = BrickGrid::new(volume.dims(), N).unwrap();
+            let mut scripted = if name == "tight" {
+                vec![vec![Some(1); 64], two_centres_plan(&grid)]
+            } else {
+                Vec::new()
+            };
+            scripted.reverse();
+            for change in 0..24 {
+                let levels = scripted
+                    .pop()
+                    .unwrap_or_else(|| random_plan(&mut rng, bricks, 4));
+                let Ok(report) = moving.set_brick_levels(&levels) else {
+                    // More slots than the tight cache has: refused, the drawn plan kept.
+                    assert_eq!(name, "tight");
+                    continue;
+                };
+                // The first change finds the source's own upload not yet recorded: it packs
+                // afresh; every later one moves what it must.
+                assert_eq!(report.repacked, drawn == 0, "{name} change {change}");
+                drawn += 1;
+                stored += report.stored_bricks;
+                uploaded += report.uploaded_bricks;
+                moved += report.moved_bricks;
+                let a = moving.render(&camera, &settings, 40, 40).unwrap();
+                fresh
+                    .set_source(VolumeSource::Levels {
+                        volume: &volume,
+                        levels: &levels,
+                        config,
+                    })
+                    .unwrap();
+                let b = fresh.render(&camera, &settings, 40, 40).unwrap();
+                let d = common::diff(&a.pixels, &b.pixels, 1e-4);
+                assert!(
+                    d.max < 1e-4,
+                    "{name} change {change}: moved and fresh caches differ: {d:?}"
+                );
+            }
+            eprintln!(
+                "{name}: {drawn} changes uploaded {uploaded} of {stored} drawn stored bricks \
+                 ({moved} moved)"
             );
+            assert!(drawn >= 12, "{name}: most plans fit");
+            assert!(
+                uploaded < stored,
+                "{name}: changes upload less than they draw"
+            );
+            if name == "tight" {
+                assert!(moved > 0, "the tight cache moves bricks to make room");
+            }
         }
-        eprintln!("uploaded {uploaded} of {stored} drawn stored bricks over 24 changes");
-        assert!(uploaded < stored, "changes upload less than they draw");
     }
     common::finish(ctx);
 }

@@ -110,6 +110,28 @@ impl LevelSlots {
         }
     }
 
+    /// A partly filled slot of level 1 or of level 2 and past whose stored bricks the other
+    /// partly filled slots of its class can take: of those, the one holding the fewest (ties:
+    /// the lowest index). `None` when there is none.
+    pub fn emptiable_slot(&self) -> Option<u32> {
+        let mut best: Option<(u32, u32)> = None;
+        for class in 1..THREE_LEVELS as usize {
+            let capacity = ThreeLevelGeometry::bricks_per_slot(class as u32);
+            let free: u32 = self.partial[class]
+                .iter()
+                .map(|&s| capacity - self.used[s as usize].count_ones())
+                .sum();
+            for &slot in &self.partial[class] {
+                let used = self.used[slot as usize].count_ones();
+                let room_elsewhere = free - (capacity - used);
+                if room_elsewhere >= used && best.is_none_or(|(u, _)| used < u) {
+                    best = Some((used, slot));
+                }
+            }
+        }
+        best.map(|(_, slot)| slot)
+    }
+
     /// Slots holding at least one stored brick.
     pub fn slots_in_use(&self) -> u32 {
         (self.classes.len() - self.free.len()) as u32
@@ -175,6 +197,24 @@ mod tests {
         }
         assert_eq!(taken, packed);
         assert_eq!(taken.allocate(1), packed.allocate(1));
+    }
+
+    #[test]
+    fn the_emptiest_slot_whose_bricks_fit_elsewhere_can_be_emptied() {
+        let mut slots = LevelSlots::new(4);
+        let ones: Vec<_> = (0..16).map(|_| slots.allocate(1).unwrap()).collect();
+        assert_eq!(slots.emptiable_slot(), None, "full slots");
+        // Slot 0 keeps 6 bricks, slot 1 keeps 2: slot 1's fit in slot 0's two free sub-slots.
+        for p in ones
+            .iter()
+            .filter(|p| (p.slot == 0 && p.index >= 6) || (p.slot == 1 && p.index >= 2))
+        {
+            slots.release(*p);
+        }
+        assert_eq!(slots.emptiable_slot(), Some(1));
+        // Slot 1 keeping 3 would not fit in the two free sub-slots of slot 0.
+        assert!(slots.take(ones[10]));
+        assert_eq!(slots.emptiable_slot(), None);
     }
 
     #[test]

@@ -369,6 +369,7 @@ impl LevelState {
         let report = LevelUpdateReport {
             stored_bricks: packed.stored.len(),
             uploaded_bricks: update.upload.len(),
+            moved_bricks: update.moved,
             uploaded_bytes,
             repacked: update.repacked,
             stage_ms: start.elapsed().as_secs_f64() * 1e3,

@@ -44,8 +44,11 @@ pub struct GpuLevelCache {
 pub struct LevelUpdateReport {
     /// Stored bricks the new plan draws (one per brick up to level 2, one per block past it).
     pub stored_bricks: usize,
-    /// Stored bricks uploaded: new ones, and kept ones whose coarser neighbours changed.
+    /// Stored bricks uploaded: new ones, kept ones whose coarser neighbours changed, and kept
+    /// ones moved to make room.
     pub uploaded_bricks: usize,
+    /// Kept stored bricks moved to another sub-slot to make room for new ones.
+    pub moved_bricks: usize,
     /// Bytes uploaded.
     pub uploaded_bytes: usize,
     /// Whether the cache was packed afresh (every stored brick uploaded).

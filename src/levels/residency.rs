@@ -13,8 +13,11 @@
 //!   uploaded again, and fixed up again when it has coarser neighbours now);
 //!
 //! and the fixups run on those bricks only. Bricks that stay keep their texels, fixed up or
-//! not. When the free sub-slots cannot take the new bricks (the occupied ones are scattered),
-//! or after a change that was staged but never recorded, everything is packed afresh.
+//! not. When the free sub-slots cannot take the new bricks (the kept ones of a class are spread
+//! over more slots than they fill), the bricks of the emptiest partly filled slot of that class
+//! move into the free sub-slots of the others (each moved brick is uploaded at its new place),
+//! until the new bricks fit: that always succeeds when the plan fits the cache at all. Only
+//! after a change that was staged but never recorded is everything packed afresh.
 
 use crate::cache::{block_bricks, LevelSlot, LevelSlots, ThreeLevelGeometry};
 use crate::reference::{LevelCacheError, LevelPacking, LevelPlan};
@@ -27,6 +30,8 @@ pub struct LevelUpdate {
     pub packing: LevelPacking,
     /// The stored bricks to upload (and fix up), in brick order.
     pub upload: Vec<usize>,
+    /// Kept stored bricks moved to another sub-slot to make room (in `upload`).
+    pub moved: usize,
     /// Whether everything was packed afresh (every stored brick is in `upload`).
     pub repacked: bool,
 }
@@ -86,25 +91,41 @@ impl LevelResidency {
                 }
             }
         }
-        let mut upload = Vec::new();
+        let mut upload = vec![false; count];
+        let mut fresh = Vec::new();
         for (i, level) in wanted.iter().enumerate() {
             let Some(level) = *level else {
                 continue;
             };
-            if stored[i].is_some() {
-                if self.block_bits_changed(plan, bricks, i, level) {
-                    upload.push(i);
-                }
-                continue;
+            if stored[i].is_none() {
+                fresh.push((i, level));
+            } else if self.block_bits_changed(plan, bricks, i, level) {
+                upload[i] = true;
             }
-            match slots.allocate(level) {
-                Some(place) => {
+        }
+        // New bricks into free sub-slots; when they do not fit, move the bricks of the emptiest
+        // partly filled slot into the others of its class (each move an upload) and try again.
+        let mut moved = 0;
+        loop {
+            let mut trial = slots.clone();
+            let places: Option<Vec<LevelSlot>> = fresh
+                .iter()
+                .map(|&(_, level)| trial.allocate(level))
+                .collect();
+            if let Some(places) = places {
+                for (&(i, _), place) in fresh.iter().zip(places) {
                     stored[i] = Some(place);
-                    upload.push(i);
+                    upload[i] = true;
                 }
+                slots = trial;
+                break;
+            }
+            match compact_one_slot(&mut slots, &mut stored, &mut upload) {
+                Some(count) => moved += count,
                 None => return self.repack(plan, geometry),
             }
         }
+        let upload: Vec<usize> = (0..count).filter(|&i| upload[i]).collect();
         let packing = LevelPacking::from_places(plan, geometry, &stored);
         self.slots = slots;
         self.stored = stored;
@@ -112,6 +133,7 @@ impl LevelResidency {
         Ok(LevelUpdate {
             packing,
             upload,
+            moved,
             repacked: false,
         })
     }
@@ -166,7 +188,39 @@ impl LevelResidency {
         Ok(LevelUpdate {
             upload: packing.stored.clone(),
             packing,
+            moved: 0,
             repacked: true,
         })
     }
+}
+
+/// Empties one partly filled slot of level 1 or of level 2 and past, the one with the fewest
+/// stored bricks whose bricks the other partly filled slots of its class can take: its bricks
+/// move there (`stored` updated, each marked in `upload`). Returns how many moved, `None` when
+/// no slot can be emptied.
+fn compact_one_slot(
+    slots: &mut LevelSlots,
+    stored: &mut [Option<LevelSlot>],
+    upload: &mut [bool],
+) -> Option<usize> {
+    let victim = slots.emptiable_slot()?;
+    let moving: Vec<usize> = (0..stored.len())
+        .filter(|&i| stored[i].is_some_and(|p| p.slot == victim))
+        .collect();
+    for &i in &moving {
+        if let Some(p) = stored[i] {
+            slots.release(p);
+        }
+    }
+    for &i in &moving {
+        let Some(old) = stored[i] else {
+            continue;
+        };
+        // The other slots of the class have room (emptiable_slot checked): the brick lands there.
+        let place = slots.allocate(old.level);
+        debug_assert!(place.is_some_and(|p| p.slot != victim));
+        stored[i] = place;
+        upload[i] = true;
+    }
+    Some(moving.len())
 }

@@ -309,9 +309,10 @@ fn three_level_plan(
 /// What a residency change of the three-level cache moved, as one line.
 fn level_update_line(u: &mixvol::levels::LevelUpdateReport) -> String {
     format!(
-        "level residency: uploaded {} of {} stored bricks ({:.1} MB{}), staged in {:.1} ms",
+        "level residency: uploaded {} of {} stored bricks ({} moved, {:.1} MB{}), staged in {:.1} ms",
         u.uploaded_bricks,
         u.stored_bricks,
+        u.moved_bricks,
         u.uploaded_bytes as f64 / 1e6,
         if u.repacked { ", packed afresh" } else { "" },
         u.stage_ms
@@ -697,9 +698,10 @@ fn render_path(
         let drawn: usize = level_moves.iter().map(|u| u.stored_bricks).sum();
         let bytes: usize = level_moves.iter().map(|u| u.uploaded_bytes).sum();
         let repacked = level_moves.iter().filter(|u| u.repacked).count();
+        let moved: usize = level_moves.iter().map(|u| u.moved_bricks).sum();
         println!(
             "levels along the path: {} changes uploaded {uploaded} of the {drawn} stored bricks they \
-             draw ({:.1} MB; {repacked} packed afresh)",
+             draw ({moved} moved to make room; {:.1} MB; {repacked} packed afresh)",
             level_moves.len(),
             bytes as f64 / 1e6
         );

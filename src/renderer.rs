@@ -240,18 +240,20 @@ impl Renderer {
         self.pass.last_level_update()
     }
 
-    /// Chooses the level of every brick of a three-level source from `camera` (see
-    /// [`VolumePass::plan_brick_levels`]), uploads a changed plan and runs the fixups, and waits.
+    /// Chooses the level of every brick of a three-level source from `camera` and `settings`
+    /// (culling what the transfer function leaves empty; see
+    /// [`VolumePass::plan_brick_levels`]), uploads what changed, runs the fixups, and waits.
     pub fn plan_brick_levels(
         &mut self,
         camera: &Camera,
+        settings: &RenderSettings,
         width: u32,
         height: u32,
         target_pixels: f32,
     ) -> Result<crate::plan::LevelChoice> {
         let choice = self
             .pass
-            .plan_brick_levels(camera, width, height, target_pixels)?;
+            .plan_brick_levels(camera, settings, width, height, target_pixels)?;
         self.flush()?;
         Ok(choice)
     }

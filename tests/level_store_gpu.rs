@@ -128,8 +128,12 @@ fn a_level_store_draws_as_the_volume_in_ram() {
             assert_matches(name, &a, &reference_frame(&from_store, &store));
         }
         // Levels chosen from the camera (four pixels per drawn voxel wanted: a mix of levels).
-        from_store.plan_brick_levels(&camera(), W, W, 4.0).unwrap();
-        from_ram.plan_brick_levels(&camera(), W, W, 4.0).unwrap();
+        from_store
+            .plan_brick_levels(&camera(), &settings(), W, W, 4.0)
+            .unwrap();
+        from_ram
+            .plan_brick_levels(&camera(), &settings(), W, W, 4.0)
+            .unwrap();
         let chosen = from_store.brick_levels().unwrap().to_vec();
         assert_eq!(Some(chosen.as_slice()), from_ram.brick_levels());
         let distinct: std::collections::BTreeSet<_> = chosen.iter().flatten().collect();

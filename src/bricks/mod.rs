@@ -262,6 +262,15 @@ impl ValueRange {
         max: f32::NEG_INFINITY,
     };
 
+    /// The smallest range holding every value of `values` ([`ValueRange::EMPTY`] for none).
+    pub fn of(values: &[f32]) -> Self {
+        let mut range = Self::EMPTY;
+        for &v in values {
+            range.include(v);
+        }
+        range
+    }
+
     /// Grows the range to contain `value`.
     pub fn include(&mut self, value: f32) {
         self.min = self.min.min(value);

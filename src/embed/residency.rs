@@ -23,7 +23,7 @@ use super::source::{ResidencyReport, Source};
 use super::VolumePass;
 use crate::bricks::Level;
 use crate::error::{Error, Result};
-use crate::lod::{CullParams, LodView, ValueCulling};
+use crate::lod::{cull_bricks, CullParams, LodView, ValueCulling};
 use crate::plan::{
     choose_levels, cull_params, FrameInput, FramePlan, LevelChoice, PlanBudget, PlanOptions,
     PlanReport, ResidencyPlanner,
@@ -228,29 +228,43 @@ impl VolumePass {
 }
 
 impl VolumePass {
-    /// Chooses the level of every brick of a three-level source ([`VolumeSource::Levels`]) for a
-    /// frame of `camera` (world space) at `width` x `height` pixels, with drawn voxels at most
-    /// `target_pixels` on screen where the cache allows ([`crate::plan::choose_levels`], every
-    /// brick active: no value culling yet), and stages the plan when it changed (the next
-    /// [`VolumePass::record`] uploads it). Errors: another kind of source, a bad view or
-    /// target, a cache too small for the coarsest plan.
+    /// Chooses the level of every brick of a three-level source ([`VolumeSource::Levels`],
+    /// [`VolumeSource::LevelStore`]) for a frame of `camera` (world space) with `settings` at
+    /// `width` x `height` pixels, with drawn voxels at most `target_pixels` on screen where the
+    /// cache allows ([`crate::plan::choose_levels`]), and stages the plan when it changed (the
+    /// next [`VolumePass::record`] uploads what changed). Bricks the pass's transfer function
+    /// (or iso-value, or clip planes) leaves empty are culled by their conservative ranges
+    /// (`crate::levels::conservative_ranges`): not drawn, taking no slot, unless a drawn block
+    /// covers them. Errors: another kind of source, a bad view, settings or target, a cache
+    /// too small for the coarsest plan.
     ///
     /// [`VolumeSource::Levels`]: super::VolumeSource::Levels
+    /// [`VolumeSource::LevelStore`]: super::VolumeSource::LevelStore
     pub fn plan_brick_levels(
         &mut self,
         camera: &Camera,
+        settings: &RenderSettings,
         width: u32,
         height: u32,
         target_pixels: f32,
     ) -> Result<LevelChoice> {
-        let camera = self.model_transform().volume_camera(camera);
+        let model = self.model_transform();
+        let camera = model.volume_camera(camera);
+        let settings = model.volume_settings(settings);
+        // Validates camera, size and settings as the frame will.
+        self.volume_params(&camera, &settings, width, height)?;
+        let tf = self.tables.transfer_function();
         let Source::Levels(state) = &mut self.source else {
             return Err(Error::InvalidInput(
-                "plan_brick_levels needs a three-level source (VolumeSource::Levels)".into(),
+                "plan_brick_levels needs a three-level source (VolumeSource::Levels or \
+                 LevelStore)"
+                    .into(),
             ));
         };
+        let window = settings.classification_window(state.is_float, state.value_range);
+        let cull = cull_params(&settings, tf, window)?;
+        let active = cull_bricks(&state.bricks, &state.cull_ranges, &cull)?;
         let view = LodView::new(&camera, width, height)?;
-        let active = vec![true; state.bricks.grid().brick_count()];
         let choice = choose_levels(
             &state.bricks,
             &view,

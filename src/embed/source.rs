@@ -14,7 +14,8 @@ use crate::gpu::{
 };
 use crate::gpu::{RaycastVariant, StagingUpload};
 use crate::levels::{
-    new_three_level_cache, stage_three_level, LevelPlanFacts, LevelResidency, LevelUpdateReport,
+    conservative_ranges, new_three_level_cache, stage_three_level, LevelPlanFacts, LevelResidency,
+    LevelUpdateReport,
 };
 use crate::lod::BrickGeometry;
 use crate::optics::SamplingModel;
@@ -261,8 +262,8 @@ pub(crate) struct LevelState {
     pub(super) current: Vec<Option<u32>>,
     dims: UVec3,
     spacing: glam::Vec3,
-    value_range: (f32, f32),
-    is_float: bool,
+    pub(super) value_range: (f32, f32),
+    pub(super) is_float: bool,
     brick_size: u32,
     transition: Transition,
     facts: LevelPlanFacts,
@@ -270,6 +271,8 @@ pub(crate) struct LevelState {
     residency: LevelResidency,
     /// What the last residency change moved.
     pub(super) last_update: Option<LevelUpdateReport>,
+    /// Per brick, the range culling tests (`crate::levels::conservative_ranges`).
+    pub(super) cull_ranges: Vec<crate::bricks::ValueRange>,
 }
 
 /// What a three-level source needs to know of its volume besides the stored bricks.
@@ -659,6 +662,20 @@ impl VolumePass {
         LevelPlan::new(&grid, data.level_count(), levels)
             .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
         let bricks = BrickGeometry::new(grid, facts.spacing)?;
+        let n = grid.brick_size();
+        let cull_ranges = match &data {
+            LevelData::Grids(grids) => {
+                conservative_ranges(&grid, data.level_count(), &mut |level, first| {
+                    let texels = grids[level as usize].stored_brick(first, n);
+                    Ok(crate::bricks::ValueRange::of(&texels))
+                })?
+            }
+            LevelData::Store(store) => {
+                conservative_ranges(&grid, data.level_count(), &mut |level, first| {
+                    Ok(store.stored_range(level, first)?)
+                })?
+            }
+        };
         // Free the old source's GPU memory before allocating the new cache.
         self.source = Source::None;
         let gpu = new_three_level_cache(
@@ -688,6 +705,7 @@ impl VolumePass {
             },
             residency: LevelResidency::new(&geometry, grid.brick_count()),
             last_update: None,
+            cull_ranges,
         };
         state.stage(levels)?;
         self.source = Source::Levels(Box::new(state));

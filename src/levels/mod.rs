@@ -11,8 +11,10 @@
 //! [`GpuLevelCache`] to read the field and the cache back (the tests check the GPU cache, its
 //! fixups and its sampling against [`crate::reference::LevelReferenceCache`]).
 
+mod ranges;
 mod residency;
 
+pub use ranges::conservative_ranges;
 pub use residency::{LevelResidency, LevelUpdate};
 
 use crate::cache::{ThreeLevelGeometry, EMPTY};

@@ -576,8 +576,13 @@ fn render_view(
 ) -> Result<()> {
     if scene.camera_levels {
         let start = std::time::Instant::now();
-        let choice =
-            renderer.plan_brick_levels(camera, args.width, args.height, args.mixed.voxel_px)?;
+        let choice = renderer.plan_brick_levels(
+            camera,
+            settings,
+            args.width,
+            args.height,
+            args.mixed.voxel_px,
+        )?;
         let plan_ms = start.elapsed().as_secs_f64() * 1e3;
         let (deepest, per_level) = per_level_counts(&choice.levels);
         println!(
@@ -673,7 +678,13 @@ fn render_path(
     for (i, camera) in cameras.iter().enumerate() {
         if scene.camera_levels {
             let before = renderer.brick_levels().map(<[_]>::to_vec);
-            renderer.plan_brick_levels(camera, args.width, args.height, args.mixed.voxel_px)?;
+            renderer.plan_brick_levels(
+                camera,
+                settings,
+                args.width,
+                args.height,
+                args.mixed.voxel_px,
+            )?;
             // A view whose plan did not change stages nothing.
             if renderer.brick_levels() != before.as_deref() {
                 level_moves.extend(renderer.last_level_update().cloned());

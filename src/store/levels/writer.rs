@@ -166,13 +166,7 @@ fn write_texels(
                 for x in 0..stored.x {
                     let first = UVec3::new(x, y, z) * block;
                     let bytes = quantize_to(&level_grid.stored_brick(first, n), header.scalar);
-                    let range = dequantize(&bytes, header.scalar).iter().fold(
-                        ValueRange::EMPTY,
-                        |r, &v| ValueRange {
-                            min: r.min.min(v),
-                            max: r.max.max(v),
-                        },
-                    );
+                    let range = ValueRange::of(&dequantize(&bytes, header.scalar));
                     out.write_all(&bytes)
                         .map_err(|e| ("write stored bricks", e))?;
                     entries.push(LevelEntry {

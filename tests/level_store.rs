@@ -259,3 +259,89 @@ fn the_writer_refuses_bad_requests_and_leaves_nothing() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The slab writer writes, byte for byte, the store the in-memory writer writes from the loaded
+/// volume: for every scalar type, extents that are no multiple of the brick size, default and
+/// fewer levels; and refuses a RAM budget below what it needs before creating anything.
+#[test]
+fn the_slab_writer_writes_the_same_bytes_as_the_volume_writer() {
+    use mixvol::store::{level_slab_bytes, write_level_store_from_slabs};
+    use mixvol::volume::{open_raw_slabs, save_raw, RawDescriptor, ScalarType, SyntheticField};
+    let dir = temp_dir("slabs");
+    for (dims, scalar, levels) in [
+        (UVec3::new(37, 29, 21), ScalarType::F32, None),
+        (UVec3::new(40, 17, 33), ScalarType::U8, None),
+        (UVec3::new(24, 24, 26), ScalarType::U16, Some(3)),
+    ] {
+        let volume = SyntheticField::MarschnerLobb
+            .generate(dims, scalar)
+            .unwrap();
+        let raw = dir.join("v.raw");
+        save_raw(&volume, &raw).unwrap();
+        let from_volume = dir.join("volume.mvl");
+        write_level_store(&from_volume, &volume, N, levels, &mut |_, _| {}).unwrap();
+        let desc = RawDescriptor {
+            dims,
+            scalar,
+            spacing: volume.spacing(),
+            header_bytes: 0,
+            big_endian: false,
+        };
+        let from_slabs = dir.join("slabs.mvl");
+        let mut reader = open_raw_slabs(&raw, &desc).unwrap();
+        let mut calls = 0u64;
+        let summary = write_level_store_from_slabs(
+            &from_slabs,
+            &mut *reader,
+            N,
+            levels,
+            64 << 20,
+            &mut |_, _| calls += 1,
+        )
+        .unwrap();
+        assert_eq!(calls, summary.header.stored_count);
+        assert!(
+            std::fs::read(&from_slabs).unwrap() == std::fs::read(&from_volume).unwrap(),
+            "{dims} {scalar:?}: the slab writer's bytes differ"
+        );
+        // A budget one byte short is refused, and nothing is written.
+        let needed = level_slab_bytes(dims, scalar.size_bytes() as u64, N, reader.scratch_bytes());
+        let mut reader = open_raw_slabs(&raw, &desc).unwrap();
+        let short = dir.join("short.mvl");
+        assert!(matches!(
+            write_level_store_from_slabs(
+                &short,
+                &mut *reader,
+                N,
+                levels,
+                needed - 1,
+                &mut |_, _| {}
+            ),
+            Err(StoreError::RamBudget { .. })
+        ));
+        assert!(!short.exists() && !dir.join("short.mvl.partial").exists());
+    }
+    // A file shorter than its description fails, naming the input, and leaves nothing.
+    let raw = dir.join("short.raw");
+    std::fs::write(&raw, vec![0u8; 1000]).unwrap();
+    let desc = RawDescriptor {
+        dims: UVec3::splat(16),
+        scalar: ScalarType::U8,
+        spacing: Vec3::ONE,
+        header_bytes: 0,
+        big_endian: false,
+    };
+    // (The reader may refuse the file when it opens it, or when it reads the missing planes.)
+    match open_raw_slabs(&raw, &desc) {
+        Err(e) => assert!(e.to_string().contains("short.raw"), "{e}"),
+        Ok(mut reader) => {
+            let out = dir.join("cut.mvl");
+            let err =
+                write_level_store_from_slabs(&out, &mut *reader, N, None, 64 << 20, &mut |_, _| {})
+                    .unwrap_err();
+            assert!(matches!(err, StoreError::Input(_)), "{err}");
+            assert!(!out.exists() && !dir.join("cut.mvl.partial").exists());
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -38,7 +38,8 @@ pub mod writer;
 pub use backend::BrickBackend;
 pub use format::{StoreHeader, FORMAT_VERSION, HEADER_SIZE, MAGIC};
 pub use levels::{
-    default_store_levels, write_level_store, LevelStore, LevelStoreHeader, LevelWriteSummary,
+    default_store_levels, level_slab_bytes, write_level_store, write_level_store_from_slabs,
+    LevelStore, LevelStoreHeader, LevelWriteSummary,
 };
 pub use reader::BrickStore;
 pub use slab_writer::{plan_slab_write, slab_store_desc, write_store_from_slabs, SlabPlan};

@@ -17,7 +17,7 @@ pub use formats::{
 };
 pub use loader::{load_raw, save_raw, RawDescriptor};
 pub use rgba::RgbaVolume;
-pub use slabs::{open_raw_slabs, open_slabs, read_whole, SlabMut, SlabReader};
+pub use slabs::{open_raw_slabs, open_slabs, SlabMut, SlabReader};
 pub use synthetic::{
     marschner_lobb, marschner_lobb_value, sphere, wall, SyntheticField,
     DEFAULT_SPHERE_RADIUS_FRACTION,

@@ -109,28 +109,6 @@ pub trait SlabReader {
     fn finish(&mut self) -> Result<(), VolumeError>;
 }
 
-/// Reads every z plane of `reader` (8 planes at a time, in order, so forward-only readers work)
-/// into an in-memory [`Volume`](crate::volume::Volume) with the reader's spacing, then checks
-/// what is left ([`SlabReader::finish`]). RAM: the whole volume.
-pub fn read_whole(reader: &mut dyn SlabReader) -> Result<crate::volume::Volume, VolumeError> {
-    let dims = reader.dims();
-    let plane = dims.x as usize * dims.y as usize;
-    let mut data = crate::volume::VoxelData::zeroed(reader.scalar(), plane * dims.z as usize);
-    let mut z = 0;
-    while z < dims.z {
-        let end = (z + 8).min(dims.z);
-        let range = z as usize * plane..end as usize * plane;
-        let out = SlabMut::of_range(&mut data, range).ok_or(VolumeError::SlabRequest {
-            path: reader.path().to_path_buf(),
-            message: format!("planes {z}..{end} outside the volume"),
-        })?;
-        reader.read_slab(z..end, out)?;
-        z = end;
-    }
-    reader.finish()?;
-    crate::volume::Volume::new(dims, reader.spacing(), data)
-}
-
 /// Opens `path` for slab reading, choosing the format as
 /// [`load_volume`](crate::volume::load_volume) does, and reading level `zarr_level` (default 0)
 /// of an OME-Zarr image. `zarr_level` on another format is a [`VolumeError::Format`] error on

@@ -1,16 +1,18 @@
 //! `mixvol convert INPUT STORE --all-levels`: any supported volume into a level store (every
 //! level, as the three-level cache stores it; `mixvol::store::levels`).
 //!
-//! The level pyramid is built from the whole volume, so the input is read whole (slab by slab
-//! into RAM for files, as it is for synthetic fields and DICOM series) after checking that the
-//! volume plus the two levels the writer holds at a time fit `--ram-budget-mb`. The store is
-//! written to `STORE.partial` and renamed at the end, as `convert` does.
+//! Files (and OME-Zarr images) are read slab by slab: level 0 streams through a window of
+//! planes, level 1 and the coarser levels are built in RAM (about half a byte per voxel;
+//! [`mixvol::store::write_level_store_from_slabs`]). Synthetic fields and DICOM series are
+//! generated or loaded whole, and the levels built from the volume in RAM. Either way the RAM
+//! the write needs is checked against `--ram-budget-mb` before any work. The store is written
+//! to `STORE.partial` and renamed at the end, as `convert` does.
 
 use crate::args::ConvertArgs;
 use crate::convert::{describe_input, load_dicom_input, mib, open_input, progress_bar, update};
 use crate::stats::peak_rss_bytes;
-use mixvol::store::{default_store_levels, write_level_store, LevelWriteSummary};
-use mixvol::volume::{read_whole, SyntheticField, Volume};
+use mixvol::store::{write_level_store, write_level_store_from_slabs, LevelWriteSummary};
+use mixvol::volume::{SyntheticField, Volume};
 use mixvol::{Error, Result};
 use serde_json::json;
 use std::time::Instant;
@@ -24,19 +26,25 @@ pub fn convert_levels(args: &ConvertArgs, budget: u64) -> Result<()> {
     // `convert` checked the destination and that INPUT is not STORE.
     let store = args.store.as_path();
     let start = Instant::now();
-    let (volume, what) = read_input(args, budget)?;
-    let levels = match args.level_count {
-        Some(l) => l,
-        None => default_store_levels(volume.dims(), args.brick_size)?,
-    };
     let bar = progress_bar();
-    let summary = write_level_store(
-        store,
-        &volume,
-        args.brick_size,
-        Some(levels),
-        &mut |done, total| update(&bar, done, total),
-    )?;
+    let mut tick = |done, total| update(&bar, done, total);
+    let levels = args.level_count;
+    let (summary, what) = if let Some((volume, what)) = read_whole_input(args, budget)? {
+        let summary = write_level_store(store, &volume, args.brick_size, levels, &mut tick)?;
+        (summary, what)
+    } else {
+        let mut reader = open_input(args)?;
+        let what = describe_input(&*reader);
+        let summary = write_level_store_from_slabs(
+            store,
+            &mut *reader,
+            args.brick_size,
+            levels,
+            budget,
+            &mut tick,
+        )?;
+        (summary, what)
+    };
     bar.finish_and_clear();
     report(args, &summary, &what, start)
 }
@@ -63,8 +71,9 @@ fn check_budget(
     Ok(())
 }
 
-/// INPUT read whole (after the budget check) and how to describe it.
-fn read_input(args: &ConvertArgs, budget: u64) -> Result<(Volume, String)> {
+/// A synthetic field or a DICOM series, generated or loaded whole (after the budget check),
+/// and how to describe it; `None` for every other input, which is read in slabs.
+fn read_whole_input(args: &ConvertArgs, budget: u64) -> Result<Option<(Volume, String)>> {
     if let Some(field) = SyntheticField::parse(&args.input) {
         let dims = args.dims.unwrap_or(glam::UVec3::splat(128));
         let scalar = args.scalar.unwrap_or(mixvol::volume::ScalarType::U8);
@@ -76,37 +85,24 @@ fn read_input(args: &ConvertArgs, budget: u64) -> Result<(Volume, String)> {
             budget,
             args.ram_budget_mb,
         )?;
-        return Ok((
-            field.generate(dims, scalar)?,
-            format!("synthetic {}", args.input),
-        ));
+        let volume = field.generate(dims, scalar)?;
+        return Ok(Some((volume, format!("synthetic {}", args.input))));
     }
     // A DICOM series is loaded within the budget by the loader itself; the levels come on top.
-    if let Some(loaded) = load_dicom_input(args, budget)? {
-        let v = &loaded.volume;
-        let voxels = u64::from(v.dims().element_product());
-        check_budget(
-            &args.input,
-            voxels,
-            v.scalar_type().size_bytes() as u64,
-            budget,
-            args.ram_budget_mb,
-        )?;
-        let what = format!("{} (DICOM series, {:?})", args.input, loaded.meta.stored);
-        return Ok((loaded.volume, what));
-    }
-    let mut reader = open_input(args)?;
-    let d = reader.dims();
-    let voxels = u64::from(d.x) * u64::from(d.y) * u64::from(d.z);
+    let Some(loaded) = load_dicom_input(args, budget)? else {
+        return Ok(None);
+    };
+    let v = &loaded.volume;
+    let voxels = u64::from(v.dims().x) * u64::from(v.dims().y) * u64::from(v.dims().z);
     check_budget(
         &args.input,
         voxels,
-        reader.scalar().size_bytes() as u64,
+        v.scalar_type().size_bytes() as u64,
         budget,
         args.ram_budget_mb,
     )?;
-    let what = describe_input(&*reader);
-    Ok((read_whole(&mut *reader)?, what))
+    let what = format!("{} (DICOM series, {:?})", args.input, loaded.meta.stored);
+    Ok(Some((loaded.volume, what)))
 }
 
 /// Prints the summary and writes `--stats-json`.

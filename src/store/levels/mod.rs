@@ -7,7 +7,9 @@
 //! from the file.
 //!
 //! - [`write_level_store`] writes one from an in-memory volume (level by level, two levels in
-//!   RAM at a time), into `<path>.partial`, renamed into place once complete.
+//!   RAM at a time), into `<path>.partial`, renamed into place once complete;
+//!   [`write_level_store_from_slabs`] writes the same bytes from a volume file read in slabs
+//!   (level 0 streamed, level 1 and coarser in RAM: about half a byte per voxel).
 //! - [`LevelStore`] opens and checks one and reads stored bricks ([`LevelStore::read_stored`],
 //!   CRC-checked) and their value ranges.
 //!
@@ -15,8 +17,10 @@
 
 pub mod format;
 mod reader;
+mod slab_writer;
 mod writer;
 
 pub use format::{LevelStoreHeader, LEVEL_FORMAT_VERSION, LEVEL_MAGIC};
 pub use reader::LevelStore;
+pub use slab_writer::{level_slab_bytes, write_level_store_from_slabs};
 pub use writer::{default_store_levels, write_level_store, LevelWriteSummary};

@@ -1,18 +1,22 @@
 //! Writing a level store from an in-memory volume: every level of its vertex pyramid, packed as
 //! the three-level cache stores it, into `<path>.partial`, renamed into place once complete.
+//! The pieces shared with the slab writer ([`super::slab_writer`]): the file's assembly and the
+//! sink the stored bricks stream into.
 
 use super::format::{
     canonical_level_header, encode_level_header, encode_level_table, finish_level_checksum,
     stored_per_level, LevelEntry, LevelStoreHeader,
 };
 use crate::bricks::{dequantize, quantize_to, BrickGrid, ValueRange};
-use crate::cache::{min_brick_size_for_levels, pyramid_levels, stored_bricks_per_axis};
+use crate::cache::{
+    block_bricks, min_brick_size_for_levels, pyramid_levels, stored_bricks_per_axis,
+};
 use crate::reference::{LevelGrid, SamplePlacement};
 use crate::store::format::brick_crc;
 use crate::store::writer::partial_path;
 use crate::store::StoreError;
-use crate::volume::Volume;
-use glam::UVec3;
+use crate::volume::{ScalarType, Volume};
+use glam::{UVec3, Vec3};
 use std::fs::{File, OpenOptions};
 use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::os::unix::fs::FileExt;
@@ -30,8 +34,8 @@ pub struct LevelWriteSummary {
     pub elapsed: Duration,
 }
 
-/// The levels a level store of `volume` in bricks of `brick_size` gets by default: levels 0-2
-/// and the block levels up to one block covering the grid's longest axis
+/// The levels a level store of a volume of `volume_dims` in bricks of `brick_size` gets by
+/// default: levels 0-2 and the block levels up to one block covering the grid's longest axis
 /// ([`crate::cache::pyramid_levels`]).
 pub fn default_store_levels(volume_dims: UVec3, brick_size: u32) -> Result<u32, StoreError> {
     let grid = brick_grid(volume_dims, brick_size)?;
@@ -45,28 +49,17 @@ fn brick_grid(dims: UVec3, brick_size: u32) -> Result<BrickGrid, StoreError> {
     })
 }
 
-/// Writes every level of `volume` (levels `0..levels`; `None`: [`default_store_levels`]) as a
-/// level store at `path`: level 0 its normalised voxels, each coarser level the vertex level
-/// downsampled from the one before ([`LevelGrid::downsampled`]), every stored brick exactly the
-/// texels [`LevelGrid::stored_brick`] gives, in the volume's scalar type. `progress(done,
-/// total)` is called after every stored brick.
-///
-/// RAM: the volume plus two adjacent levels as f32 (about 4.5 bytes per voxel at the peak);
-/// the texels stream to disk level by level. The file is assembled as `<path>.partial` and
-/// renamed to `path` only once complete; on any error the partial file is removed.
-///
-/// Errors: a brick size the volume cannot be bricked with, a level count outside
-/// `1..=31` or past what the brick size takes ([`min_brick_size_for_levels`]), a volume too large
-/// for the format, or an OS failure.
-pub fn write_level_store(
-    path: &Path,
-    volume: &Volume,
+/// Checks a level store's description before any work: the brick grid, the level count
+/// (`None`: the default) against the brick size, and the format's limits. Returns the grid and
+/// the header (value range still empty).
+pub(super) fn check_level_desc(
+    dims: UVec3,
     brick_size: u32,
     levels: Option<u32>,
-    progress: &mut dyn FnMut(u64, u64),
-) -> Result<LevelWriteSummary, StoreError> {
-    let start = Instant::now();
-    let grid = brick_grid(volume.dims(), brick_size)?;
+    scalar: ScalarType,
+    spacing: Vec3,
+) -> Result<(BrickGrid, LevelStoreHeader), StoreError> {
+    let grid = brick_grid(dims, brick_size)?;
     let levels = levels.unwrap_or(pyramid_levels(brick_size, grid.bricks_per_axis()));
     let min_size = min_brick_size_for_levels(levels);
     if !(1..=31).contains(&levels) || brick_size < min_size {
@@ -78,17 +71,130 @@ pub fn write_level_store(
             ),
         });
     }
-    let (min, max) = volume.value_range();
-    let value_range = ValueRange { min, max };
-    let scalar = volume.scalar_type();
-    let header = canonical_level_header(&grid, levels, scalar, volume.spacing(), value_range)
+    let header = canonical_level_header(&grid, levels, scalar, spacing, ValueRange::EMPTY)
         .ok_or_else(|| StoreError::InvalidDesc {
             field: "dims",
             message: format!(
                 "{:?} in bricks of {brick_size} with {levels} levels overflows the format",
-                volume.dims().to_array()
+                dims.to_array()
             ),
         })?;
+    Ok((grid, header))
+}
+
+/// Writes every level of `volume` (levels `0..levels`; `None`: [`default_store_levels`]) as a
+/// level store at `path`: level 0 its normalised voxels, each coarser level the vertex level
+/// downsampled from the one before ([`LevelGrid::downsampled`]), every stored brick exactly the
+/// texels [`LevelGrid::stored_brick`] gives, in the volume's scalar type. `progress(done,
+/// total)` is called after every stored brick.
+///
+/// RAM: the volume plus two adjacent levels as f32 (about 4.5 bytes per voxel at the peak);
+/// the texels stream to disk level by level. [`super::write_level_store_from_slabs`] writes
+/// the same bytes from a file under a RAM budget. The file is assembled as `<path>.partial`
+/// and renamed to `path` only once complete; on any error the partial file is removed.
+///
+/// Errors: a brick size the volume cannot be bricked with, a level count outside `1..=31` or
+/// past what the brick size takes ([`min_brick_size_for_levels`]), a volume too large for the
+/// format, or an OS failure.
+pub fn write_level_store(
+    path: &Path,
+    volume: &Volume,
+    brick_size: u32,
+    levels: Option<u32>,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<LevelWriteSummary, StoreError> {
+    let (grid, header) = check_level_desc(
+        volume.dims(),
+        brick_size,
+        levels,
+        volume.scalar_type(),
+        volume.spacing(),
+    )?;
+    let (min, max) = volume.value_range();
+    assemble_level_store(
+        path,
+        header,
+        &mut |sink| {
+            let mut level_grid = LevelGrid::from_volume(volume);
+            for level in 0..header.levels {
+                if level > 0 {
+                    level_grid = level_grid.downsampled(SamplePlacement::Vertex, volume.dims());
+                }
+                sink.write_level(&grid, &level_grid)?;
+            }
+            Ok(ValueRange { min, max })
+        },
+        progress,
+    )
+}
+
+/// Where the stored bricks of a level store go, in table order: the texels right after each
+/// other from `data_offset`, and their table entries.
+pub(super) struct TexelSink<'a> {
+    out: BufWriter<&'a File>,
+    partial: &'a Path,
+    scalar: ScalarType,
+    offset: u64,
+    entries: Vec<LevelEntry>,
+    total: u64,
+    progress: &'a mut dyn FnMut(u64, u64),
+}
+
+impl TexelSink<'_> {
+    /// Appends one stored brick (`values` normalised, x fastest): quantised to the store's
+    /// scalar type, its range as read back, its CRC-32.
+    pub(super) fn push(&mut self, values: &[f32]) -> Result<(), StoreError> {
+        let bytes = quantize_to(values, self.scalar);
+        let range = ValueRange::of(&dequantize(&bytes, self.scalar));
+        self.out
+            .write_all(&bytes)
+            .map_err(|source| StoreError::Io {
+                path: self.partial.to_path_buf(),
+                action: "write stored bricks",
+                source,
+            })?;
+        self.entries.push(LevelEntry {
+            offset: self.offset,
+            crc: brick_crc(&bytes),
+            range,
+        });
+        self.offset += bytes.len() as u64;
+        (self.progress)(self.entries.len() as u64, self.total);
+        Ok(())
+    }
+
+    /// Appends every stored brick of `level_grid`'s level for `grid`, blocks in linear order.
+    pub(super) fn write_level(
+        &mut self,
+        grid: &BrickGrid,
+        level_grid: &LevelGrid,
+    ) -> Result<(), StoreError> {
+        let level = level_grid.level();
+        let stored = stored_bricks_per_axis(grid.bricks_per_axis(), level);
+        let block = block_bricks(level);
+        for z in 0..stored.z {
+            for y in 0..stored.y {
+                for x in 0..stored.x {
+                    let first = UVec3::new(x, y, z) * block;
+                    self.push(&level_grid.stored_brick(first, grid.brick_size()))?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Creates `<path>.partial`, lets `fill` stream every stored brick into the sink in table
+/// order (and return the volume's value range), checks that it wrote them all, then writes the
+/// table and the header and renames the file to `path`. On any error the partial file is
+/// removed.
+pub(super) fn assemble_level_store(
+    path: &Path,
+    mut header: LevelStoreHeader,
+    fill: &mut dyn FnMut(&mut TexelSink<'_>) -> Result<ValueRange, StoreError>,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<LevelWriteSummary, StoreError> {
+    let start = Instant::now();
     let partial = partial_path(path);
     let io = |action: &'static str| {
         let p = partial.clone();
@@ -106,9 +212,37 @@ pub fn write_level_store(
         .open(&partial)
         .map_err(io("create"))?;
     let result = (|| {
-        let entries = write_texels(&file, &grid, volume, &header, progress)
-            .map_err(|(action, source)| io(action)(source))?;
-        let table = encode_level_table(&entries);
+        let mut out = BufWriter::with_capacity(1 << 20, &file);
+        out.seek(SeekFrom::Start(header.data_offset))
+            .map_err(io("seek to the texels"))?;
+        let grid = header.grid().ok_or_else(|| StoreError::InvalidDesc {
+            field: "dims",
+            message: "cannot brick".into(),
+        })?;
+        let mut sink = TexelSink {
+            out,
+            partial: &partial,
+            scalar: header.scalar,
+            offset: header.data_offset,
+            entries: Vec::new(),
+            total: stored_per_level(&grid, header.levels).iter().sum(),
+            progress,
+        };
+        header.value_range = fill(&mut sink)?;
+        sink.out.flush().map_err(io("write stored bricks"))?;
+        if sink.offset != header.file_size || sink.entries.len() as u64 != header.stored_count {
+            return Err(StoreError::InvalidDesc {
+                field: "stored_count",
+                message: format!(
+                    "wrote {} stored bricks ending at byte {}; the header expects {} ending at {}",
+                    sink.entries.len(),
+                    sink.offset,
+                    header.stored_count,
+                    header.file_size
+                ),
+            });
+        }
+        let table = encode_level_table(&sink.entries);
         let mut header_bytes = encode_level_header(&header);
         finish_level_checksum(&mut header_bytes, &table);
         file.write_all_at(&table, header_bytes.len() as u64)
@@ -136,51 +270,4 @@ pub fn write_level_store(
         header,
         elapsed: start.elapsed(),
     })
-}
-
-/// Writes every stored brick from `header.data_offset` on, level by level (one level and the
-/// next in RAM at a time), and returns the table.
-fn write_texels(
-    file: &File,
-    grid: &BrickGrid,
-    volume: &Volume,
-    header: &LevelStoreHeader,
-    progress: &mut dyn FnMut(u64, u64),
-) -> Result<Vec<LevelEntry>, (&'static str, std::io::Error)> {
-    let mut out = BufWriter::with_capacity(1 << 20, file);
-    out.seek(SeekFrom::Start(header.data_offset))
-        .map_err(|e| ("seek to the texels", e))?;
-    let total: u64 = stored_per_level(grid, header.levels).iter().sum();
-    let mut entries = Vec::with_capacity(total as usize);
-    let mut offset = header.data_offset;
-    let n = grid.brick_size();
-    let mut level_grid = LevelGrid::from_volume(volume);
-    for level in 0..header.levels {
-        if level > 0 {
-            level_grid = level_grid.downsampled(SamplePlacement::Vertex, volume.dims());
-        }
-        let stored = stored_bricks_per_axis(grid.bricks_per_axis(), level);
-        let block = crate::cache::block_bricks(level);
-        for z in 0..stored.z {
-            for y in 0..stored.y {
-                for x in 0..stored.x {
-                    let first = UVec3::new(x, y, z) * block;
-                    let bytes = quantize_to(&level_grid.stored_brick(first, n), header.scalar);
-                    let range = ValueRange::of(&dequantize(&bytes, header.scalar));
-                    out.write_all(&bytes)
-                        .map_err(|e| ("write stored bricks", e))?;
-                    entries.push(LevelEntry {
-                        offset,
-                        crc: brick_crc(&bytes),
-                        range,
-                    });
-                    offset += bytes.len() as u64;
-                    progress(entries.len() as u64, total);
-                }
-            }
-        }
-    }
-    out.flush().map_err(|e| ("write stored bricks", e))?;
-    debug_assert_eq!(offset, header.file_size);
-    Ok(entries)
 }

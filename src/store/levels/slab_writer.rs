@@ -1,0 +1,279 @@
+//! Writing a level store from a volume file read in slabs of z planes, never holding the
+//! volume: level 0's stored bricks come from a window of `n + 4` planes that slides along z, and
+//! level 1 (the vertex level, an eighth of the samples) is built plane by plane from the same
+//! window and kept in RAM, as f32, with the levels downsampled from it.
+//!
+//! The bytes equal those [`super::write_level_store`] writes from the loaded volume: level 1's
+//! samples are the same sums in the same order as [`LevelGrid::downsampled`] (the mean of the
+//! eight voxels around a vertex, clamped to the volume), and every coarser level is
+//! [`LevelGrid::downsampled`] itself.
+//!
+//! RAM: the window (`n + 4` planes as f32), one slab of raw planes, level 1 (about half a byte
+//! per voxel) and level 2 while it is built; checked against the budget before any work.
+
+use super::writer::{assemble_level_store, check_level_desc, LevelWriteSummary};
+use crate::bricks::ValueRange;
+use crate::reference::{LevelGrid, SamplePlacement};
+use crate::store::StoreError;
+use crate::volume::{SlabMut, SlabReader, VoxelData};
+use glam::{IVec3, UVec3};
+use std::collections::VecDeque;
+use std::path::Path;
+
+/// Planes read per slab.
+const SLAB_PLANES: u32 = 8;
+
+/// Bytes [`write_level_store_from_slabs`] needs for a volume of `dims` voxels of
+/// `voxel_bytes` each in bricks of `brick_size`, with a reader holding `reader_bytes`.
+pub fn level_slab_bytes(dims: UVec3, voxel_bytes: u64, brick_size: u32, reader_bytes: u64) -> u64 {
+    let plane = u64::from(dims.x) * u64::from(dims.y);
+    let window = plane * u64::from(brick_size + 4 + SLAB_PLANES) * 4;
+    let slab = plane * u64::from(SLAB_PLANES) * voxel_bytes;
+    let level1 = LevelGrid::covering_dims(1, SamplePlacement::Vertex, dims)
+        .as_u64vec3()
+        .element_product()
+        * 4;
+    // Level 2 while it is built from level 1: an eighth more.
+    window + slab + level1 + level1 / 8 + reader_bytes
+}
+
+/// Writes every level of the volume `reader` reads (levels `0..levels`; `None`: the default)
+/// as a level store at `path`, holding about [`level_slab_bytes`] of RAM, at most
+/// `ram_budget`. Same bytes, progress and atomic rename as [`super::write_level_store`].
+///
+/// Errors: [`StoreError::RamBudget`] and [`StoreError::InvalidDesc`] before anything is
+/// created; [`StoreError::Input`] when the reader fails (naming the file); [`StoreError::Io`]
+/// for the store file.
+pub fn write_level_store_from_slabs(
+    path: &Path,
+    reader: &mut dyn SlabReader,
+    brick_size: u32,
+    levels: Option<u32>,
+    ram_budget: u64,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<LevelWriteSummary, StoreError> {
+    let dims = reader.dims();
+    let (grid, header) =
+        check_level_desc(dims, brick_size, levels, reader.scalar(), reader.spacing())?;
+    let needed = level_slab_bytes(
+        dims,
+        reader.scalar().size_bytes() as u64,
+        brick_size,
+        reader.scratch_bytes(),
+    );
+    if needed > ram_budget {
+        return Err(StoreError::RamBudget {
+            needed,
+            budget: ram_budget,
+            message: format!(
+                "a window of {} z planes of {}x{} voxels as f32 and level 1 of the volume \
+                 (half a byte per voxel)",
+                brick_size + 4,
+                dims.x,
+                dims.y
+            ),
+        });
+    }
+    assemble_level_store(
+        path,
+        header,
+        &mut |sink| {
+            let mut planes = Planes::new(&mut *reader, dims);
+            let mut level1 = LevelOne::new(dims);
+            let n = brick_size;
+            let bricks = grid.bricks_per_axis();
+            // Level 0, one row of bricks along z at a time.
+            for bz in 0..bricks.z {
+                let first = (n * bz) as i32 - 2;
+                let last = (n * bz + n + 1).min(dims.z - 1);
+                planes.load_through(last, &mut |p, planes| level1.plane_ready(p, planes))?;
+                planes.drop_before(first.max(0) as u32);
+                for by in 0..bricks.y {
+                    for bx in 0..bricks.x {
+                        let start = IVec3::new((n * bx) as i32 - 2, (n * by) as i32 - 2, first);
+                        sink.push(&planes.brick(start, (n + 4) as i32))?;
+                    }
+                }
+            }
+            planes.load_through(dims.z - 1, &mut |p, planes| level1.plane_ready(p, planes))?;
+            planes.finish()?;
+            // Level 1 from its planes, then each level from the one before.
+            let mut level_grid = level1.finish()?;
+            for level in 1..header.levels {
+                if level > 1 {
+                    level_grid = level_grid.downsampled(SamplePlacement::Vertex, dims);
+                }
+                sink.write_level(&grid, &level_grid)?;
+            }
+            Ok(planes.value_range)
+        },
+        progress,
+    )
+}
+
+/// The window of z planes (normalised f32) the reader has read and not yet dropped.
+struct Planes<'a> {
+    reader: &'a mut dyn SlabReader,
+    dims: UVec3,
+    /// Planes `first..first + window.len()`.
+    window: VecDeque<Vec<f32>>,
+    first: u32,
+    /// Planes read so far.
+    read: u32,
+    raw: VoxelData,
+    value_range: ValueRange,
+}
+
+impl<'a> Planes<'a> {
+    fn new(reader: &'a mut dyn SlabReader, dims: UVec3) -> Self {
+        let plane = dims.x as usize * dims.y as usize;
+        let raw = VoxelData::zeroed(reader.scalar(), plane * SLAB_PLANES as usize);
+        Self {
+            reader,
+            dims,
+            window: VecDeque::new(),
+            first: 0,
+            read: 0,
+            raw,
+            value_range: ValueRange::EMPTY,
+        }
+    }
+
+    /// Reads planes up to `last` (inclusive), calling `ready(p, self)` after each plane `p`
+    /// arrives.
+    fn load_through(
+        &mut self,
+        last: u32,
+        ready: &mut dyn FnMut(u32, &Planes<'_>),
+    ) -> Result<(), StoreError> {
+        let plane = self.dims.x as usize * self.dims.y as usize;
+        while self.read <= last {
+            let end = (self.read + SLAB_PLANES).min(self.dims.z);
+            let count = (end - self.read) as usize * plane;
+            let out = SlabMut::of_range(&mut self.raw, 0..count).ok_or_else(|| {
+                StoreError::InvalidDesc {
+                    field: "dims",
+                    message: "slab outside its buffer".into(),
+                }
+            })?;
+            self.reader.read_slab(self.read..end, out)?;
+            for k in 0..(end - self.read) as usize {
+                let values: Vec<f32> = (k * plane..(k + 1) * plane)
+                    .map(|i| self.raw.normalized(i))
+                    .collect();
+                for &v in &values {
+                    self.value_range.include(v);
+                }
+                self.window.push_back(values);
+                let p = self.read + k as u32;
+                ready(p, self);
+            }
+            self.read = end;
+        }
+        Ok(())
+    }
+
+    /// Drops the planes before `z`.
+    fn drop_before(&mut self, z: u32) {
+        while self.first < z && !self.window.is_empty() {
+            self.window.pop_front();
+            self.first += 1;
+        }
+    }
+
+    /// Voxel `v`, clamped to the volume (its plane must be in the window).
+    fn voxel(&self, v: IVec3) -> f32 {
+        let c = v
+            .clamp(IVec3::ZERO, self.dims.as_ivec3() - IVec3::ONE)
+            .as_uvec3();
+        let plane = &self.window[(c.z - self.first) as usize];
+        plane[(c.x + self.dims.x * c.y) as usize]
+    }
+
+    /// The `edge^3` voxels from `start` (clamped), x fastest.
+    fn brick(&self, start: IVec3, edge: i32) -> Vec<f32> {
+        let mut values = Vec::with_capacity(edge.pow(3) as usize);
+        for z in 0..edge {
+            for y in 0..edge {
+                for x in 0..edge {
+                    values.push(self.voxel(start + IVec3::new(x, y, z)));
+                }
+            }
+        }
+        values
+    }
+
+    fn finish(&mut self) -> Result<(), StoreError> {
+        Ok(self.reader.finish()?)
+    }
+}
+
+/// Level 1 (vertex samples every 2 voxels) built plane by plane.
+struct LevelOne {
+    volume: UVec3,
+    dims: UVec3,
+    values: Vec<f32>,
+    /// The next level-1 plane to build.
+    next: u32,
+}
+
+impl LevelOne {
+    fn new(volume: UVec3) -> Self {
+        let dims = LevelGrid::covering_dims(1, SamplePlacement::Vertex, volume);
+        Self {
+            volume,
+            dims,
+            values: Vec::with_capacity(dims.x as usize * dims.y as usize * dims.z as usize),
+            next: 0,
+        }
+    }
+
+    /// Builds every level-1 plane whose voxel planes have all arrived once plane `p` has.
+    fn plane_ready(&mut self, p: u32, planes: &Planes<'_>) {
+        while self.next < self.dims.z && Self::taps(self.next, self.volume.z).1 <= p as i32 {
+            self.build_plane(self.next, planes);
+            self.next += 1;
+        }
+    }
+
+    /// The two voxel indices (clamped) whose mean is vertex sample `j` on an axis of `d`
+    /// voxels: `2j - 1` and `2j`.
+    fn taps(j: u32, d: u32) -> (i32, i32) {
+        let last = d as i32 - 1;
+        (
+            (2 * j as i32 - 1).clamp(0, last),
+            (2 * j as i32).clamp(0, last),
+        )
+    }
+
+    /// Level-1 plane `jz`: per sample, the sum `LevelGrid::downsampled` forms (z taps, then y,
+    /// then x; weights 1/2 per axis; in f64).
+    fn build_plane(&mut self, jz: u32, planes: &Planes<'_>) {
+        let (z0, z1) = Self::taps(jz, self.volume.z);
+        for jy in 0..self.dims.y {
+            let (y0, y1) = Self::taps(jy, self.volume.y);
+            for jx in 0..self.dims.x {
+                let (x0, x1) = Self::taps(jx, self.volume.x);
+                let mut sum = 0.0f64;
+                for kz in [z0, z1] {
+                    for ky in [y0, y1] {
+                        for kx in [x0, x1] {
+                            let w = 0.5f32 * 0.5 * 0.5;
+                            sum += f64::from(w) * f64::from(planes.voxel(IVec3::new(kx, ky, kz)));
+                        }
+                    }
+                }
+                self.values.push(sum as f32);
+            }
+        }
+    }
+
+    fn finish(self) -> Result<LevelGrid, StoreError> {
+        LevelGrid::new(1, SamplePlacement::Vertex, self.dims, self.values).map_err(|e| {
+            StoreError::InvalidDesc {
+                field: "dims",
+                message: e.to_string(),
+            }
+        })
+    }
+}

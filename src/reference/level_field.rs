@@ -465,7 +465,7 @@ impl<'a> LevelField<'a> {
         &self.plan
     }
 
-    /// The coarser bits of linear brick `i` (see [`coarser_neighbour_bits`]).
+    /// The coarser bits of linear brick `i` (see [`crate::cache::tables::coarser_neighbour_bits`]).
     pub fn coarser_bits(&self, brick: usize) -> u32 {
         self.plan.coarser_bits(brick)
     }

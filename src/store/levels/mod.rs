@@ -13,7 +13,7 @@
 //! - [`LevelStore`] opens and checks one and reads stored bricks ([`LevelStore::read_stored`],
 //!   CRC-checked) and their value ranges.
 //!
-//! The format is specified in [`format`] and, byte by byte, in `docs/brick-store.md`.
+//! The format is specified in [`mod@format`] and, byte by byte, in `docs/brick-store.md`.
 
 pub mod format;
 mod reader;

@@ -68,10 +68,11 @@ pub enum VolumeSource<'a> {
     /// level 2 (bricks of at least 8 voxels) the bricks of a level come in aligned blocks of
     /// `crate::reference::block_bricks(k)` per axis, each stored as one level-2-sized brick, up to
     /// the level whose block covers the grid's longest axis.
-    /// The cache holds f32 texels; `config.filter` is not used (the levels are the vertex
-    /// pyramid). The two-level planner does not drive it; `VolumePass::plan_brick_levels`
-    /// chooses levels from a camera, else renders draw these levels until the next
-    /// `set_source` (issue 19).
+    /// The cache holds texels of the volume's scalar type (u8 / u16 UNORM: transitions between
+    /// vertex levels then jump by at most half a step, `docs/cache-layout.md`; f32: C0
+    /// everywhere); `config.filter` is not used (the levels are the vertex pyramid). The
+    /// two-level planner does not drive it; `VolumePass::plan_brick_levels` chooses levels
+    /// from a camera, else renders draw these levels until the next `set_source` (issue 19).
     Levels {
         /// The volume.
         volume: &'a Volume,
@@ -264,6 +265,8 @@ pub(crate) struct LevelState {
     spacing: glam::Vec3,
     pub(super) value_range: (f32, f32),
     pub(super) is_float: bool,
+    /// The cache's texel type (the source's scalar type).
+    scalar: ScalarType,
     brick_size: u32,
     transition: Transition,
     facts: LevelPlanFacts,
@@ -280,7 +283,8 @@ struct LevelSourceFacts {
     grid: crate::bricks::BrickGrid,
     spacing: glam::Vec3,
     value_range: (f32, f32),
-    is_float: bool,
+    /// The source's scalar type: the cache's texels.
+    scalar: ScalarType,
 }
 
 /// Where a three-level source's stored bricks come from.
@@ -328,6 +332,8 @@ impl LevelState {
             .map_err(|e| refused(&e))?;
         let packed = &update.packing;
         let geometry = &self.geometry;
+        let scalar = self.scalar;
+        let texel_bytes = scalar.size_bytes();
         let mut uploaded_bytes = 0;
         let staged = match &self.data {
             LevelData::Grids(grids) => {
@@ -336,10 +342,11 @@ impl LevelState {
                     &mut self.gpu,
                     packed,
                     geometry,
+                    scalar,
                     &update.upload,
                     &mut |brick| {
                         let texels = packed.stored_values(&field, geometry, brick);
-                        uploaded_bytes += 4 * texels.len();
+                        uploaded_bytes += texel_bytes * texels.len();
                         Ok(texels)
                     },
                 )
@@ -350,11 +357,12 @@ impl LevelState {
                     &mut self.gpu,
                     packed,
                     geometry,
+                    scalar,
                     &update.upload,
                     &mut |brick| {
                         let level = packed.places[brick].map_or(0, |p| p.level);
                         let texels = store.read_stored(level, grid.brick_coords(brick))?;
-                        uploaded_bytes += 4 * texels.len();
+                        uploaded_bytes += texel_bytes * texels.len();
                         Ok(texels)
                     },
                 )
@@ -607,7 +615,7 @@ impl VolumePass {
             grid,
             spacing: volume.spacing(),
             value_range: volume.value_range(),
-            is_float: volume.scalar_type() == ScalarType::F32,
+            scalar: volume.scalar_type(),
         };
         self.attach_level_data(LevelData::Grids(grids), facts, levels, config)
     }
@@ -633,7 +641,7 @@ impl VolumePass {
             grid: store.grid(),
             spacing: header.spacing,
             value_range: (header.value_range.min, header.value_range.max),
-            is_float: header.scalar == ScalarType::F32,
+            scalar: header.scalar,
         };
         self.attach_level_data(LevelData::Store(store), facts, levels, config)
     }
@@ -650,7 +658,7 @@ impl VolumePass {
         let grid = facts.grid;
         let geometry = ThreeLevelGeometry::choose(
             config.brick_size,
-            4,
+            facts.scalar.size_bytes() as u32,
             config.cache_budget_bytes,
             self.ctx.shared.info.limits.max_image_dimension3_d,
             u32::try_from(grid.brick_count()).unwrap_or(u32::MAX),
@@ -681,6 +689,7 @@ impl VolumePass {
         let gpu = new_three_level_cache(
             &self.ctx.shared,
             &geometry,
+            facts.scalar,
             grid.brick_count(),
             config.transition == Transition::Smooth,
             self.desc.frames_in_flight,
@@ -695,7 +704,8 @@ impl VolumePass {
             dims: grid.dims(),
             spacing: facts.spacing,
             value_range: facts.value_range,
-            is_float: facts.is_float,
+            is_float: facts.scalar == ScalarType::F32,
+            scalar: facts.scalar,
             brick_size: config.brick_size,
             transition: config.transition,
             facts: LevelPlanFacts {

@@ -70,18 +70,19 @@ pub(crate) struct LevelPlanFacts {
     pub(crate) any_absent: bool,
 }
 
-/// A GPU cache of `geometry` with the three-level packing, f32 texels, tables for
-/// `brick_count` bricks and `frames` frame slots.
+/// A GPU cache of `geometry` with the three-level packing, texels of `scalar` (`u8` / `u16`
+/// UNORM or f32), tables for `brick_count` bricks and `frames` frame slots.
 pub(crate) fn new_three_level_cache(
     shared: &Arc<DeviceShared>,
     geometry: &ThreeLevelGeometry,
+    scalar: ScalarType,
     brick_count: usize,
     smooth: bool,
     frames: u32,
 ) -> Result<GpuBrickCache> {
     GpuBrickCache::new(
         shared,
-        ScalarType::F32,
+        scalar,
         1,
         geometry.extent(),
         brick_count,
@@ -102,14 +103,20 @@ pub(crate) fn stage_field(
 ) -> Result<LevelPlanFacts> {
     let packed =
         LevelPacking::for_field(field, geometry).map_err(|e| Error::InvalidInput(e.to_string()))?;
-    stage_three_level(gpu, &packed, geometry, &packed.stored, &mut |brick| {
-        Ok(packed.stored_values(field, geometry, brick))
-    })
+    stage_three_level(
+        gpu,
+        &packed,
+        geometry,
+        ScalarType::F32,
+        &packed.stored,
+        &mut |brick| Ok(packed.stored_values(field, geometry, brick)),
+    )
 }
 
-/// Stages a residency change of `gpu` (a cache of `geometry`) to `packed`: the stored bricks
-/// `upload` (some of [`LevelPacking::stored`]; `texels(brick)` gives each one's
-/// `stored_edge^3` values, x fastest), not fixed up, the tables of every drawn brick, and the
+/// Stages a residency change of `gpu` (a cache of `geometry` with texels of `scalar`) to
+/// `packed`: the stored bricks `upload` (some of [`LevelPacking::stored`]; `texels(brick)`
+/// gives each one's `stored_edge^3` normalised values, x fastest, quantised to `scalar` here),
+/// not fixed up, the tables of every drawn brick, and the
 /// fixup jobs of the uploaded bricks that have coarser neighbours (the GPU runs them when the
 /// cache is smooth). Stored bricks not in `upload` must already sit at their places, fixed up
 /// for the same coarser bits ([`LevelResidency`]). The next [`GpuBrickCache::record`] uploads
@@ -118,6 +125,7 @@ pub(crate) fn stage_three_level(
     gpu: &mut GpuBrickCache,
     packed: &LevelPacking,
     geometry: &ThreeLevelGeometry,
+    scalar: ScalarType,
     upload: &[usize],
     texels: &mut dyn FnMut(usize) -> Result<Vec<f32>>,
 ) -> Result<LevelPlanFacts> {
@@ -153,11 +161,7 @@ pub(crate) fn stage_three_level(
                 values.len()
             )));
         }
-        boxes.push((
-            origin,
-            extent,
-            bytemuck::cast_slice::<f32, u8>(&values).to_vec(),
-        ));
+        boxes.push((origin, extent, crate::bricks::quantize_to(&values, scalar)));
         if place.level == 0 {
             if packed.neighbours[brick] != 0 {
                 fixup_slots.push(place.slot);
@@ -209,7 +213,8 @@ impl GpuLevelCache {
         let shared = &ctx.shared;
         let smooth = transition == Transition::Smooth;
         let brick_count = field.bricks_per_axis().element_product() as usize;
-        let mut gpu = new_three_level_cache(shared, geometry, brick_count, smooth, 1)?;
+        let mut gpu =
+            new_three_level_cache(shared, geometry, ScalarType::F32, brick_count, smooth, 1)?;
         stage_field(&mut gpu, field, geometry)?;
         let mut submitter = Submitter::new(shared)?;
         let mut staging = StagingUpload::new(shared, "three-level bricks");

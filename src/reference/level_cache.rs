@@ -25,9 +25,11 @@
 use super::level_field::{LevelField, SamplePlacement};
 use super::level_plan::LevelPlan;
 use super::mixed::{first_marked_neighbour, fixup_value, touching, CacheImage, MixedVolume};
+use crate::bricks::{dequantize, quantize_to};
 use crate::cache::{block_bricks, block_origin, slots_for_classes, slots_for_plan};
 use crate::cache::{LevelSlot, LevelSlots, ThreeLevelGeometry, THREE_LEVELS};
 use crate::scene::Transition;
+use crate::volume::ScalarType;
 use glam::{IVec3, UVec3};
 
 /// Why a [`LevelReferenceCache`] cannot be built.
@@ -291,6 +293,19 @@ impl LevelReferenceCache {
         geometry: &ThreeLevelGeometry,
         transition: Transition,
     ) -> Result<Self, LevelCacheError> {
+        Self::build_stored_as(field, geometry, transition, ScalarType::F32)
+    }
+
+    /// [`LevelReferenceCache::build`] for a cache whose texels are `scalar`: every texel the
+    /// packing or a fixup writes is rounded to it (`u8` / `u16` UNORM), as the GPU's image
+    /// stores round them.
+    pub fn build_stored_as(
+        field: &LevelField,
+        geometry: &ThreeLevelGeometry,
+        transition: Transition,
+        scalar: ScalarType,
+    ) -> Result<Self, LevelCacheError> {
+        let round = |values: &[f32]| dequantize(&quantize_to(values, scalar), scalar);
         let packing = LevelPacking::for_field(field, geometry)?;
         let mut image = CacheImage::new(geometry.extent());
         for &i in &packing.stored {
@@ -299,7 +314,11 @@ impl LevelReferenceCache {
             };
             let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
             let edge = UVec3::splat(geometry.stored_edge(place.level));
-            image.write_box(origin, edge, &packing.stored_values(field, geometry, i));
+            image.write_box(
+                origin,
+                edge,
+                &round(&packing.stored_values(field, geometry, i)),
+            );
         }
         let LevelPacking {
             layout,
@@ -327,7 +346,7 @@ impl LevelReferenceCache {
                         if let Some(v) =
                             fixup_value(&image, &layout, bits, bricks, n, brick.as_ivec3(), t)
                         {
-                            image.set_texel((inner + t).as_ivec3(), v);
+                            image.set_texel((inner + t).as_ivec3(), round(&[v])[0]);
                         }
                     }
                 } else {
@@ -343,7 +362,7 @@ impl LevelReferenceCache {
                             place.level,
                             t,
                         ) {
-                            image.set_texel((origin + t).as_ivec3(), v);
+                            image.set_texel((origin + t).as_ivec3(), round(&[v])[0]);
                         }
                     }
                 }

@@ -753,15 +753,16 @@ fn compare(
             // The three-level cache's CPU mirror (the slots' places do not change the field),
             // over the levels of the volume or those read back from the level store.
             let deepest = plan.iter().flatten().max().copied().unwrap_or(0);
-            let (grid, grids) = match (&scene.level_store, &scene.volume) {
+            let (grid, grids, scalar) = match (&scene.level_store, &scene.volume) {
                 (Some(store), _) => {
                     let mut grids = store.read_grids()?;
                     grids.truncate(deepest as usize + 1);
-                    (store.grid(), grids)
+                    (store.grid(), grids, store.header().scalar)
                 }
                 (None, Some(volume)) => (
                     BrickGrid::new(volume.dims(), config.brick_size)?,
                     LevelGrid::vertex_pyramid(volume, deepest + 1),
+                    volume.scalar_type(),
                 ),
                 (None, None) => return Err(no_volume()),
             };
@@ -770,8 +771,10 @@ fn compare(
             let slots = u32::try_from(slots_needed(&field)).unwrap_or(u32::MAX);
             let geometry =
                 ThreeLevelGeometry::choose(config.brick_size, 4, u64::MAX, 16384, slots)?;
-            let cache = LevelReferenceCache::build(&field, &geometry, config.transition)
-                .map_err(|e| Error::InvalidInput(e.to_string()))?;
+            // The cache holds the source's scalar type: the mirror rounds its texels alike.
+            let cache =
+                LevelReferenceCache::build_stored_as(&field, &geometry, config.transition, scalar)
+                    .map_err(|e| Error::InvalidInput(e.to_string()))?;
             reference::render_mixed_scene(&cache.view(), config.transition, tf, settings, &params)?
         }
         (Some(cache), Some(config), _) => {

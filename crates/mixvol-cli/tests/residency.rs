@@ -186,12 +186,14 @@ fn a_staircase_of_five_levels_renders_through_the_three_level_cache() {
 fn levels_chosen_from_the_camera_fit_the_cache_and_match_the_cpu_reference() {
     let dir = temp_dir("camera_levels");
     let png = dir.join("c.png");
-    // 1 MiB of f32 texels: 125 slots of 12^3 for 4096 bricks of 8^3, so the budget coarsens the
-    // plan past the one-pixel target.
+    // 1 MiB of f32 texels (the cache holds the volume's scalar type): 125 slots of 12^3 for
+    // 4096 bricks of 8^3, so the budget coarsens the plan past the one-pixel target.
     let (out, text) = run(&[
         "render",
         "--dims",
         "128,128,128",
+        "--scalar",
+        "f32",
         "--brick-size",
         "8",
         "--levels",

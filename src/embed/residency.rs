@@ -19,17 +19,20 @@
 //! `update` records nothing and waits for nothing: it is CPU work plus the source's
 //! non-blocking calls.
 
-use super::source::{ResidencyReport, Source};
+use super::source::{LevelState, ResidencyReport, Source};
 use super::VolumePass;
 use crate::bricks::Level;
+use crate::cache::slots_for_plan;
 use crate::error::{Error, Result};
 use crate::lod::{cull_bricks, CullParams, LodView, ValueCulling};
 use crate::plan::{
-    choose_levels, cull_params, FrameInput, FramePlan, LevelChoice, PlanBudget, PlanOptions,
-    PlanReport, ResidencyPlanner,
+    admit_by_budget, choose_levels, cull_params, next_target, step_towards, FrameInput, FramePlan,
+    LevelChoice, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
 };
 use crate::scene::{Camera, RenderSettings};
 use crate::volume::ScalarType;
+use glam::Vec3;
+use std::collections::HashSet;
 use std::time::Instant;
 
 /// Budgets and tuning of camera-driven residency ([`VolumePass::set_residency_config`]). The
@@ -231,8 +234,13 @@ impl VolumePass {
     /// Chooses the level of every brick of a three-level source ([`VolumeSource::Levels`],
     /// [`VolumeSource::LevelStore`]) for a frame of `camera` (world space) with `settings` at
     /// `width` x `height` pixels, with drawn voxels at most `target_pixels` on screen where the
-    /// cache allows ([`crate::plan::choose_levels`]), and stages the plan when it changed (the
-    /// next [`VolumePass::record`] uploads what changed). Bricks the pass's transfer function
+    /// cache allows ([`crate::plan::choose_levels`]), and stages a step towards it (the next
+    /// [`VolumePass::record`] uploads what changed): under
+    /// [`ResidencyConfig::upload_bytes_per_frame`] the step refines at most one level per brick
+    /// and uploads about that many bytes ([`crate::plan::next_target`],
+    /// [`crate::plan::admit_by_budget`], [`crate::plan::step_towards`]); the returned choice
+    /// counts the bricks still waiting, and calling again (a frame later) goes on. Bricks the
+    /// pass's transfer function
     /// (or iso-value, or clip planes) leaves empty are culled by their conservative ranges
     /// (`crate::levels::conservative_ranges`): not drawn, taking no slot, unless a drawn block
     /// covers them. Errors: another kind of source, a bad view, settings or target, a cache
@@ -265,7 +273,7 @@ impl VolumePass {
         let cull = cull_params(&settings, tf, window)?;
         let active = cull_bricks(&state.bricks, &state.cull_ranges, &cull)?;
         let view = LodView::new(&camera, width, height)?;
-        let choice = choose_levels(
+        let mut choice = choose_levels(
             &state.bricks,
             &view,
             &active,
@@ -274,9 +282,100 @@ impl VolumePass {
             target_pixels,
         )
         .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
-        if choice.levels != state.current {
-            state.stage(&choice.levels)?;
+        let drawn = budgeted_step(
+            state,
+            &view,
+            &choice.levels,
+            self.residency.upload_bytes_per_frame,
+        );
+        choice.waiting = drawn
+            .iter()
+            .zip(&choice.levels)
+            .filter(|(d, w)| d != w)
+            .count();
+        state.wanted = choice.levels.clone();
+        if drawn != state.current {
+            state.stage(&drawn)?;
         }
         Ok(choice)
     }
+}
+
+/// The levels a three-level source draws this step on its way to `wanted`: `wanted` itself when
+/// its uploads fit `budget` bytes, else a step towards [`next_target`] (at most one level finer
+/// than drawn now) with the bricks
+/// [`admit_by_budget`] admits under `budget` bytes, cut (fewest admitted first) until it fits
+/// the cache's slots. A step that would not move at all takes the whole target, over the
+/// budget, so that the source always reaches `wanted`.
+fn budgeted_step(
+    state: &LevelState,
+    view: &LodView,
+    wanted: &[Option<u32>],
+    budget: u64,
+) -> Vec<Option<u32>> {
+    let grid = state.bricks.grid();
+    let bricks = grid.bricks_per_axis();
+    if state.current.is_empty() {
+        return wanted.to_vec();
+    }
+    let distance: Vec<f32> = grid
+        .bricks()
+        .map(|b| {
+            let (min, max) = state.bricks.brick_box(b);
+            (min - view.eye())
+                .max(view.eye() - max)
+                .max(Vec3::ZERO)
+                .length()
+        })
+        .collect();
+    let resident = |first: usize, level: u32| state.residency.holds(first, level);
+    let admit = |towards: &[Option<u32>], budget: u64| {
+        admit_by_budget(
+            bricks,
+            state.brick_size,
+            state.scalar.size_bytes() as u64,
+            &state.current,
+            towards,
+            &distance,
+            &resident,
+            budget,
+        )
+    };
+    // The whole way in one step when its uploads fit the budget.
+    if admit(wanted, budget).len() == admit(wanted, u64::MAX).len() {
+        return wanted.to_vec();
+    }
+    let target = next_target(bricks, state.level_count(), &state.current, wanted);
+    let admitted = admit(&target, budget);
+    let step = |count: usize| {
+        let taken: HashSet<(usize, u32)> = admitted[..count].iter().copied().collect();
+        let ready =
+            |first: usize, level: u32| resident(first, level) || taken.contains(&(first, level));
+        step_towards(bricks, &state.current, &target, &ready)
+    };
+    let fits = |plan: &[Option<u32>]| slots_for_plan(bricks, plan) <= state.slot_count();
+    let mut chosen = step(admitted.len());
+    if !fits(&chosen) {
+        // The largest prefix of the admitted bricks whose step fits (none: the drawn plan).
+        let (mut lo, mut hi) = (0, admitted.len());
+        while hi - lo > 1 {
+            let mid = (lo + hi) / 2;
+            if fits(&step(mid)) {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        chosen = step(lo);
+    }
+    if chosen == state.current && target != state.current {
+        // No step under the budget moves (the bricks it admits all fall back): take the target
+        // whole, or the wanted plan where the target does not fit the slots.
+        chosen = if fits(&target) {
+            target
+        } else {
+            wanted.to_vec()
+        };
+    }
+    chosen
 }

@@ -266,12 +266,14 @@ pub(crate) struct LevelState {
     pub(super) value_range: (f32, f32),
     pub(super) is_float: bool,
     /// The cache's texel type (the source's scalar type).
-    scalar: ScalarType,
-    brick_size: u32,
+    pub(super) scalar: ScalarType,
+    pub(super) brick_size: u32,
     transition: Transition,
     facts: LevelPlanFacts,
     /// Which stored bricks the cache holds where (residency changes upload only what changed).
-    residency: LevelResidency,
+    pub(super) residency: LevelResidency,
+    /// The levels the last camera choice wanted (drawn once their bricks are uploaded).
+    pub(super) wanted: Vec<Option<u32>>,
     /// What the last residency change moved.
     pub(super) last_update: Option<LevelUpdateReport>,
     /// Per brick, the range culling tests (`crate::levels::conservative_ranges`).
@@ -714,6 +716,7 @@ impl VolumePass {
                 any_absent: true,
             },
             residency: LevelResidency::new(&geometry, grid.brick_count()),
+            wanted: Vec::new(),
             last_update: None,
             cull_ranges,
         };

@@ -59,6 +59,18 @@ impl LevelResidency {
         }
     }
 
+    /// Whether the cache holds the stored brick of `level` whose block starts at brick `first`
+    /// (false while the residency is invalid: the next change packs afresh).
+    pub fn holds(&self, first: usize, level: u32) -> bool {
+        self.valid
+            && self
+                .stored
+                .get(first)
+                .copied()
+                .flatten()
+                .is_some_and(|p| p.level == level)
+    }
+
     /// Forgets what the cache holds: the next [`LevelResidency::update`] packs afresh (after a
     /// staged change was discarded or failed half-way).
     pub fn invalidate(&mut self) {

@@ -19,9 +19,9 @@
 //!    ([`crate::cache::slots_for_plan`]), the target grows by `2^b`, with the smallest `b` in
 //!    `[0, levels]` that fits found by bisection (slots never grow with `b`).
 //!
-//! It has no hysteresis, upload budget or streaming (the two-level [`super::ResidencyPlanner`]
-//! does): the host calls it per view and moves the cache with
-//! [`crate::embed::VolumePass::set_brick_levels`].
+//! It has no hysteresis or streaming (the two-level [`super::ResidencyPlanner`] does): the host
+//! calls it per view, and [`crate::embed::VolumePass::plan_brick_levels`] moves the cache
+//! towards its choice under the per-frame upload budget ([`super::step_towards`]).
 
 use crate::cache::{block_bricks, block_origin, slots_for_plan};
 use crate::lod::{BrickGeometry, LodView};
@@ -72,6 +72,9 @@ pub struct LevelChoice {
     /// The on-screen voxel size the plan meets (in every brick in view but those at full
     /// resolution already): the target, grown by what the budget forced.
     pub pixels_per_voxel: f32,
+    /// Bricks whose chosen level is not drawn yet because its stored brick waits for a later
+    /// step's upload budget (`VolumePass::plan_brick_levels`; 0 from [`choose_levels`]).
+    pub waiting: usize,
 }
 
 /// Chooses the level of every brick of `geometry` for `view` among `levels` levels (module
@@ -152,6 +155,7 @@ pub fn choose_levels(
         slots: slots_for_plan(grid.bricks_per_axis(), &chosen),
         levels: chosen,
         pixels_per_voxel: target_pixels * bias.exp2(),
+        waiting: 0,
     })
 }
 
@@ -202,7 +206,7 @@ fn plan_for(
 /// Refines every brick to at most one level coarser than its finest neighbour: the Chebyshev
 /// distance transform of the levels, in a forward and a backward raster sweep over the 13
 /// neighbours before (after) each brick. Returns whether a level changed.
-fn keep_rule(bricks: UVec3, level: &mut [u32]) -> bool {
+pub(super) fn keep_rule(bricks: UVec3, level: &mut [u32]) -> bool {
     let size = bricks.as_ivec3();
     let index = |b: IVec3| (b.x + size.x * (b.y + size.y * b.z)) as usize;
     let before: Vec<IVec3> = (-1..=1)
@@ -235,7 +239,7 @@ fn keep_rule(bricks: UVec3, level: &mut [u32]) -> bool {
 
 /// Refines every block of a block level whose bricks differ to its finest brick's level.
 /// Returns whether a level changed.
-fn keep_blocks(bricks: UVec3, level: &mut [u32]) -> bool {
+pub(super) fn keep_blocks(bricks: UVec3, level: &mut [u32]) -> bool {
     let index = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
     let mut changed = false;
     for z in 0..bricks.z {

@@ -131,9 +131,11 @@ use targets::{targets, Bricks, Changes, Counts};
 pub use frame::{
     cull_params, upload_bytes, FrameInput, FramePlan, PlanBudget, PlanOptions, PlanReport,
 };
+pub use level_steps::{admit_by_budget, next_target, step_towards};
 pub use levels::{choose_levels, LevelChoice, LevelChoiceError};
 
 mod frame;
+mod level_steps;
 mod levels;
 mod loaded;
 mod order;

@@ -173,6 +173,7 @@ pub fn set_up_scene(
             };
             let grid = store.grid();
             let (plan, camera_levels) = three_level_plan(&grid, pattern, store.level_count())?;
+            set_level_upload_budget(renderer, args)?;
             renderer.set_source(VolumeSource::LevelStore {
                 store: store.clone(),
                 levels: &plan,
@@ -237,6 +238,7 @@ pub fn set_up_scene(
                 let levels =
                     mixvol::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis());
                 let (plan, camera_levels) = three_level_plan(&grid, pattern, levels)?;
+                set_level_upload_budget(renderer, args)?;
                 renderer.set_source(VolumeSource::Levels {
                     volume: &volume,
                     levels: &plan,
@@ -304,6 +306,23 @@ fn three_level_plan(
              camera (the default) or --levels staircase"
         ))),
     }
+}
+
+/// `--upload-mb` as the per-step upload budget of a three-level scene whose levels come from
+/// the camera (without it, the default of `ResidencyConfig`).
+fn set_level_upload_budget(renderer: &mut Renderer, args: &RenderArgs) -> Result<()> {
+    if let Some(mb) = args.residency.upload_mb {
+        if !(mb.is_finite() && mb > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "--upload-mb {mb}: expected a positive number of MiB"
+            )));
+        }
+        renderer.set_residency_config(ResidencyConfig {
+            upload_bytes_per_frame: (mb * f64::from(1 << 20)) as u64,
+            ..ResidencyConfig::default()
+        });
+    }
+    Ok(())
 }
 
 /// What a residency change of the three-level cache moved, as one line.
@@ -575,21 +594,38 @@ fn render_view(
     args: &RenderArgs,
 ) -> Result<()> {
     if scene.camera_levels {
+        // Under --upload-mb the cache moves towards the camera's choice in steps: one per call,
+        // until nothing waits.
         let start = std::time::Instant::now();
-        let choice = renderer.plan_brick_levels(
-            camera,
-            settings,
-            args.width,
-            args.height,
-            args.mixed.voxel_px,
-        )?;
+        let mut steps = 0;
+        let mut uploaded = 0;
+        let choice = loop {
+            let choice = renderer.plan_brick_levels(
+                camera,
+                settings,
+                args.width,
+                args.height,
+                args.mixed.voxel_px,
+            )?;
+            steps += 1;
+            uploaded += renderer.last_level_update().map_or(0, |u| u.uploaded_bytes);
+            if choice.waiting == 0 || steps >= MAX_CONVERGE_FRAMES {
+                break choice;
+            }
+        };
         let plan_ms = start.elapsed().as_secs_f64() * 1e3;
         let (deepest, per_level) = per_level_counts(&choice.levels);
         println!(
             "levels from the camera: {per_level:?} bricks at levels 0..={deepest}, {} slots, drawn voxels at most {:.2} px; choice, upload and fixups {plan_ms:.1} ms",
             choice.slots, choice.pixels_per_voxel
         );
-        if let Some(u) = renderer.last_level_update() {
+        if steps > 1 {
+            println!(
+                "level steps: {steps} under the upload budget ({:.1} MB in all), {} bricks still waiting",
+                uploaded as f64 / 1e6,
+                choice.waiting
+            );
+        } else if let Some(u) = renderer.last_level_update() {
             println!("{}", level_update_line(u));
         }
     }

@@ -303,6 +303,30 @@ fn a_level_store_renders_at_camera_levels_and_matches_the_cpu_reference() {
     );
     assert!(text.contains("levels from the camera:"), "{text}");
     assert_matches_reference(&text, &png);
+    // A small upload budget reaches the same choice in steps, and draws what the reference draws.
+    let png = dir.join("steps.png");
+    let (out, text) = run(&[
+        "render",
+        "--volume",
+        store.to_str().unwrap(),
+        "--cache-mb",
+        "1",
+        "--upload-mb",
+        "0.02",
+        "--width",
+        "64",
+        "--height",
+        "64",
+        "--compare",
+        "--validation",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{text}");
+    let steps = number_after(&text, "level steps:");
+    assert!(steps > 2.0, "{text}");
+    assert!(text.contains("0 bricks still waiting"), "{text}");
+    assert_matches_reference(&text, &png);
     let png = dir.join("staircase.png");
     let (out, text) = run(&[
         "render",

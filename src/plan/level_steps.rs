@@ -1,0 +1,219 @@
+//! The way from the levels drawn now to the levels wanted, one budgeted step at a time (issue 19,
+//! item 4): what a three-level source draws while the bricks of a new plan are still to be
+//! uploaded.
+//!
+//! [`step_towards`] mixes two plans that each keep the rules (adjacent drawn bricks at most one
+//! level apart, blocks whole): every brick draws its *wanted* level where that level's stored
+//! brick may come now (it is in the cache, or the step's upload budget admits it), else its
+//! *current* level. A mix can break the rules where the two meet, so the bricks that break them
+//! fall back to their current level too (with their blocks, in both plans), until none does:
+//! each brick is then next to bricks of its own plan, or to bricks the fall-back left at a level
+//! within one of its own. That always ends, at worst at the current plan, which keeps the rules.
+//!
+//! [`next_target`] is where a step heads: the wanted plan, but at most one level finer than the
+//! drawn one (so the move refines coarse to fine, and leaving a coarse block takes only the
+//! small bricks of the next level), made to keep the rules. [`admit_by_budget`] picks what a
+//! step may upload towards it: every coarsening first (coarser bricks are small, and they free
+//! the slots the refinements need), then the refinements that close the largest gap between
+//! current and target level, nearest the camera first, up to the budget.
+
+use crate::cache::{block_bricks, block_origin, stored_brick_edge};
+use glam::{IVec3, UVec3};
+use std::collections::VecDeque;
+
+/// A plan that keeps the rules and lies between `current` and `wanted` (both keep them, one
+/// entry per brick of a grid of `bricks` per axis, x fastest): each brick at its wanted level
+/// where `ready(first_brick, level)` says that stored brick may be drawn now (the first brick of
+/// its block at that level), else at its current level, with the fall-backs the rules need
+/// (module docs).
+pub fn step_towards(
+    bricks: UVec3,
+    current: &[Option<u32>],
+    wanted: &[Option<u32>],
+    ready: &dyn Fn(usize, u32) -> bool,
+) -> Vec<Option<u32>> {
+    let count = wanted.len();
+    let size = bricks.as_ivec3();
+    let coords = |i: usize| {
+        let i = i as u32;
+        UVec3::new(
+            i % bricks.x,
+            (i / bricks.x) % bricks.y,
+            i / (bricks.x * bricks.y),
+        )
+    };
+    let linear = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
+    let mut back = vec![false; count];
+    let mut queue = VecDeque::new();
+    for i in 0..count {
+        if let Some(level) = wanted[i] {
+            if wanted[i] != current[i] && !ready(linear(block_origin(coords(i), level)), level) {
+                back[i] = true;
+                queue.push_back(i);
+            }
+        }
+    }
+    let drawn = |back: &[bool], i: usize| if back[i] { current[i] } else { wanted[i] };
+    // Every brick of the block of `level` holding brick `i`.
+    let block_of = |i: usize, level: Option<u32>| -> Vec<usize> {
+        let Some(level) = level.filter(|&l| block_bricks(l) > 1) else {
+            return Vec::new();
+        };
+        let first = block_origin(coords(i), level);
+        let end = (first + UVec3::splat(block_bricks(level))).min(bricks);
+        let mut out = Vec::new();
+        for z in first.z..end.z {
+            for y in first.y..end.y {
+                for x in first.x..end.x {
+                    out.push(linear(UVec3::new(x, y, z)));
+                }
+            }
+        }
+        out
+    };
+    while let Some(i) = queue.pop_front() {
+        let fall_back = |j: usize, back: &mut Vec<bool>, queue: &mut VecDeque<usize>| {
+            if !back[j] && wanted[j] != current[j] {
+                back[j] = true;
+                queue.push_back(j);
+            }
+        };
+        // Both plans' blocks stay whole: the wanted block `i` left, and the current block `i`
+        // now draws.
+        for j in block_of(i, wanted[i])
+            .into_iter()
+            .chain(block_of(i, current[i]))
+        {
+            fall_back(j, &mut back, &mut queue);
+        }
+        // The rule towards every neighbour still at its wanted level.
+        let here = drawn(&back, i);
+        let b = coords(i).as_ivec3();
+        for z in -1..=1 {
+            for y in -1..=1 {
+                for x in -1..=1 {
+                    let n = b + IVec3::new(x, y, z);
+                    if n == b || n.cmplt(IVec3::ZERO).any() || n.cmpge(size).any() {
+                        continue;
+                    }
+                    let j = linear(n.as_uvec3());
+                    if let (Some(a), Some(c)) = (here, drawn(&back, j)) {
+                        if a.abs_diff(c) > 1 {
+                            fall_back(j, &mut back, &mut queue);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    (0..count).map(|i| drawn(&back, i)).collect()
+}
+
+/// Where a step from `current` towards `wanted` heads (both keep the rules; `levels` levels,
+/// one entry per brick of a grid of `bricks` per axis): per brick the wanted level, but at most
+/// one level finer than the current one (a brick not drawn now counts as drawn at the coarsest
+/// level), refined where the rule or a block needs it (the passes of [`super::choose_levels`]), and not
+/// drawn where the wanted plan does not draw it and no drawn block covers it. It keeps the
+/// rules, and is never finer than the wanted plan but where a block or the rule refines it.
+pub fn next_target(
+    bricks: UVec3,
+    levels: u32,
+    current: &[Option<u32>],
+    wanted: &[Option<u32>],
+) -> Vec<Option<u32>> {
+    let coarsest = levels.saturating_sub(1);
+    let mut level: Vec<u32> = current
+        .iter()
+        .zip(wanted)
+        .map(|(c, w)| {
+            let w = w.unwrap_or(coarsest);
+            w.max(c.unwrap_or(coarsest).saturating_sub(1))
+        })
+        .collect();
+    loop {
+        let mut changed = super::levels::keep_rule(bricks, &mut level);
+        changed |= super::levels::keep_blocks(bricks, &mut level);
+        if !changed {
+            break;
+        }
+    }
+    let linear = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
+    (0..level.len())
+        .map(|i| {
+            if wanted[i].is_some() {
+                return Some(level[i]);
+            }
+            // Drawn only inside a drawn block (its stored brick holds the brick anyway).
+            let block = block_bricks(level[i]);
+            let b = UVec3::new(
+                i as u32 % bricks.x,
+                (i as u32 / bricks.x) % bricks.y,
+                i as u32 / (bricks.x * bricks.y),
+            );
+            let first = block_origin(b, level[i]);
+            let end = (first + UVec3::splat(block)).min(bricks);
+            let covered = block > 1
+                && (first.z..end.z).any(|z| {
+                    (first.y..end.y).any(|y| {
+                        (first.x..end.x).any(|x| wanted[linear(UVec3::new(x, y, z))].is_some())
+                    })
+                });
+            covered.then_some(level[i])
+        })
+        .collect()
+}
+
+/// What a budgeted step may upload: the stored bricks (first brick, level) of `wanted` that
+/// `resident` says are not in the cache, admitted while their bytes (texels of
+/// `bytes_per_texel`, bricks of `brick_size`) stay within `budget` (module docs for the order;
+/// `distance[i]` ranks brick `i`, nearer first). The first candidate is always admitted, so
+/// every step makes progress.
+#[allow(clippy::too_many_arguments)]
+pub fn admit_by_budget(
+    bricks: UVec3,
+    brick_size: u32,
+    bytes_per_texel: u64,
+    current: &[Option<u32>],
+    wanted: &[Option<u32>],
+    distance: &[f32],
+    resident: &dyn Fn(usize, u32) -> bool,
+    budget: u64,
+) -> Vec<(usize, u32)> {
+    let linear = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
+    // (coarsening first, gap descending, distance ascending) per missing stored brick.
+    let mut candidates: Vec<(bool, i64, f32, usize, u32)> = Vec::new();
+    for (i, level) in wanted.iter().enumerate() {
+        let Some(level) = *level else {
+            continue;
+        };
+        let b = UVec3::new(
+            i as u32 % bricks.x,
+            (i as u32 / bricks.x) % bricks.y,
+            i as u32 / (bricks.x * bricks.y),
+        );
+        let first = linear(block_origin(b, level));
+        if first != i || resident(first, level) {
+            continue;
+        }
+        let now = current[i].map_or(i64::from(u32::MAX), i64::from);
+        let gap = now - i64::from(level);
+        candidates.push((gap > 0, gap, distance[i], i, level));
+    }
+    candidates.sort_by(|a, b| {
+        a.0.cmp(&b.0)
+            .then(b.1.cmp(&a.1))
+            .then(a.2.total_cmp(&b.2))
+            .then(a.3.cmp(&b.3))
+    });
+    let mut spent = 0u64;
+    let mut admitted = Vec::new();
+    for (_, _, _, i, level) in candidates {
+        let bytes = u64::from(stored_brick_edge(brick_size, level)).pow(3) * bytes_per_texel;
+        if !admitted.is_empty() && spent + bytes > budget {
+            break;
+        }
+        spent += bytes;
+        admitted.push((i, level));
+    }
+    admitted
+}

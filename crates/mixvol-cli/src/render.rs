@@ -308,6 +308,23 @@ fn three_level_plan(
     }
 }
 
+/// One step of a `--levels camera` scene towards the levels `camera` wants at the frame size
+/// and `--voxel-px`.
+fn plan_levels(
+    renderer: &mut Renderer,
+    camera: &Camera,
+    settings: &RenderSettings,
+    args: &RenderArgs,
+) -> Result<mixvol::plan::LevelChoice> {
+    renderer.plan_brick_levels(
+        camera,
+        settings,
+        args.width,
+        args.height,
+        args.mixed.voxel_px,
+    )
+}
+
 /// `--upload-mb` as the per-step upload budget of a three-level scene whose levels come from
 /// the camera (without it, the default of `ResidencyConfig`).
 fn set_level_upload_budget(renderer: &mut Renderer, args: &RenderArgs) -> Result<()> {
@@ -600,13 +617,7 @@ fn render_view(
         let mut steps = 0;
         let mut uploaded = 0;
         let choice = loop {
-            let choice = renderer.plan_brick_levels(
-                camera,
-                settings,
-                args.width,
-                args.height,
-                args.mixed.voxel_px,
-            )?;
+            let choice = plan_levels(renderer, camera, settings, args)?;
             steps += 1;
             uploaded += renderer.last_level_update().map_or(0, |u| u.uploaded_bytes);
             if choice.waiting == 0 || steps >= MAX_CONVERGE_FRAMES {
@@ -714,13 +725,7 @@ fn render_path(
     for (i, camera) in cameras.iter().enumerate() {
         if scene.camera_levels {
             let before = renderer.brick_levels().map(<[_]>::to_vec);
-            renderer.plan_brick_levels(
-                camera,
-                settings,
-                args.width,
-                args.height,
-                args.mixed.voxel_px,
-            )?;
+            plan_levels(renderer, camera, settings, args)?;
             // A view whose plan did not change stages nothing.
             if renderer.brick_levels() != before.as_deref() {
                 level_moves.extend(renderer.last_level_update().cloned());

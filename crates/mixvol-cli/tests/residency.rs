@@ -279,73 +279,37 @@ fn a_level_store_renders_at_camera_levels_and_matches_the_cpu_reference() {
     // 12^3 bricks: levels 0-2 and block levels 3-6 (a block of 16 bricks covers 12).
     assert!(text.contains("bricks of 8): 7 levels"), "{text}");
     assert!(!dir.join("ml.mvl.partial").exists());
-    let png = dir.join("camera.png");
-    let (out, text) = run(&[
-        "render",
-        "--volume",
-        store.to_str().unwrap(),
-        "--cache-mb",
-        "1",
-        "--width",
-        "64",
-        "--height",
-        "64",
-        "--compare",
-        "--validation",
-        "-o",
-        png.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{text}");
+    // `render --volume STORE --compare --validation -o PNG` with `extra`: the output and the PNG.
+    let compare = |name: &str, extra: &[&str]| {
+        let png = dir.join(format!("{name}.png"));
+        let mut a = vec![
+            "render",
+            "--volume",
+            store.to_str().unwrap(),
+            "--width",
+            "64",
+        ];
+        a.extend_from_slice(&["--height", "64", "--compare", "--validation", "-o"]);
+        a.push(png.to_str().unwrap());
+        a.extend_from_slice(extra);
+        let (out, text) = run(&a);
+        assert!(out.status.success(), "{text}");
+        assert_matches_reference(&text, &png);
+        text
+    };
+    let text = compare("camera", &["--cache-mb", "1"]);
     assert!(text.contains("(level store)"), "{text}");
     assert!(
         text.contains("levels chosen from the camera from 7 levels on disk"),
         "{text}"
     );
     assert!(text.contains("levels from the camera:"), "{text}");
-    assert_matches_reference(&text, &png);
     // A small upload budget reaches the same choice in steps, and draws what the reference draws.
-    let png = dir.join("steps.png");
-    let (out, text) = run(&[
-        "render",
-        "--volume",
-        store.to_str().unwrap(),
-        "--cache-mb",
-        "1",
-        "--upload-mb",
-        "0.02",
-        "--width",
-        "64",
-        "--height",
-        "64",
-        "--compare",
-        "--validation",
-        "-o",
-        png.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{text}");
-    let steps = number_after(&text, "level steps:");
-    assert!(steps > 2.0, "{text}");
+    let text = compare("steps", &["--cache-mb", "1", "--upload-mb", "0.02"]);
+    assert!(number_after(&text, "level steps:") > 2.0, "{text}");
     assert!(text.contains("0 bricks still waiting"), "{text}");
-    assert_matches_reference(&text, &png);
-    let png = dir.join("staircase.png");
-    let (out, text) = run(&[
-        "render",
-        "--volume",
-        store.to_str().unwrap(),
-        "--levels",
-        "staircase",
-        "--width",
-        "64",
-        "--height",
-        "64",
-        "--compare",
-        "--validation",
-        "-o",
-        png.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{text}");
+    let text = compare("staircase", &["--levels", "staircase"]);
     assert!(text.contains("at levels 0..=4"), "{text}");
-    assert_matches_reference(&text, &png);
 
     for (extra, reason) in [
         (

@@ -11,7 +11,7 @@ use glam::{UVec3, Vec3};
 use mixvol::bricks::BrickGrid;
 use mixvol::cache::{block_bricks, block_origin, slots_for_plan};
 use mixvol::lod::{BrickGeometry, LodView};
-use mixvol::plan::{choose_levels, LevelChoiceError};
+use mixvol::plan::{choose_levels, choose_levels_near, LevelChoiceError};
 use mixvol::reference::{LevelField, LevelGrid};
 use mixvol::scene::Camera;
 
@@ -198,4 +198,57 @@ fn bad_choices_are_refused() {
             brick_size: 4
         })
     ));
+}
+
+/// Hysteresis: a camera that moves a little back and forth across a level boundary (the whole
+/// volume in view, so only distances change) flips bricks without it and keeps the previous
+/// plan with it; a large move still changes the plan, and with no previous plan the choice is
+/// `choose_levels`' own.
+#[test]
+fn hysteresis_keeps_a_plan_while_the_camera_hovers_at_a_boundary() {
+    let bricks = UVec3::new(12, 12, 12);
+    let geometry = geometry(bricks);
+    let active = vec![true; geometry.grid().brick_count()];
+    let choose = |distance: f32, previous: &[Option<u32>]| {
+        let camera = Camera::perspective(Vec3::new(0.0, 0.2, distance), Vec3::ZERO, 70.0);
+        let view = LodView::new(&camera, 160, 160).unwrap();
+        choose_levels_near(&geometry, &view, &active, LEVELS, 1_000_000, 1.0, previous).unwrap()
+    };
+    let base = choose(2.5, &[]);
+    let camera = Camera::perspective(Vec3::new(0.0, 0.2, 2.5), Vec3::ZERO, 70.0);
+    let view = LodView::new(&camera, 160, 160).unwrap();
+    assert_eq!(
+        base,
+        choose_levels(&geometry, &view, &active, LEVELS, 1_000_000, 1.0).unwrap()
+    );
+    // The smallest move (1 % steps closer) that changes the plan without hysteresis.
+    let flip = (1..30)
+        .map(|k| 2.5 * (1.0 - 0.01 * k as f32))
+        .find(|&d| choose(d, &[]).levels != base.levels)
+        .expect("some small move changes the plan");
+    assert!(
+        flip > 2.5 * 0.85,
+        "the first change comes within 15 %: {flip}"
+    );
+    // With the previous plan: the move keeps it, and so does the way back.
+    let kept = choose(flip, &base.levels);
+    let moved = choose(flip, &[]);
+    let diffs: Vec<_> = (0..kept.levels.len())
+        .filter(|&i| kept.levels[i] != base.levels[i])
+        .map(|i| (i, base.levels[i], kept.levels[i], moved.levels[i]))
+        .collect();
+    assert!(
+        diffs.is_empty(),
+        "hysteresis keeps the plan at {flip}: {diffs:?}"
+    );
+    assert_eq!(choose(2.5, &kept.levels).levels, base.levels);
+    // A large move (twice as close) changes it all the same, to finer levels.
+    let near = choose(1.25, &base.levels);
+    assert_ne!(near.levels, base.levels);
+    assert!(near.levels.iter().zip(&base.levels).all(|(n, b)| n <= b));
+    assert_eq!(
+        near.levels,
+        choose(1.25, &[]).levels,
+        "far from any boundary, no difference"
+    );
 }

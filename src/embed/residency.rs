@@ -26,8 +26,8 @@ use crate::cache::slots_for_plan;
 use crate::error::{Error, Result};
 use crate::lod::{cull_bricks, CullParams, LodView, ValueCulling};
 use crate::plan::{
-    admit_by_budget, choose_levels, cull_params, next_target, step_towards, FrameInput, FramePlan,
-    LevelChoice, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
+    admit_by_budget, choose_levels_near, cull_params, next_target, step_towards, FrameInput,
+    FramePlan, LevelChoice, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
 };
 use crate::scene::{Camera, RenderSettings};
 use crate::volume::ScalarType;
@@ -234,7 +234,8 @@ impl VolumePass {
     /// Chooses the level of every brick of a three-level source ([`VolumeSource::Levels`],
     /// [`VolumeSource::LevelStore`]) for a frame of `camera` (world space) with `settings` at
     /// `width` x `height` pixels, with drawn voxels at most `target_pixels` on screen where the
-    /// cache allows ([`crate::plan::choose_levels`]), and stages a step towards it (the next
+    /// cache allows ([`crate::plan::choose_levels_near`], with hysteresis against the last
+    /// choice), and stages a step towards it (the next
     /// [`VolumePass::record`] uploads what changed): under
     /// [`ResidencyConfig::upload_bytes_per_frame`] the step refines at most one level per brick
     /// and uploads about that many bytes ([`crate::plan::next_target`],
@@ -273,13 +274,15 @@ impl VolumePass {
         let cull = cull_params(&settings, tf, window)?;
         let active = cull_bricks(&state.bricks, &state.cull_ranges, &cull)?;
         let view = LodView::new(&camera, width, height)?;
-        let mut choice = choose_levels(
+        // Hysteresis against the last choice, so that a hovering camera does not churn.
+        let mut choice = choose_levels_near(
             &state.bricks,
             &view,
             &active,
             state.level_count(),
             state.slot_count(),
             target_pixels,
+            &state.wanted,
         )
         .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
         let drawn = budgeted_step(

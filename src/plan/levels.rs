@@ -19,9 +19,10 @@
 //!    ([`crate::cache::slots_for_plan`]), the target grows by `2^b`, with the smallest `b` in
 //!    `[0, levels]` that fits found by bisection (slots never grow with `b`).
 //!
-//! It has no hysteresis or streaming (the two-level [`super::ResidencyPlanner`] does): the host
-//! calls it per view, and [`crate::embed::VolumePass::plan_brick_levels`] moves the cache
-//! towards its choice under the per-frame upload budget ([`super::step_towards`]).
+//! [`choose_levels_near`] adds hysteresis against the last choice. There is no streaming (the
+//! two-level [`super::ResidencyPlanner`] has it): the host calls it per view, and
+//! [`crate::embed::VolumePass::plan_brick_levels`] moves the cache towards its choice under the
+//! per-frame upload budget ([`super::step_towards`]).
 
 use crate::cache::{block_bricks, block_origin, slots_for_plan};
 use crate::lod::{BrickGeometry, LodView};
@@ -92,7 +93,39 @@ pub fn choose_levels(
     slots: u64,
     target_pixels: f32,
 ) -> Result<LevelChoice, LevelChoiceError> {
+    choose_levels_near(geometry, view, active, levels, slots, target_pixels, &[])
+}
+
+/// How far past a level boundary (in levels, on the log2 scale of the on-screen voxel size) a
+/// brick keeps its previous level in [`choose_levels_near`]: a drawn voxel may then project to
+/// up to `2^0.25` (1.19) times the target before the brick refines, and a brick coarsens only
+/// once its voxels are `2^0.25` times below the target.
+pub const LEVEL_HYSTERESIS: f32 = 0.25;
+
+/// [`choose_levels`] with hysteresis: a brick whose wanted level (before the rule, the blocks
+/// and the budget) lies within [`LEVEL_HYSTERESIS`] of a boundary of its level in `previous`
+/// (one entry per brick, the last choice; empty for none) keeps that level, so a camera that
+/// hovers at a boundary does not move bricks back and forth. The rule, the blocks and the
+/// budget apply as in [`choose_levels`].
+///
+/// Errors: those of [`choose_levels`], and a `previous` of another length than the bricks
+/// (reported as [`LevelChoiceError::ActiveCount`]).
+pub fn choose_levels_near(
+    geometry: &BrickGeometry,
+    view: &LodView,
+    active: &[bool],
+    levels: u32,
+    slots: u64,
+    target_pixels: f32,
+    previous: &[Option<u32>],
+) -> Result<LevelChoice, LevelChoiceError> {
     let grid = geometry.grid();
+    if !previous.is_empty() && previous.len() != grid.brick_count() {
+        return Err(LevelChoiceError::ActiveCount {
+            given: previous.len(),
+            bricks: grid.brick_count(),
+        });
+    }
     if active.len() != grid.brick_count() {
         return Err(LevelChoiceError::ActiveCount {
             given: active.len(),
@@ -128,7 +161,7 @@ pub fn choose_levels(
             Some((target_pixels / pixels).log2())
         })
         .collect();
-    let plan = |bias: f32| plan_for(geometry, active, &headroom, levels, bias);
+    let plan = |bias: f32| plan_for(geometry, active, &headroom, previous, levels, bias);
     let coarsest = plan(levels as f32);
     let needed = slots_for_plan(grid.bricks_per_axis(), &coarsest);
     if needed > slots {
@@ -159,11 +192,14 @@ pub fn choose_levels(
     })
 }
 
-/// Steps 1-3 of the module docs with the target grown by `2^bias`.
+/// Steps 1-3 of the module docs with the target grown by `2^bias`, each wanted level kept at
+/// `previous` (when given) within [`LEVEL_HYSTERESIS`] of its boundaries. The wanted level
+/// stays a non-decreasing function of `bias`, so the slots still never grow with it.
 fn plan_for(
     geometry: &BrickGeometry,
     active: &[bool],
     headroom: &[Option<f32>],
+    previous: &[Option<u32>],
     levels: u32,
     bias: f32,
 ) -> Vec<Option<u32>> {
@@ -171,8 +207,17 @@ fn plan_for(
     let coarsest = levels - 1;
     let mut level: Vec<u32> = headroom
         .iter()
-        .map(|h| match h {
-            Some(h) => (h + bias).floor().clamp(0.0, coarsest as f32) as u32,
+        .enumerate()
+        .map(|(i, h)| match h {
+            Some(h) => {
+                let raw = h + bias;
+                let kept = previous.get(i).copied().flatten().map(|p| p as f32);
+                let wanted = match kept {
+                    Some(p) if raw >= p - LEVEL_HYSTERESIS && raw < p + 1.0 + LEVEL_HYSTERESIS => p,
+                    _ => raw.floor(),
+                };
+                wanted.clamp(0.0, coarsest as f32) as u32
+            }
             None => coarsest,
         })
         .collect();

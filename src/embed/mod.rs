@@ -64,6 +64,7 @@
 
 mod cull_ranges;
 mod frames;
+mod level_source;
 mod residency;
 mod source;
 mod tables;

@@ -19,7 +19,8 @@
 //! `update` records nothing and waits for nothing: it is CPU work plus the source's
 //! non-blocking calls.
 
-use super::source::{LevelState, ResidencyReport, Source};
+use super::level_source::LevelState;
+use super::source::{ResidencyReport, Source};
 use super::VolumePass;
 use crate::bricks::Level;
 use crate::cache::slots_for_plan;

@@ -2,25 +2,21 @@
 //! plain 3D texture, or a brick cache), and everything that depends on which: residency changes,
 //! the pipeline variant and the parameter block.
 
+use super::level_source::LevelState;
 use super::VolumePass;
 use crate::bricks::{
     fallback_levels, BrickSource, DownsampleFilter, Level, RgbaBrickSource, VolumeBrickSource,
 };
-use crate::cache::{BrickCache, CacheGeometry, ThreeLevelGeometry};
+use crate::cache::{BrickCache, CacheGeometry};
 use crate::error::{Error, Result};
 use crate::gpu::{Access, TimestampPool};
 use crate::gpu::{
     CacheRegion, CacheTables, GpuBrickCache, GpuContext, Image, ImageDesc, SlotPacking,
 };
 use crate::gpu::{RaycastVariant, StagingUpload};
-use crate::levels::{
-    conservative_ranges, new_three_level_cache, stage_three_level, LevelPlanFacts, LevelResidency,
-    LevelUpdateReport,
-};
 use crate::lod::BrickGeometry;
 use crate::optics::SamplingModel;
 use crate::plan::ResidencyPlanner;
-use crate::reference::{LevelField, LevelGrid, LevelPlan};
 use crate::scene::Transition;
 use crate::scene::{Camera, RayFeatures, RaycastParams, RenderSettings};
 use crate::store::LevelStore;
@@ -249,159 +245,6 @@ pub(crate) struct MixedState {
     stale_borders: Vec<bool>,
 }
 
-/// A volume drawn at host-set levels through the three-level cache ([`VolumeSource::Levels`]).
-pub(crate) struct LevelState {
-    pub(crate) gpu: GpuBrickCache,
-    /// The brick grid, every level's samples and the cache geometry (a new plan is packed from
-    /// them).
-    grid: crate::bricks::BrickGrid,
-    data: LevelData,
-    geometry: ThreeLevelGeometry,
-    /// The brick grid in world space (for [`VolumePass::plan_brick_levels`]).
-    pub(super) bricks: BrickGeometry,
-    /// The level of every brick drawn now.
-    pub(super) current: Vec<Option<u32>>,
-    dims: UVec3,
-    spacing: glam::Vec3,
-    pub(super) value_range: (f32, f32),
-    pub(super) is_float: bool,
-    /// The cache's texel type (the source's scalar type).
-    pub(super) scalar: ScalarType,
-    pub(super) brick_size: u32,
-    transition: Transition,
-    facts: LevelPlanFacts,
-    /// Which stored bricks the cache holds where (residency changes upload only what changed).
-    pub(super) residency: LevelResidency,
-    /// The levels the last camera choice wanted (drawn once their bricks are uploaded).
-    pub(super) wanted: Vec<Option<u32>>,
-    /// What the last residency change moved.
-    pub(super) last_update: Option<LevelUpdateReport>,
-    /// Per brick, the range culling tests (`crate::levels::conservative_ranges`).
-    pub(super) cull_ranges: Vec<crate::bricks::ValueRange>,
-}
-
-/// What a three-level source needs to know of its volume besides the stored bricks.
-struct LevelSourceFacts {
-    grid: crate::bricks::BrickGrid,
-    spacing: glam::Vec3,
-    value_range: (f32, f32),
-    /// The source's scalar type: the cache's texels.
-    scalar: ScalarType,
-}
-
-/// Where a three-level source's stored bricks come from.
-enum LevelData {
-    /// Every level's samples in RAM ([`VolumeSource::Levels`]).
-    Grids(Vec<LevelGrid>),
-    /// A level store on disk ([`VolumeSource::LevelStore`]).
-    Store(Arc<LevelStore>),
-}
-
-impl LevelData {
-    /// Levels there are (0 up to this, exclusive).
-    fn level_count(&self) -> u32 {
-        match self {
-            LevelData::Grids(grids) => grids.len() as u32,
-            LevelData::Store(store) => store.level_count(),
-        }
-    }
-}
-
-impl LevelState {
-    /// Stages `levels`: checks the plan (rule, levels, slots) first, so a refused plan leaves
-    /// the drawn one as it is; then uploads only what changed ([`LevelResidency`]).
-    pub(super) fn stage(&mut self, levels: &[Option<u32>]) -> Result<LevelUpdateReport> {
-        let start = Instant::now();
-        let refused =
-            |e: &dyn std::fmt::Display| Error::InvalidInput(format!("three-level source: {e}"));
-        let plan = match &self.data {
-            LevelData::Grids(grids) => LevelField::new(&self.grid, grids, levels)
-                .map_err(|e| refused(&e))?
-                .plan()
-                .clone(),
-            LevelData::Store(store) => {
-                LevelPlan::new(&self.grid, store.level_count(), levels).map_err(|e| refused(&e))?
-            }
-        };
-        if self.gpu.has_pending() {
-            // A change staged but never recorded: the cache does not hold it.
-            self.gpu.discard_pending();
-            self.residency.invalidate();
-        }
-        let update = self
-            .residency
-            .update(&plan, &self.geometry)
-            .map_err(|e| refused(&e))?;
-        let packed = &update.packing;
-        let geometry = &self.geometry;
-        let scalar = self.scalar;
-        let texel_bytes = scalar.size_bytes();
-        let mut uploaded_bytes = 0;
-        let staged = match &self.data {
-            LevelData::Grids(grids) => {
-                let field = LevelField::new(&self.grid, grids, levels).map_err(|e| refused(&e))?;
-                stage_three_level(
-                    &mut self.gpu,
-                    packed,
-                    geometry,
-                    scalar,
-                    &update.upload,
-                    &mut |brick| {
-                        let texels = packed.stored_values(&field, geometry, brick);
-                        uploaded_bytes += texel_bytes * texels.len();
-                        Ok(texels)
-                    },
-                )
-            }
-            LevelData::Store(store) => {
-                let grid = self.grid;
-                stage_three_level(
-                    &mut self.gpu,
-                    packed,
-                    geometry,
-                    scalar,
-                    &update.upload,
-                    &mut |brick| {
-                        let level = packed.places[brick].map_or(0, |p| p.level);
-                        let texels = store.read_stored(level, grid.brick_coords(brick))?;
-                        uploaded_bytes += texel_bytes * texels.len();
-                        Ok(texels)
-                    },
-                )
-            }
-        };
-        match staged {
-            Ok(facts) => self.facts = facts,
-            Err(e) => {
-                // The cache still holds the drawn plan, but not what the residency now says.
-                self.residency.invalidate();
-                return Err(e);
-            }
-        }
-        self.current = levels.to_vec();
-        let report = LevelUpdateReport {
-            stored_bricks: packed.stored.len(),
-            uploaded_bricks: update.upload.len(),
-            moved_bricks: update.moved,
-            uploaded_bytes,
-            repacked: update.repacked,
-            stage_ms: start.elapsed().as_secs_f64() * 1e3,
-        };
-        self.last_update = Some(report.clone());
-        Ok(report)
-    }
-
-    /// Levels the source builds (0 up to this, exclusive).
-    pub(super) fn level_count(&self) -> u32 {
-        self.data.level_count()
-    }
-
-    /// Slots of the cache.
-    pub(super) fn slot_count(&self) -> u64 {
-        u64::from(self.geometry.slot_count())
-    }
-}
-
 /// The source on the GPU.
 pub(super) enum Source {
     None,
@@ -598,165 +441,6 @@ impl VolumePass {
                 let source = RgbaBrickSource::new(volume, model, config.brick_size, config.filter)?;
                 self.attach_brick_source(Arc::new(source), config, Some(model))
             }
-        }
-    }
-
-    /// Draws `volume` at `levels` through a new three-level cache ([`VolumeSource::Levels`]).
-    fn attach_levels(
-        &mut self,
-        volume: &Volume,
-        levels: &[Option<u32>],
-        config: MixedConfig,
-    ) -> Result<()> {
-        let grid = crate::bricks::BrickGrid::new(volume.dims(), config.brick_size)?;
-        let grids = LevelGrid::vertex_pyramid(
-            volume,
-            crate::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis()),
-        );
-        let facts = LevelSourceFacts {
-            grid,
-            spacing: volume.spacing(),
-            value_range: volume.value_range(),
-            scalar: volume.scalar_type(),
-        };
-        self.attach_level_data(LevelData::Grids(grids), facts, levels, config)
-    }
-
-    /// Draws the level store `store` at `levels` through a new three-level cache
-    /// ([`VolumeSource::LevelStore`]).
-    fn attach_level_store(
-        &mut self,
-        store: Arc<LevelStore>,
-        levels: &[Option<u32>],
-        config: MixedConfig,
-    ) -> Result<()> {
-        let header = *store.header();
-        if config.brick_size != header.brick_size {
-            return Err(Error::InvalidInput(format!(
-                "level store {}: written with bricks of {}, but config.brick_size is {}",
-                store.path().display(),
-                header.brick_size,
-                config.brick_size
-            )));
-        }
-        let facts = LevelSourceFacts {
-            grid: store.grid(),
-            spacing: header.spacing,
-            value_range: (header.value_range.min, header.value_range.max),
-            scalar: header.scalar,
-        };
-        self.attach_level_data(LevelData::Store(store), facts, levels, config)
-    }
-
-    /// Draws `data` at `levels` through a new three-level cache. The cache holds as many slots
-    /// as the budget allows, up to every brick at level 0.
-    fn attach_level_data(
-        &mut self,
-        data: LevelData,
-        facts: LevelSourceFacts,
-        levels: &[Option<u32>],
-        config: MixedConfig,
-    ) -> Result<()> {
-        let grid = facts.grid;
-        let geometry = ThreeLevelGeometry::choose(
-            config.brick_size,
-            facts.scalar.size_bytes() as u32,
-            config.cache_budget_bytes,
-            self.ctx.shared.info.limits.max_image_dimension3_d,
-            u32::try_from(grid.brick_count()).unwrap_or(u32::MAX),
-        )?;
-        // An empty plan: every brick at the coarsest level.
-        let coarsest = vec![Some(data.level_count() - 1); grid.brick_count()];
-        let levels = if levels.is_empty() { &coarsest } else { levels };
-        // The plan is checked before the cache is allocated.
-        LevelPlan::new(&grid, data.level_count(), levels)
-            .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
-        let bricks = BrickGeometry::new(grid, facts.spacing)?;
-        let n = grid.brick_size();
-        let cull_ranges = match &data {
-            LevelData::Grids(grids) => {
-                conservative_ranges(&grid, data.level_count(), &mut |level, first| {
-                    let texels = grids[level as usize].stored_brick(first, n);
-                    Ok(crate::bricks::ValueRange::of(&texels))
-                })?
-            }
-            LevelData::Store(store) => {
-                conservative_ranges(&grid, data.level_count(), &mut |level, first| {
-                    Ok(store.stored_range(level, first)?)
-                })?
-            }
-        };
-        // Free the old source's GPU memory before allocating the new cache.
-        self.source = Source::None;
-        let gpu = new_three_level_cache(
-            &self.ctx.shared,
-            &geometry,
-            facts.scalar,
-            grid.brick_count(),
-            config.transition == Transition::Smooth,
-            self.desc.frames_in_flight,
-        )?;
-        let mut state = LevelState {
-            gpu,
-            grid,
-            data,
-            geometry,
-            bricks,
-            current: Vec::new(),
-            dims: grid.dims(),
-            spacing: facts.spacing,
-            value_range: facts.value_range,
-            is_float: facts.scalar == ScalarType::F32,
-            scalar: facts.scalar,
-            brick_size: config.brick_size,
-            transition: config.transition,
-            facts: LevelPlanFacts {
-                any_transition: false,
-                any_coarse: false,
-                any_absent: true,
-            },
-            residency: LevelResidency::new(&geometry, grid.brick_count()),
-            wanted: Vec::new(),
-            last_update: None,
-            cull_ranges,
-        };
-        state.stage(levels)?;
-        self.source = Source::Levels(Box::new(state));
-        Ok(())
-    }
-
-    /// Moves a three-level source ([`VolumeSource::Levels`], [`VolumeSource::LevelStore`]) to
-    /// `levels` (one per brick, the rule kept): the stored bricks that are new, or whose coarser
-    /// neighbours changed, are packed (or read from the store) into free sub-slots or their own,
-    /// every other one stays where it is (`crate::levels::LevelResidency`); the next
-    /// [`VolumePass::record`] uploads them (one copy command, one region each) with the new
-    /// tables and runs the fixups of the uploaded bricks. Returns what moved. Errors: another
-    /// kind of source, a plan that breaks the one-level rule or names a level the source does
-    /// not have, one that needs more slots than the cache has, or a stored brick that cannot be
-    /// read; the drawn plan is then unchanged.
-    pub fn set_brick_levels(&mut self, levels: &[Option<u32>]) -> Result<LevelUpdateReport> {
-        let Source::Levels(state) = &mut self.source else {
-            return Err(Error::InvalidInput(
-                "set_brick_levels needs a three-level source (VolumeSource::Levels)".into(),
-            ));
-        };
-        state.stage(levels)
-    }
-
-    /// What the last residency change of a three-level source moved (`None` for other sources,
-    /// and before the first change).
-    pub fn last_level_update(&self) -> Option<&LevelUpdateReport> {
-        match &self.source {
-            Source::Levels(state) => state.last_update.as_ref(),
-            _ => None,
-        }
-    }
-
-    /// The level of every brick a three-level source draws (`None` for other sources).
-    pub fn brick_levels(&self) -> Option<&[Option<u32>]> {
-        match &self.source {
-            Source::Levels(state) => Some(&state.current),
-            _ => None,
         }
     }
 

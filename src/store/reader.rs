@@ -45,16 +45,7 @@ impl BrickStore {
                 source,
             }
         };
-        // The file type is checked before opening: opening a FIFO would block.
-        let kind = std::fs::metadata(&path).map_err(io("open"))?;
-        if !kind.is_file() {
-            return Err(io("open")(std::io::Error::new(
-                std::io::ErrorKind::InvalidInput,
-                "not a regular file (a folder, FIFO or device); a brick store is a regular file",
-            )));
-        }
-        let file = File::open(&path).map_err(io("open"))?;
-        let len = file.metadata().map_err(io("stat"))?.len();
+        let (file, len) = open_regular_file(&path, "a brick store")?;
         let mut header_bytes = [0u8; HEADER_SIZE];
         let head_len = (len.min(HEADER_SIZE as u64)) as usize;
         file.read_exact_at(&mut header_bytes[..head_len], 0)
@@ -228,4 +219,26 @@ fn le_to_native(bytes: &mut [u8], scalar: ScalarType) {
             }
         }
     }
+}
+
+/// Opens `path`, which must be a regular file (`what` names it in the error: "a brick store"),
+/// checking the type first (opening a FIFO would block); returns the file and its length.
+pub(super) fn open_regular_file(path: &Path, what: &str) -> Result<(File, u64), StoreError> {
+    let io = |action: &'static str| {
+        move |source| StoreError::Io {
+            path: path.to_path_buf(),
+            action,
+            source,
+        }
+    };
+    let kind = std::fs::metadata(path).map_err(io("open"))?;
+    if !kind.is_file() {
+        return Err(io("open")(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("not a regular file (a folder, FIFO or device); {what} is a regular file"),
+        )));
+    }
+    let file = File::open(path).map_err(io("open"))?;
+    let len = file.metadata().map_err(io("stat"))?.len();
+    Ok((file, len))
 }

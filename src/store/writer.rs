@@ -236,19 +236,7 @@ pub(super) fn assemble(
         Ok(())
     })();
     drop(file);
-    if let Err(e) = result {
-        // Best effort: the partial file is useless (and never opens: its header is zero).
-        let _ = std::fs::remove_file(&partial);
-        return Err(e);
-    }
-    std::fs::rename(&partial, path).map_err(|source| {
-        let _ = std::fs::remove_file(&partial);
-        StoreError::Io {
-            path: path.to_path_buf(),
-            action: "rename the finished store into place",
-            source,
-        }
-    })?;
+    commit_partial(&partial, path, result)?;
     Ok(WriteSummary {
         path: path.to_path_buf(),
         header,
@@ -292,6 +280,28 @@ pub fn write_store_from_volume_with_progress(
     };
     let threads = crate::bricks::available_threads();
     write_with(path, desc, Voxels::Volume(volume), threads, progress)
+}
+
+/// Ends a write into `partial` (already closed) whose outcome is `result`: on success renames it
+/// to `path`; on any error (or a failed rename) removes it, so nothing half-written stays.
+pub(super) fn commit_partial(
+    partial: &Path,
+    path: &Path,
+    result: Result<(), StoreError>,
+) -> Result<(), StoreError> {
+    if let Err(e) = result {
+        // Best effort: the partial file is useless (and never opens: its header is zero).
+        let _ = std::fs::remove_file(partial);
+        return Err(e);
+    }
+    std::fs::rename(partial, path).map_err(|source| {
+        let _ = std::fs::remove_file(partial);
+        StoreError::Io {
+            path: path.to_path_buf(),
+            action: "rename the finished store into place",
+            source,
+        }
+    })
 }
 
 /// `<path>.partial`, where the store is assembled before it is renamed into place.

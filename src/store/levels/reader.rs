@@ -8,6 +8,7 @@ use crate::bricks::{dequantize, BrickGrid, ValueRange};
 use crate::cache::{block_bricks, block_origin, stored_brick_edge, stored_bricks_per_axis};
 use crate::reference::{LevelGrid, SamplePlacement};
 use crate::store::format::{brick_crc, format_error};
+use crate::store::reader::open_regular_file;
 use crate::store::StoreError;
 use glam::{IVec3, UVec3};
 use std::fs::File;
@@ -42,16 +43,7 @@ impl LevelStore {
                 source,
             }
         };
-        // The file type is checked before opening: opening a FIFO would block.
-        let kind = std::fs::metadata(&path).map_err(io("open"))?;
-        if !kind.is_file() {
-            return Err(io("open")(std::io::Error::new(
-                std::io::ErrorKind::InvalidInput,
-                "not a regular file (a folder, FIFO or device); a level store is a regular file",
-            )));
-        }
-        let file = File::open(&path).map_err(io("open"))?;
-        let len = file.metadata().map_err(io("stat"))?.len();
+        let (file, len) = open_regular_file(&path, "a level store")?;
         let mut header_bytes = [0u8; LEVEL_HEADER_SIZE];
         let head_len = len.min(LEVEL_HEADER_SIZE as u64) as usize;
         file.read_exact_at(&mut header_bytes[..head_len], 0)

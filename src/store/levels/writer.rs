@@ -13,7 +13,7 @@ use crate::cache::{
 };
 use crate::reference::{LevelGrid, SamplePlacement};
 use crate::store::format::brick_crc;
-use crate::store::writer::partial_path;
+use crate::store::writer::{commit_partial, partial_path};
 use crate::store::StoreError;
 use crate::volume::{ScalarType, Volume};
 use glam::{UVec3, Vec3};
@@ -252,19 +252,7 @@ pub(super) fn assemble_level_store(
         file.sync_all().map_err(io("sync"))
     })();
     drop(file);
-    if let Err(e) = result {
-        // Best effort: the partial file is useless (its header is zero until the very end).
-        let _ = std::fs::remove_file(&partial);
-        return Err(e);
-    }
-    std::fs::rename(&partial, path).map_err(|source| {
-        let _ = std::fs::remove_file(&partial);
-        StoreError::Io {
-            path: path.to_path_buf(),
-            action: "rename the finished level store into place",
-            source,
-        }
-    })?;
+    commit_partial(&partial, path, result)?;
     Ok(LevelWriteSummary {
         path: path.to_path_buf(),
         header,

@@ -4,6 +4,8 @@
 
 use super::source::{MixedConfig, Source};
 use super::VolumePass;
+use crate::bricks::dequantize;
+use crate::cache::block_origin;
 use crate::cache::ThreeLevelGeometry;
 use crate::error::{Error, Result};
 use crate::gpu::GpuBrickCache;
@@ -14,7 +16,7 @@ use crate::levels::{
 use crate::lod::BrickGeometry;
 use crate::reference::{LevelField, LevelGrid, LevelPlan};
 use crate::scene::Transition;
-use crate::store::LevelStore;
+use crate::store::{LevelStore, LevelStreamer};
 use crate::volume::{ScalarType, Volume};
 use glam::UVec3;
 use std::sync::Arc;
@@ -61,11 +63,14 @@ struct LevelSourceFacts {
 }
 
 /// Where a three-level source's stored bricks come from.
-enum LevelData {
+pub(super) enum LevelData {
     /// Every level's samples in RAM ([`VolumeSource::Levels`](super::VolumeSource::Levels)).
     Grids(Vec<LevelGrid>),
     /// A level store on disk ([`VolumeSource::LevelStore`](super::VolumeSource::LevelStore)).
     Store(Arc<LevelStore>),
+    /// A level store read in the background
+    /// ([`VolumeSource::LevelStream`](super::VolumeSource::LevelStream)).
+    Streamed(Arc<LevelStreamer>),
 }
 
 impl LevelData {
@@ -74,6 +79,16 @@ impl LevelData {
         match self {
             LevelData::Grids(grids) => grids.len() as u32,
             LevelData::Store(store) => store.level_count(),
+            LevelData::Streamed(streamer) => streamer.store().level_count(),
+        }
+    }
+
+    /// The level store, for sources read from one.
+    fn store(&self) -> Option<&LevelStore> {
+        match self {
+            LevelData::Grids(_) => None,
+            LevelData::Store(store) => Some(store),
+            LevelData::Streamed(streamer) => Some(streamer.store()),
         }
     }
 }
@@ -90,8 +105,9 @@ impl LevelState {
                 .map_err(|e| refused(&e))?
                 .plan()
                 .clone(),
-            LevelData::Store(store) => {
-                LevelPlan::new(&self.grid, store.level_count(), levels).map_err(|e| refused(&e))?
+            LevelData::Store(_) | LevelData::Streamed(_) => {
+                LevelPlan::new(&self.grid, self.data.level_count(), levels)
+                    .map_err(|e| refused(&e))?
             }
         };
         if self.gpu.has_pending() {
@@ -140,6 +156,24 @@ impl LevelState {
                     },
                 )
             }
+            LevelData::Streamed(streamer) => {
+                let grid = self.grid;
+                stage_three_level(
+                    &mut self.gpu,
+                    packed,
+                    geometry,
+                    scalar,
+                    &update.upload,
+                    &mut |brick| {
+                        let level = packed.places[brick].map_or(0, |p| p.level);
+                        let first =
+                            grid.linear_index(block_origin(grid.brick_coords(brick), level));
+                        let bytes = streamer.read_now((level, first))?;
+                        uploaded_bytes += bytes.len();
+                        Ok(dequantize(&bytes, scalar))
+                    },
+                )
+            }
         };
         match staged {
             Ok(facts) => self.facts = facts,
@@ -165,6 +199,15 @@ impl LevelState {
     /// Levels the source builds (0 up to this, exclusive).
     pub(super) fn level_count(&self) -> u32 {
         self.data.level_count()
+    }
+
+    /// The streamer of a [`VolumeSource::LevelStream`](super::VolumeSource::LevelStream)
+    /// source.
+    pub(super) fn streamer(&self) -> Option<&LevelStreamer> {
+        match &self.data {
+            LevelData::Streamed(streamer) => Some(streamer),
+            _ => None,
+        }
     }
 
     /// Slots of the cache.
@@ -195,14 +238,18 @@ impl VolumePass {
         self.attach_level_data(LevelData::Grids(grids), facts, levels, config)
     }
 
-    /// Draws the level store `store` at `levels` through a new three-level cache
-    /// ([`VolumeSource::LevelStore`](super::VolumeSource::LevelStore)).
+    /// Draws a level store at `levels` through a new three-level cache, read straight from the
+    /// file ([`VolumeSource::LevelStore`](super::VolumeSource::LevelStore)) or through a
+    /// background streamer ([`VolumeSource::LevelStream`](super::VolumeSource::LevelStream)).
     pub(super) fn attach_level_store(
         &mut self,
-        store: Arc<LevelStore>,
+        data: LevelData,
         levels: &[Option<u32>],
         config: MixedConfig,
     ) -> Result<()> {
+        let Some(store) = data.store() else {
+            return Err(Error::InvalidInput("not a level store".into()));
+        };
         let header = *store.header();
         if config.brick_size != header.brick_size {
             return Err(Error::InvalidInput(format!(
@@ -218,7 +265,7 @@ impl VolumePass {
             value_range: (header.value_range.min, header.value_range.max),
             scalar: header.scalar,
         };
-        self.attach_level_data(LevelData::Store(store), facts, levels, config)
+        self.attach_level_data(data, facts, levels, config)
     }
 
     /// Draws `data` at `levels` through a new three-level cache. The cache holds as many slots
@@ -246,6 +293,11 @@ impl VolumePass {
             .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
         let bricks = BrickGeometry::new(grid, facts.spacing)?;
         let n = grid.brick_size();
+        let store_ranges = |store: &LevelStore| {
+            conservative_ranges(&grid, store.level_count(), &mut |level, first| {
+                Ok(store.stored_range(level, first)?)
+            })
+        };
         let cull_ranges = match &data {
             LevelData::Grids(grids) => {
                 conservative_ranges(&grid, data.level_count(), &mut |level, first| {
@@ -253,11 +305,8 @@ impl VolumePass {
                     Ok(crate::bricks::ValueRange::of(&texels))
                 })?
             }
-            LevelData::Store(store) => {
-                conservative_ranges(&grid, data.level_count(), &mut |level, first| {
-                    Ok(store.stored_range(level, first)?)
-                })?
-            }
+            LevelData::Store(store) => store_ranges(store)?,
+            LevelData::Streamed(streamer) => store_ranges(streamer.store())?,
         };
         // Free the old source's GPU memory before allocating the new cache.
         self.source = Source::None;

@@ -23,7 +23,7 @@ use super::level_source::LevelState;
 use super::source::{ResidencyReport, Source};
 use super::VolumePass;
 use crate::bricks::Level;
-use crate::cache::slots_for_plan;
+use crate::cache::{block_origin, slots_for_plan};
 use crate::error::{Error, Result};
 use crate::lod::{cull_bricks, CullParams, LodView, ValueCulling};
 use crate::plan::{
@@ -245,11 +245,17 @@ impl VolumePass {
     /// pass's transfer function
     /// (or iso-value, or clip planes) leaves empty are culled by their conservative ranges
     /// (`crate::levels::conservative_ranges`): not drawn, taking no slot, unless a drawn block
-    /// covers them. Errors: another kind of source, a bad view, settings or target, a cache
-    /// too small for the coarsest plan.
+    /// covers them. A streamed store ([`VolumeSource::LevelStream`]) steps only onto stored
+    /// bricks its streamer holds in RAM (it waits, drawing what it has, while they are read)
+    /// and then requests the next step's bricks, the drawn ones and the rest of the wanted
+    /// plan, in that order: the call never reads the disk, except for a drawn brick whose
+    /// coarser neighbour changed and that the streamer evicted under a tight RAM budget.
+    /// Errors: another kind of source, a bad view, settings or target, a cache too small for
+    /// the coarsest plan.
     ///
     /// [`VolumeSource::Levels`]: super::VolumeSource::Levels
     /// [`VolumeSource::LevelStore`]: super::VolumeSource::LevelStore
+    /// [`VolumeSource::LevelStream`]: super::VolumeSource::LevelStream
     pub fn plan_brick_levels(
         &mut self,
         camera: &Camera,
@@ -301,8 +307,67 @@ impl VolumePass {
         if drawn != state.current {
             state.stage(&drawn)?;
         }
+        if let Some(streamer) = state.streamer() {
+            streamer.request(&stream_request(state, &view, &choice.levels));
+        }
         Ok(choice)
     }
+}
+
+/// Distance from the eye to every brick's box (0 inside), by linear brick index.
+fn brick_distances(state: &LevelState, view: &LodView) -> Vec<f32> {
+    let grid = state.bricks.grid();
+    grid.bricks()
+        .map(|b| {
+            let (min, max) = state.bricks.brick_box(b);
+            (min - view.eye())
+                .max(view.eye() - max)
+                .max(Vec3::ZERO)
+                .length()
+        })
+        .collect()
+}
+
+/// The stored bricks a streamed source asks its streamer for, highest priority first: the
+/// uploads of the next step towards `wanted` (in [`admit_by_budget`]'s order), the stored
+/// bricks drawn now (a change of their coarser neighbours uploads them again, from RAM), then
+/// the rest of the wanted plan's uploads.
+fn stream_request(state: &LevelState, view: &LodView, wanted: &[Option<u32>]) -> Vec<(u32, usize)> {
+    let grid = state.bricks.grid();
+    let bricks = grid.bricks_per_axis();
+    let distance = brick_distances(state, view);
+    let resident = |first: usize, level: u32| state.residency.holds(first, level);
+    let uploads = |towards: &[Option<u32>]| {
+        admit_by_budget(
+            bricks,
+            state.brick_size,
+            state.scalar.size_bytes() as u64,
+            &state.current,
+            towards,
+            &distance,
+            &resident,
+            u64::MAX,
+        )
+    };
+    let target = next_target(bricks, state.level_count(), &state.current, wanted);
+    let mut keys: Vec<(u32, usize)> = uploads(&target)
+        .into_iter()
+        .map(|(first, level)| (level, first))
+        .collect();
+    for (i, level) in state.current.iter().enumerate() {
+        if let Some(level) = *level {
+            let first = grid.linear_index(block_origin(grid.brick_coords(i), level));
+            if first == i {
+                keys.push((level, first));
+            }
+        }
+    }
+    keys.extend(
+        uploads(wanted)
+            .into_iter()
+            .map(|(first, level)| (level, first)),
+    );
+    keys
 }
 
 /// The levels a three-level source draws this step on its way to `wanted`: `wanted` itself when
@@ -310,7 +375,9 @@ impl VolumePass {
 /// than drawn now) with the bricks
 /// [`admit_by_budget`] admits under `budget` bytes, cut (fewest admitted first) until it fits
 /// the cache's slots. A step that would not move at all takes the whole target, over the
-/// budget, so that the source always reaches `wanted`.
+/// budget, so that the source always reaches `wanted`. For a streamed source only stored
+/// bricks in the streamer's RAM are admitted, and a step that would not move waits for them
+/// instead.
 fn budgeted_step(
     state: &LevelState,
     view: &LodView,
@@ -322,18 +389,13 @@ fn budgeted_step(
     if state.current.is_empty() {
         return wanted.to_vec();
     }
-    let distance: Vec<f32> = grid
-        .bricks()
-        .map(|b| {
-            let (min, max) = state.bricks.brick_box(b);
-            (min - view.eye())
-                .max(view.eye() - max)
-                .max(Vec3::ZERO)
-                .length()
-        })
-        .collect();
+    let distance = brick_distances(state, view);
     let resident = |first: usize, level: u32| state.residency.holds(first, level);
-    let admit = |towards: &[Option<u32>], budget: u64| {
+    // A streamed source draws only stored bricks already in RAM.
+    let streamer = state.streamer();
+    let in_ram = |first: usize, level: u32| streamer.is_none_or(|s| s.is_ready((level, first)));
+    let not_drawable = |first: usize, level: u32| resident(first, level) || !in_ram(first, level);
+    let admit = |towards: &[Option<u32>], budget: u64, skip: &dyn Fn(usize, u32) -> bool| {
         admit_by_budget(
             bricks,
             state.brick_size,
@@ -341,16 +403,18 @@ fn budgeted_step(
             &state.current,
             towards,
             &distance,
-            &resident,
+            skip,
             budget,
         )
     };
-    // The whole way in one step when its uploads fit the budget.
-    if admit(wanted, budget).len() == admit(wanted, u64::MAX).len() {
+    let all_in_ram = |uploads: &[(usize, u32)]| uploads.iter().all(|&(f, l)| in_ram(f, l));
+    // The whole way in one step when its uploads fit the budget (and are in RAM).
+    let needed = admit(wanted, u64::MAX, &resident);
+    if admit(wanted, budget, &resident).len() == needed.len() && all_in_ram(&needed) {
         return wanted.to_vec();
     }
     let target = next_target(bricks, state.level_count(), &state.current, wanted);
-    let admitted = admit(&target, budget);
+    let admitted = admit(&target, budget, &not_drawable);
     let step = |count: usize| {
         let taken: HashSet<(usize, u32)> = admitted[..count].iter().copied().collect();
         let ready =
@@ -374,7 +438,12 @@ fn budgeted_step(
     }
     if chosen == state.current && target != state.current {
         // No step under the budget moves (the bricks it admits all fall back): take the target
-        // whole, or the wanted plan where the target does not fit the slots.
+        // whole, or the wanted plan where the target does not fit the slots. A streamed source
+        // waits instead while their bricks are not in RAM.
+        let whole = if fits(&target) { &target[..] } else { wanted };
+        if !all_in_ram(&admit(whole, u64::MAX, &resident)) {
+            return chosen;
+        }
         chosen = if fits(&target) {
             target
         } else {

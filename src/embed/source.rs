@@ -2,7 +2,7 @@
 //! plain 3D texture, or a brick cache), and everything that depends on which: residency changes,
 //! the pipeline variant and the parameter block.
 
-use super::level_source::LevelState;
+use super::level_source::{LevelData, LevelState};
 use super::VolumePass;
 use crate::bricks::{
     fallback_levels, BrickSource, DownsampleFilter, Level, RgbaBrickSource, VolumeBrickSource,
@@ -19,7 +19,7 @@ use crate::optics::SamplingModel;
 use crate::plan::ResidencyPlanner;
 use crate::scene::Transition;
 use crate::scene::{Camera, RayFeatures, RaycastParams, RenderSettings};
-use crate::store::LevelStore;
+use crate::store::{LevelStore, LevelStreamer};
 use crate::volume::{RgbaVolume, ScalarType, Volume};
 use ash::vk;
 use glam::UVec3;
@@ -90,6 +90,20 @@ pub enum VolumeSource<'a> {
         /// Brick size (the store's), cache budget and transition.
         config: MixedConfig,
     },
+    /// A level store drawn as [`VolumeSource::LevelStore`] draws it, its stored bricks read on
+    /// the streamer's background thread: [`VolumePass::plan_brick_levels`](super::VolumePass::plan_brick_levels)
+    /// steps only onto bricks already in RAM (never waiting on the disk) and tells the streamer
+    /// what to read next (`crate::store::LevelStreamer`'s module docs). Attaching the source and
+    /// [`VolumePass::set_brick_levels`](super::VolumePass::set_brick_levels) read what is not in
+    /// RAM on the caller's thread.
+    LevelStream {
+        /// The streamer over the store (shared with the host, which may read its counters).
+        streamer: Arc<LevelStreamer>,
+        /// The level of each brick (linear brick index; empty: every brick at the coarsest).
+        levels: &'a [Option<u32>],
+        /// Brick size (the store's), cache budget and transition.
+        config: MixedConfig,
+    },
     /// A pre-classified volume through the brick cache, its bricks holding the weighted channels
     /// for `model` (an RGBA32F cache image; the fixup and the smooth transition blend work on all
     /// four channels alike). Frames must ask for the same sampling model (set the source again
@@ -138,6 +152,17 @@ impl std::fmt::Debug for VolumeSource<'_> {
                 .debug_struct("LevelStore")
                 .field("path", &store.path())
                 .field("dims", &store.header().dims)
+                .field("bricks", &levels.len())
+                .field("config", config)
+                .finish(),
+            VolumeSource::LevelStream {
+                streamer,
+                levels,
+                config,
+            } => f
+                .debug_struct("LevelStream")
+                .field("path", &streamer.store().path())
+                .field("dims", &streamer.store().header().dims)
                 .field("bricks", &levels.len())
                 .field("config", config)
                 .finish(),
@@ -431,7 +456,12 @@ impl VolumePass {
                 store,
                 levels,
                 config,
-            } => self.attach_level_store(store, levels, config),
+            } => self.attach_level_store(LevelData::Store(store), levels, config),
+            VolumeSource::LevelStream {
+                streamer,
+                levels,
+                config,
+            } => self.attach_level_store(LevelData::Streamed(streamer), levels, config),
             VolumeSource::RgbaMixed {
                 volume,
                 model,

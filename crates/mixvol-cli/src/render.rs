@@ -26,7 +26,9 @@ use mixvol::renderer::{
     Frame, FrameReport, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource,
 };
 use mixvol::scene::{Camera, RenderSettings, Transition};
-use mixvol::store::{BrickStore, BrickStreamer, LevelStore, StreamerConfig};
+use mixvol::store::{
+    BrickStore, BrickStreamer, LevelStore, LevelStreamConfig, LevelStreamer, StreamerConfig,
+};
 use mixvol::volume::Volume;
 use mixvol::{Error, Result};
 use std::sync::Arc;
@@ -55,6 +57,8 @@ pub struct Scene {
     /// The level store drawn, when the input is one (the CPU reference of `--compare` reads
     /// its levels back).
     pub level_store: Option<Arc<LevelStore>>,
+    /// The background reader of that level store (under `--ram-budget-mb`).
+    pub level_streamer: Option<Arc<LevelStreamer>>,
 }
 
 /// The views of `--orbit`, `--dolly`, `--path`, or the single `--eye` view.
@@ -174,8 +178,15 @@ pub fn set_up_scene(
             let grid = store.grid();
             let (plan, camera_levels) = three_level_plan(&grid, pattern, store.level_count())?;
             set_level_upload_budget(renderer, args)?;
-            renderer.set_source(VolumeSource::LevelStore {
-                store: store.clone(),
+            // Stored bricks are read in the background: views step onto those in RAM.
+            let streamer = Arc::new(LevelStreamer::new(
+                store.clone(),
+                LevelStreamConfig {
+                    ram_budget_bytes: usize::try_from(r.ram_bytes()?).unwrap_or(usize::MAX),
+                },
+            )?);
+            renderer.set_source(VolumeSource::LevelStream {
+                streamer: streamer.clone(),
                 levels: &plan,
                 config,
             })?;
@@ -188,6 +199,7 @@ pub fn set_up_scene(
                 config: Some(config),
                 camera_levels,
                 level_store: Some(store.clone()),
+                level_streamer: Some(streamer),
             })
         }
         Input::Volume(volume) => {
@@ -216,6 +228,7 @@ pub fn set_up_scene(
                     config: Some(config),
                     camera_levels: false,
                     level_store: None,
+                    level_streamer: None,
                 });
             }
             let Some(pattern) = args.mixed.levels else {
@@ -227,6 +240,7 @@ pub fn set_up_scene(
                     config: None,
                     camera_levels: false,
                     level_store: None,
+                    level_streamer: None,
                 });
             };
             let config = MixedConfig {
@@ -252,6 +266,7 @@ pub fn set_up_scene(
                     config: Some(config),
                     camera_levels,
                     level_store: None,
+                    level_streamer: None,
                 });
             }
             renderer.set_source(VolumeSource::Mixed {
@@ -277,6 +292,7 @@ pub fn set_up_scene(
                 config: Some(config),
                 camera_levels: false,
                 level_store: None,
+                level_streamer: None,
             })
         }
     }
@@ -355,6 +371,20 @@ fn level_update_line(u: &mixvol::levels::LevelUpdateReport) -> String {
     )
 }
 
+/// What a level store's background reader did.
+fn level_stream_line(s: &mixvol::store::LevelStreamStats) -> String {
+    format!(
+        "level stream: {} stored bricks read in the background ({:.1} MB in {:.1} ms), {} on the render thread, {} failed; peak {:.1} of {:.1} MB RAM",
+        s.loads,
+        s.bytes_read as f64 / 1e6,
+        s.read_time.as_secs_f64() * 1e3,
+        s.blocking_reads,
+        s.failures,
+        s.peak_bytes as f64 / 1e6,
+        s.ram_budget_bytes as f64 / 1e6
+    )
+}
+
 /// Prints the three-level cache a scene draws through.
 fn print_three_level(grid: &BrickGrid, plan: &[Option<u32>], camera_levels: bool, note: &str) {
     let drawn = if camera_levels {
@@ -393,6 +423,7 @@ fn planned_scene<S: Streaming + 'static>(
         config: Some(config),
         camera_levels: false,
         level_store: None,
+        level_streamer: None,
     })
 }
 
@@ -623,6 +654,10 @@ fn render_view(
             if choice.waiting == 0 || steps >= MAX_CONVERGE_FRAMES {
                 break choice;
             }
+            if let Some(streamer) = &scene.level_streamer {
+                // One view converges: let the reader catch up before the next step.
+                streamer.wait_idle(Duration::from_secs(60));
+            }
         };
         let plan_ms = start.elapsed().as_secs_f64() * 1e3;
         let (deepest, per_level) = per_level_counts(&choice.levels);
@@ -638,6 +673,9 @@ fn render_view(
             );
         } else if let Some(u) = renderer.last_level_update() {
             println!("{}", level_update_line(u));
+        }
+        if let Some(streamer) = &scene.level_streamer {
+            println!("{}", level_stream_line(&streamer.stats()));
         }
     }
     if scene.planned {

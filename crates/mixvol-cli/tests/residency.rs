@@ -304,6 +304,15 @@ fn a_level_store_renders_at_camera_levels_and_matches_the_cpu_reference() {
         "{text}"
     );
     assert!(text.contains("levels from the camera:"), "{text}");
+    // The stored bricks come from the background reader; the render thread read only the
+    // coarsest level, when the source was attached.
+    let stream = text
+        .lines()
+        .find(|l| l.starts_with("level stream:"))
+        .unwrap_or_else(|| panic!("no level stream line:\n{text}"));
+    assert!(number_after(stream, "level stream:") > 10.0, "{text}");
+    assert_eq!(number_after(stream, "ms),"), 1.0, "{text}");
+    assert!(stream.contains(" 0 failed"), "{text}");
     // A small upload budget reaches the same choice in steps, and draws what the reference draws.
     let text = compare("steps", &["--cache-mb", "1", "--upload-mb", "0.02"]);
     assert!(number_after(&text, "level steps:") > 2.0, "{text}");

@@ -11,16 +11,19 @@
 //!   [`write_level_store_from_slabs`] writes the same bytes from a volume file read in slabs
 //!   (level 0 streamed, level 1 and coarser in RAM: about half a byte per voxel).
 //! - [`LevelStore`] opens and checks one and reads stored bricks ([`LevelStore::read_stored`],
-//!   CRC-checked) and their value ranges.
+//!   CRC-checked) and their value ranges; [`LevelStreamer`] reads them on a background thread
+//!   into a RAM cache under a byte budget, so that a moving camera does not wait on the disk.
 //!
 //! The format is specified in [`mod@format`] and, byte by byte, in `docs/brick-store.md`.
 
 pub mod format;
 mod reader;
 mod slab_writer;
+mod streamer;
 mod writer;
 
 pub use format::{LevelStoreHeader, LEVEL_FORMAT_VERSION, LEVEL_MAGIC};
 pub use reader::LevelStore;
 pub use slab_writer::{level_slab_bytes, write_level_store_from_slabs};
+pub use streamer::{LevelStreamConfig, LevelStreamStats, LevelStreamer, StoredKey};
 pub use writer::{default_store_levels, write_level_store, LevelWriteSummary};

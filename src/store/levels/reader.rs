@@ -120,6 +120,16 @@ impl LevelStore {
     /// [`LevelGrid::stored_brick`] gives for the block's first brick, in the store's scalar type.
     /// One positioned read; the bytes are checked against their CRC-32.
     pub fn read_stored(&self, level: u32, brick: UVec3) -> Result<Vec<f32>, StoreError> {
+        Ok(dequantize(
+            &self.read_stored_bytes(level, brick)?,
+            self.header.scalar,
+        ))
+    }
+
+    /// The stored brick of `level` that holds brick `brick`, as the file keeps it: texels of
+    /// the store's scalar type, little-endian ([`LevelStoreHeader::stored_bytes`] of them),
+    /// checked against their CRC-32. [`LevelStore::read_stored`] normalises them.
+    pub fn read_stored_bytes(&self, level: u32, brick: UVec3) -> Result<Vec<u8>, StoreError> {
         let (index, entry) = self.entry(level, brick)?;
         let mut bytes = vec![0u8; self.header.stored_bytes(level) as usize];
         self.file
@@ -139,7 +149,7 @@ impl LevelStore {
                 computed,
             });
         }
-        Ok(dequantize(&bytes, self.header.scalar))
+        Ok(bytes)
     }
 
     /// Every level's samples put back together from the stored bricks (normalised, level 0

@@ -104,6 +104,19 @@ pub enum Error {
     /// Streaming an OME-Zarr image failed (opening it, its configuration).
     #[error(transparent)]
     Stream(#[from] crate::stream::StreamError),
+    /// A stored brick whose background read failed earlier
+    /// ([`crate::store::LevelStreamer`] keeps the error until
+    /// [`crate::store::LevelStreamer::clear_failures`]).
+    #[error("level {level}, stored brick of brick {first}: its read failed earlier: {source}")]
+    EarlierReadFailed {
+        /// The level.
+        level: u32,
+        /// Linear index of the stored brick's first brick.
+        first: usize,
+        /// The error of that read.
+        #[source]
+        source: std::sync::Arc<Error>,
+    },
     /// An image could not be written.
     #[error("cannot write image {path}: {message}")]
     ImageWrite {

@@ -16,6 +16,7 @@ use mixvol::scene::{Camera, RenderSettings, Transition};
 use mixvol::store::{
     write_level_store, LevelStore, LevelStreamConfig, LevelStreamer, StoreError, StoredKey,
 };
+use mixvol::Error;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
@@ -167,13 +168,16 @@ fn a_failed_background_read_is_kept_and_named() {
     assert!(streamer.wait_idle(WAIT));
     match streamer.get(keys[0]) {
         Some(Err(e)) => assert!(
-            matches!(*e, StoreError::StoredBrickChecksum { level: 0, .. }),
+            matches!(
+                *e,
+                Error::Store(StoreError::StoredBrickChecksum { level: 0, .. })
+            ),
             "{e}"
         ),
         other => panic!("expected the checksum error, got {other:?}"),
     }
     match streamer.read_now(keys[0]) {
-        Err(e @ StoreError::EarlierReadFailed { level: 0, .. }) => {
+        Err(e @ Error::EarlierReadFailed { level: 0, .. }) => {
             assert!(e.to_string().contains("CRC-32"), "{e}")
         }
         other => panic!("expected the kept error, got {other:?}"),

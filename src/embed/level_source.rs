@@ -16,7 +16,7 @@ use crate::levels::{
 use crate::lod::BrickGeometry;
 use crate::reference::{LevelField, LevelGrid, LevelPlan};
 use crate::scene::Transition;
-use crate::store::{LevelStore, LevelStreamer};
+use crate::store::{LevelBackend, LevelStore, LevelStreamer};
 use crate::volume::{ScalarType, Volume};
 use glam::UVec3;
 use std::sync::Arc;
@@ -79,16 +79,16 @@ impl LevelData {
         match self {
             LevelData::Grids(grids) => grids.len() as u32,
             LevelData::Store(store) => store.level_count(),
-            LevelData::Streamed(streamer) => streamer.store().level_count(),
+            LevelData::Streamed(streamer) => streamer.backend().level_count(),
         }
     }
 
-    /// The level store, for sources read from one.
-    fn store(&self) -> Option<&LevelStore> {
+    /// Where the stored bricks are read from, for sources read from a store or a pyramid.
+    fn backend(&self) -> Option<&dyn LevelBackend> {
         match self {
             LevelData::Grids(_) => None,
-            LevelData::Store(store) => Some(store),
-            LevelData::Streamed(streamer) => Some(streamer.store()),
+            LevelData::Store(store) => Some(&**store),
+            LevelData::Streamed(streamer) => Some(&**streamer.backend()),
         }
     }
 }
@@ -247,23 +247,24 @@ impl VolumePass {
         levels: &[Option<u32>],
         config: MixedConfig,
     ) -> Result<()> {
-        let Some(store) = data.store() else {
+        let Some(backend) = data.backend() else {
             return Err(Error::InvalidInput("not a level store".into()));
         };
-        let header = *store.header();
-        if config.brick_size != header.brick_size {
+        let grid = backend.grid();
+        if config.brick_size != grid.brick_size() {
             return Err(Error::InvalidInput(format!(
-                "level store {}: written with bricks of {}, but config.brick_size is {}",
-                store.path().display(),
-                header.brick_size,
+                "{}: written with bricks of {}, but config.brick_size is {}",
+                backend.name(),
+                grid.brick_size(),
                 config.brick_size
             )));
         }
+        let range = backend.value_range();
         let facts = LevelSourceFacts {
-            grid: store.grid(),
-            spacing: header.spacing,
-            value_range: (header.value_range.min, header.value_range.max),
-            scalar: header.scalar,
+            grid,
+            spacing: backend.spacing(),
+            value_range: (range.min, range.max),
+            scalar: backend.scalar(),
         };
         self.attach_level_data(data, facts, levels, config)
     }
@@ -293,11 +294,6 @@ impl VolumePass {
             .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
         let bricks = BrickGeometry::new(grid, facts.spacing)?;
         let n = grid.brick_size();
-        let store_ranges = |store: &LevelStore| {
-            conservative_ranges(&grid, store.level_count(), &mut |level, first| {
-                Ok(store.stored_range(level, first)?)
-            })
-        };
         let cull_ranges = match &data {
             LevelData::Grids(grids) => {
                 conservative_ranges(&grid, data.level_count(), &mut |level, first| {
@@ -305,8 +301,15 @@ impl VolumePass {
                     Ok(crate::bricks::ValueRange::of(&texels))
                 })?
             }
-            LevelData::Store(store) => store_ranges(store)?,
-            LevelData::Streamed(streamer) => store_ranges(streamer.store())?,
+            LevelData::Store(_) | LevelData::Streamed(_) => {
+                let backend = data
+                    .backend()
+                    .ok_or_else(|| Error::InvalidInput("no backend".into()))?;
+                let whole = backend.value_range();
+                conservative_ranges(&grid, data.level_count(), &mut |level, first| {
+                    Ok(backend.stored_range(level, first).unwrap_or(whole))
+                })?
+            }
         };
         // Free the old source's GPU memory before allocating the new cache.
         self.source = Source::None;

@@ -161,8 +161,8 @@ impl std::fmt::Debug for VolumeSource<'_> {
                 config,
             } => f
                 .debug_struct("LevelStream")
-                .field("path", &streamer.store().path())
-                .field("dims", &streamer.store().header().dims)
+                .field("from", &streamer.backend().name())
+                .field("dims", &streamer.backend().grid().dims())
                 .field("bricks", &levels.len())
                 .field("config", config)
                 .finish(),

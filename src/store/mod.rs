@@ -39,7 +39,7 @@ pub use backend::BrickBackend;
 pub use format::{StoreHeader, FORMAT_VERSION, HEADER_SIZE, MAGIC};
 pub use levels::{
     default_store_levels, level_slab_bytes, write_level_store, write_level_store_from_slabs,
-    LevelStore, LevelStoreHeader, LevelStreamConfig, LevelStreamStats, LevelStreamer,
+    LevelBackend, LevelStore, LevelStoreHeader, LevelStreamConfig, LevelStreamStats, LevelStreamer,
     LevelWriteSummary, StoredKey,
 };
 pub use reader::BrickStore;
@@ -135,18 +135,6 @@ pub enum StoreError {
         stored: u32,
         /// The CRC-32 of the bytes read.
         computed: u32,
-    },
-    /// A stored brick of a level store whose background read failed earlier
-    /// ([`LevelStreamer`] keeps the error until [`LevelStreamer::clear_failures`]).
-    #[error("level {level}, stored brick of brick {first}: its read failed earlier: {source}")]
-    EarlierReadFailed {
-        /// The level.
-        level: u32,
-        /// Linear index of the stored brick's first brick.
-        first: usize,
-        /// The error of that read.
-        #[source]
-        source: std::sync::Arc<StoreError>,
     },
     /// A level or brick outside a level store.
     #[error(

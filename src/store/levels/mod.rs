@@ -16,12 +16,14 @@
 //!
 //! The format is specified in [`mod@format`] and, byte by byte, in `docs/brick-store.md`.
 
+mod backend;
 pub mod format;
 mod reader;
 mod slab_writer;
 mod streamer;
 mod writer;
 
+pub use backend::LevelBackend;
 pub use format::{LevelStoreHeader, LEVEL_FORMAT_VERSION, LEVEL_MAGIC};
 pub use reader::LevelStore;
 pub use slab_writer::{level_slab_bytes, write_level_store_from_slabs};

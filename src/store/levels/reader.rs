@@ -157,49 +157,67 @@ impl LevelStore {
     /// scalar type's rounding. Reads the whole store; RAM about 4.6 bytes per voxel. For the
     /// CPU reference and for checks, not for drawing.
     pub fn read_grids(&self) -> Result<Vec<LevelGrid>, StoreError> {
-        let n = self.header.brick_size;
-        let dims = self.header.dims;
-        let bricks = self.grid.bricks_per_axis();
-        let mut grids = Vec::with_capacity(self.header.levels as usize);
-        for level in 0..self.header.levels {
-            let placement = if level == 0 {
-                SamplePlacement::CellCentred
-            } else {
-                SamplePlacement::Vertex
-            };
-            let gdims = LevelGrid::covering_dims(level, placement, dims);
-            let mut values = vec![0.0f32; gdims.element_product() as usize];
-            let edge = stored_brick_edge(n, level) as i32;
-            // Level 0's stored bricks overlap by their borders: only the n^3 inside is taken.
-            let (skip, keep) = if level == 0 { (2, n as i32) } else { (0, edge) };
-            let stored = stored_bricks_per_axis(bricks, level);
-            let block = block_bricks(level);
-            for z in 0..stored.z {
-                for y in 0..stored.y {
-                    for x in 0..stored.x {
-                        let first = UVec3::new(x, y, z) * block;
-                        let texels = self.read_stored(level, first)?;
-                        let start = crate::cache::stored_first_sample(first, n, level);
-                        for t in iter_box(keep) {
-                            let j = start + t + IVec3::splat(skip);
-                            if j.cmplt(IVec3::ZERO).any() || j.cmpge(gdims.as_ivec3()).any() {
-                                continue;
-                            }
-                            let u = t + IVec3::splat(skip);
-                            let src = (u.x + edge * (u.y + edge * u.z)) as usize;
-                            let dst = (j.x as u32 + gdims.x * (j.y as u32 + gdims.y * j.z as u32))
-                                as usize;
-                            values[dst] = texels[src];
+        assemble_grids(
+            &self.grid,
+            self.header.levels,
+            |level, first| self.read_stored(level, first),
+            |message| format_error(&self.path, "dims", message),
+        )
+    }
+}
+
+/// Every level's samples put back together from the stored bricks of a `levels`-level
+/// pyramid over `grid` that `read(level, first brick)` returns (normalised, x fastest):
+/// [`LevelStore::read_grids`] and [`super::LevelBackend::read_grids`]. `bad_dims` makes the
+/// error of a level grid that cannot be built.
+pub(crate) fn assemble_grids<E>(
+    grid: &BrickGrid,
+    levels: u32,
+    mut read: impl FnMut(u32, UVec3) -> Result<Vec<f32>, E>,
+    bad_dims: impl Fn(String) -> E,
+) -> Result<Vec<LevelGrid>, E> {
+    let n = grid.brick_size();
+    let dims = grid.dims();
+    let bricks = grid.bricks_per_axis();
+    let mut grids = Vec::with_capacity(levels as usize);
+    for level in 0..levels {
+        let placement = if level == 0 {
+            SamplePlacement::CellCentred
+        } else {
+            SamplePlacement::Vertex
+        };
+        let gdims = LevelGrid::covering_dims(level, placement, dims);
+        let mut values = vec![0.0f32; gdims.element_product() as usize];
+        let edge = stored_brick_edge(n, level) as i32;
+        // Level 0's stored bricks overlap by their borders: only the n^3 inside is taken.
+        let (skip, keep) = if level == 0 { (2, n as i32) } else { (0, edge) };
+        let stored = stored_bricks_per_axis(bricks, level);
+        let block = block_bricks(level);
+        for z in 0..stored.z {
+            for y in 0..stored.y {
+                for x in 0..stored.x {
+                    let first = UVec3::new(x, y, z) * block;
+                    let texels = read(level, first)?;
+                    let start = crate::cache::stored_first_sample(first, n, level);
+                    for t in iter_box(keep) {
+                        let j = start + t + IVec3::splat(skip);
+                        if j.cmplt(IVec3::ZERO).any() || j.cmpge(gdims.as_ivec3()).any() {
+                            continue;
                         }
+                        let u = t + IVec3::splat(skip);
+                        let src = (u.x + edge * (u.y + edge * u.z)) as usize;
+                        let dst =
+                            (j.x as u32 + gdims.x * (j.y as u32 + gdims.y * j.z as u32)) as usize;
+                        values[dst] = texels[src];
                     }
                 }
             }
-            let grid = LevelGrid::new(level, placement, gdims, values)
-                .map_err(|e| format_error(&self.path, "dims", e.to_string()))?;
-            grids.push(grid);
         }
-        Ok(grids)
+        grids.push(
+            LevelGrid::new(level, placement, gdims, values).map_err(|e| bad_dims(e.to_string()))?,
+        );
     }
+    Ok(grids)
 }
 
 /// Every point of the box `0..edge` per axis, x fastest.

@@ -1,4 +1,4 @@
-//! Background reading of a level store's stored bricks ([`LevelStreamer`]), so that a camera
+//! Background reading of the stored bricks of every level (a level store, an OME-Zarr pyramid) ([`LevelStreamer`]), so that a camera
 //! moving through a three-level source never waits on the disk.
 //!
 //! # Policy
@@ -9,8 +9,8 @@
 //!   this order: the bricks of its next step towards the wanted plan, the stored bricks drawn
 //!   now (a change of a coarser neighbour uploads them again), then the rest of the wanted plan.
 //! - **Loading.** One background thread reads the wanted bricks that are not in RAM, strictly in
-//!   priority order, one positioned read each (CRC-checked), without holding the lock during the
-//!   read.
+//!   priority order ([`LevelBackend::read_stored_bytes`]: one CRC-checked positioned read from a
+//!   level store, the chunks of an OME-Zarr pyramid), without holding the lock during the read.
 //! - **Budget.** The bytes of the cached bricks plus the one being read never exceed
 //!   [`LevelStreamConfig::ram_budget_bytes`]. Before a read the loader makes room by evicting
 //!   first cached bricks that are not wanted, least recently used first, then wanted bricks of
@@ -25,7 +25,8 @@
 //!   evicted under a tight budget); [`LevelStreamStats::blocking_reads`] counts those.
 //! - **Shutdown.** Dropping the streamer stops the loader after the read in flight and joins it.
 
-use super::LevelStore;
+use super::LevelBackend;
+use crate::error::{Error, Result};
 use crate::store::StoreError;
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
@@ -97,7 +98,7 @@ struct State {
     wanted_cached: BTreeSet<usize>,
     /// Cached unwanted bricks by last use.
     unwanted_lru: BTreeMap<u64, StoredKey>,
-    failed: HashMap<StoredKey, Arc<StoreError>>,
+    failed: HashMap<StoredKey, Arc<Error>>,
     /// Bytes of the read in flight.
     in_flight: usize,
     resident_bytes: usize,
@@ -169,11 +170,11 @@ impl Shared {
     }
 }
 
-/// Reads a [`LevelStore`]'s stored bricks on a background thread into a RAM cache with a byte
-/// budget (module docs for the policy). Used by
-/// [`VolumeSource::LevelStream`](crate::renderer::VolumeSource::LevelStream).
+/// Reads a [`LevelBackend`]'s stored bricks (a [`super::LevelStore`] file, an OME-Zarr pyramid)
+/// on a background thread into a RAM cache with a byte budget (module docs for the policy).
+/// Used by [`VolumeSource::LevelStream`](crate::renderer::VolumeSource::LevelStream).
 pub struct LevelStreamer {
-    store: Arc<LevelStore>,
+    backend: Arc<dyn LevelBackend>,
     shared: Arc<Shared>,
     loader: Option<JoinHandle<()>>,
 }
@@ -181,16 +182,16 @@ pub struct LevelStreamer {
 impl std::fmt::Debug for LevelStreamer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("LevelStreamer")
-            .field("store", &self.store.path())
+            .field("backend", &self.backend.name())
             .field("stats", &self.stats())
             .finish()
     }
 }
 
 impl LevelStreamer {
-    /// Starts a loader thread over `store`. Errors: the thread cannot be spawned
+    /// Starts a loader thread over `backend`. Errors: the thread cannot be spawned
     /// ([`StoreError::Thread`]).
-    pub fn new(store: Arc<LevelStore>, config: LevelStreamConfig) -> Result<Self, StoreError> {
+    pub fn new(backend: Arc<dyn LevelBackend>, config: LevelStreamConfig) -> Result<Self> {
         let shared = Arc::new(Shared {
             state: Mutex::new(State {
                 budget: config.ram_budget_bytes,
@@ -200,23 +201,23 @@ impl LevelStreamer {
             changed: Condvar::new(),
         });
         let loader = {
-            let store = store.clone();
+            let backend = backend.clone();
             let shared = shared.clone();
             std::thread::Builder::new()
                 .name("mixvol-level-streamer".into())
-                .spawn(move || load_loop(&store, &shared))
+                .spawn(move || load_loop(&*backend, &shared))
                 .map_err(StoreError::Thread)?
         };
         Ok(Self {
-            store,
+            backend,
             shared,
             loader: Some(loader),
         })
     }
 
-    /// The store read from.
-    pub fn store(&self) -> &Arc<LevelStore> {
-        &self.store
+    /// What the stored bricks are read from.
+    pub fn backend(&self) -> &Arc<dyn LevelBackend> {
+        &self.backend
     }
 
     /// Replaces the wanted set with `wanted`, highest priority first. Bricks no longer wanted
@@ -260,10 +261,10 @@ impl LevelStreamer {
         self.shared.changed.notify_all();
     }
 
-    /// The bytes of a cached stored brick (texels of the store's scalar type, as
-    /// [`LevelStore::read_stored_bytes`] returns them), `Some(Err)` if its read failed, `None`
-    /// if it is not in RAM. Never blocks on the disk.
-    pub fn get(&self, key: StoredKey) -> Option<Result<Arc<[u8]>, Arc<StoreError>>> {
+    /// The bytes of a cached stored brick (texels of the backend's scalar type, as
+    /// [`LevelBackend::read_stored_bytes`] returns them), `Some(Err)` if its read failed,
+    /// `None` if it is not in RAM. Never blocks on the disk.
+    pub fn get(&self, key: StoredKey) -> Option<std::result::Result<Arc<[u8]>, Arc<Error>>> {
         let mut s = self.shared.lock();
         if let Some(e) = s.failed.get(&key) {
             return Some(Err(e.clone()));
@@ -281,11 +282,11 @@ impl LevelStreamer {
     /// The stored brick's bytes from RAM, else read now on this thread (counted in
     /// [`LevelStreamStats::blocking_reads`]; not cached). A brick whose background read failed
     /// returns that error.
-    pub fn read_now(&self, key: StoredKey) -> Result<Arc<[u8]>, StoreError> {
+    pub fn read_now(&self, key: StoredKey) -> Result<Arc<[u8]>> {
         match self.get(key) {
             Some(Ok(bytes)) => return Ok(bytes),
             Some(Err(source)) => {
-                return Err(StoreError::EarlierReadFailed {
+                return Err(Error::EarlierReadFailed {
                     level: key.0,
                     first: key.1,
                     source,
@@ -294,8 +295,8 @@ impl LevelStreamer {
             None => {}
         }
         self.shared.lock().stats.blocking_reads += 1;
-        let brick = self.store.grid().brick_coords(key.1);
-        Ok(self.store.read_stored_bytes(key.0, brick)?.into())
+        let brick = self.backend.grid().brick_coords(key.1);
+        Ok(self.backend.read_stored_bytes(key.0, brick)?.into())
     }
 
     /// Changes the RAM budget; a lower one evicts at once (unwanted bricks first, then wanted
@@ -355,7 +356,7 @@ impl LevelStreamer {
     }
 
     /// The first failed read's error, if any (for messages).
-    pub fn first_failure(&self) -> Option<Arc<StoreError>> {
+    pub fn first_failure(&self) -> Option<Arc<Error>> {
         self.shared.lock().failed.values().next().cloned()
     }
 
@@ -381,9 +382,8 @@ impl Drop for LevelStreamer {
 }
 
 /// The loader thread: reads the wanted bricks in priority order while they fit the budget.
-fn load_loop(store: &LevelStore, shared: &Shared) {
-    let grid = store.grid();
-    let header = *store.header();
+fn load_loop(backend: &dyn LevelBackend, shared: &Shared) {
+    let grid = backend.grid();
     let mut s = shared.lock();
     loop {
         if s.stop {
@@ -401,7 +401,7 @@ fn load_loop(store: &LevelStore, shared: &Shared) {
         let rank = s.cursor;
         let next = s.wanted.get(rank).copied();
         let fits = next.is_some_and(|(level, _)| {
-            let bytes = header.stored_bytes(level) as usize;
+            let bytes = backend.stored_bytes(level);
             s.make_room(bytes, rank)
         });
         let Some(key) = next.filter(|_| fits) else {
@@ -410,12 +410,12 @@ fn load_loop(store: &LevelStore, shared: &Shared) {
             s = shared.changed.wait(s).unwrap_or_else(|e| e.into_inner());
             continue;
         };
-        let bytes = header.stored_bytes(key.0) as usize;
+        let bytes = backend.stored_bytes(key.0);
         s.in_flight = bytes;
         s.stats.peak_bytes = s.stats.peak_bytes.max(s.resident_bytes + bytes);
         drop(s);
         let start = Instant::now();
-        let read = store.read_stored_bytes(key.0, grid.brick_coords(key.1));
+        let read = backend.read_stored_bytes(key.0, grid.brick_coords(key.1));
         let took = start.elapsed();
         s = shared.lock();
         s.in_flight = 0;

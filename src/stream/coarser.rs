@@ -38,6 +38,19 @@ impl Coarser {
         if level >= fine.level_count() {
             return Ok(None);
         }
+        Self::open_level(fine, level, cache_bytes, concurrency).map(Some)
+    }
+
+    /// Opens level `level` of `fine`'s image (any level, `fine`'s own too: opened again),
+    /// sampled at `fine`'s
+    /// index coordinates, its chunks cached under `cache_bytes` and fetched `concurrency` at a
+    /// time.
+    pub(super) fn open_level(
+        fine: &ZarrChunks,
+        level: usize,
+        cache_bytes: usize,
+        concurrency: usize,
+    ) -> Result<Self, VolumeError> {
         let chunks = fine.open_level(level)?;
         let (s0, s1) = (fine.spacing(), chunks.spacing());
         let (t0, t1) = (fine.meta().origin, chunks.meta().origin);
@@ -50,12 +63,12 @@ impl Coarser {
                 fine.level()
             )));
         }
-        Ok(Some(Self {
+        Ok(Self {
             cache: ChunkCache::new(cache_bytes, concurrency),
             chunks,
             scale,
             offset,
-        }))
+        })
     }
 
     /// The level read.

@@ -1,5 +1,10 @@
 //! Streaming bricks from an OME-Zarr image, local or remote, chunk by chunk.
 //!
+//! Two ways: the two-level cache's brick levels packed from level 0 ([`ZarrBricks`], below),
+//! and the three-level cache's stored bricks of every level read from the image's own pyramid
+//! levels ([`ZarrLevels`], `levels.rs`, a [`crate::store::LevelBackend`] for
+//! [`crate::store::LevelStreamer`]).
+//!
 //! [`ZarrBricks`] is a [`BrickBackend`]: the store's [`BrickStreamer`] (wanted set and priorities
 //! from the planner through [`BrickSource::request_levels`](crate::bricks::BrickSource), RAM
 //! budget for packed bricks, pins, failures; [`BrickSource::brick_bytes`](crate::bricks::BrickSource)
@@ -93,8 +98,10 @@
 
 mod chunk_cache;
 mod coarser;
+mod levels;
 
 pub use chunk_cache::{ChunkCache, ChunkCacheStats};
+pub use levels::{ZarrLevels, ZarrLevelsConfig};
 
 use crate::bricks::kernel::{BrickBox, BrickKernel, PackOutputs, TexelsMut, VoxelWindow};
 use crate::bricks::{

@@ -5,6 +5,7 @@
 //! small hand-written OME-Zarr store (v2 + gzip, v3 + raw) with known voxel values.
 #![allow(dead_code)]
 
+pub mod pyramid;
 #[path = "../python_env/mod.rs"]
 pub mod python_env;
 

@@ -280,7 +280,8 @@ pub struct RenderArgs {
     /// camera-driven residency instead of loading it: only the chunks of the bricks the planner
     /// asks for are fetched (half of --ram-budget-mb caches decoded chunks, half packed bricks;
     /// MIXVOL_REMOTE_CONCURRENCY requests in flight, default 8). Needs --window for float
-    /// images.
+    /// images. With --levels camera (or staircase) the image is drawn at every level through
+    /// the three-level cache, each level read from the image's own pyramid.
     #[arg(long)]
     pub stream: bool,
     /// Image, channel and time point of an OME-TIFF or ImageJ hyperstack (default 0 each).

@@ -12,6 +12,7 @@ mod files;
 mod frame_log;
 mod input;
 mod junction;
+mod level_scene;
 mod levels;
 mod logging;
 mod parse;

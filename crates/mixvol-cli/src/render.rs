@@ -11,7 +11,11 @@ use crate::frame_log::{write_log, FrameRow};
 use crate::input::{
     model_transform, open_input_with_meta, orientation_line, window_line, window_of, Input,
 };
-use crate::levels::{level_pattern, per_level_counts, staircase};
+use crate::level_scene::{
+    level_scene, level_stream_line, level_update_line, print_three_level, set_level_upload_budget,
+    three_level_plan,
+};
+use crate::levels::{level_pattern, per_level_counts};
 use crate::stats::{peak_rss_bytes, Summary};
 pub use crate::stream::Streaming;
 use mixvol::bricks::BrickGrid;
@@ -26,9 +30,7 @@ use mixvol::renderer::{
     Frame, FrameReport, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource,
 };
 use mixvol::scene::{Camera, RenderSettings, Transition};
-use mixvol::store::{
-    BrickStore, BrickStreamer, LevelStore, LevelStreamConfig, LevelStreamer, StreamerConfig,
-};
+use mixvol::store::{BrickStore, BrickStreamer, LevelStreamer, StreamerConfig};
 use mixvol::volume::Volume;
 use mixvol::{Error, Result};
 use std::sync::Arc;
@@ -54,10 +56,8 @@ pub struct Scene {
     /// Whether every view chooses its levels from the camera (`--levels camera`: the
     /// three-level cache).
     pub camera_levels: bool,
-    /// The level store drawn, when the input is one (the CPU reference of `--compare` reads
-    /// its levels back).
-    pub level_store: Option<Arc<LevelStore>>,
-    /// The background reader of that level store (under `--ram-budget-mb`).
+    /// The background reader of a level store or of an image's pyramid drawn through the
+    /// three-level cache (the CPU reference of `--compare` reads its levels back).
     pub level_streamer: Option<Arc<LevelStreamer>>,
 }
 
@@ -101,6 +101,18 @@ pub fn set_up_scene(
         Input::Zarr {
             location, level, ..
         } => {
+            if matches!(
+                args.mixed.levels,
+                Some(LevelsArg::Camera | LevelsArg::Staircase)
+            ) {
+                // Every level of the image's own pyramid, through the three-level cache.
+                let ram = r.ram_bytes()?;
+                let brick_size = args.mixed.config()?.brick_size;
+                let window = window_of(args, None)?;
+                let backend = crate::stream::open_zarr_levels(location, brick_size, ram, window)?;
+                let note = " from the image's pyramid";
+                return level_scene(renderer, args, backend, ram / 2, transition, note);
+            }
             if args.mixed.levels.is_some() {
                 return Err(Error::InvalidInput(
                     "--levels applies to in-memory volumes; a streamed image is drawn with \
@@ -162,45 +174,15 @@ pub fn set_up_scene(
             planned_scene(renderer, streamer, config, residency, ram)
         }
         Input::LevelStore(store) => {
-            if r.gpu_budget_mb.is_some() {
-                return Err(Error::InvalidInput(
-                    "a level store is drawn through the three-level cache under --cache-mb; \
-                     --gpu-budget-mb sizes the two-level cache of a brick store or volume"
-                        .into(),
-                ));
-            }
-            let pattern = args.mixed.levels.unwrap_or(LevelsArg::Camera);
-            let config = MixedConfig {
-                brick_size: store.header().brick_size,
-                transition,
-                ..args.mixed.config()?
-            };
-            let grid = store.grid();
-            let (plan, camera_levels) = three_level_plan(&grid, pattern, store.level_count())?;
-            set_level_upload_budget(renderer, args)?;
-            // Stored bricks are read in the background: views step onto those in RAM.
-            let streamer = Arc::new(LevelStreamer::new(
-                store.clone(),
-                LevelStreamConfig {
-                    ram_budget_bytes: usize::try_from(r.ram_bytes()?).unwrap_or(usize::MAX),
-                },
-            )?);
-            renderer.set_source(VolumeSource::LevelStream {
-                streamer: streamer.clone(),
-                levels: &plan,
-                config,
-            })?;
             let note = format!(" from {} levels on disk", store.level_count());
-            print_three_level(&grid, &plan, camera_levels, &note);
-            Ok(Scene {
-                volume: None,
-                streamer: None,
-                planned: false,
-                config: Some(config),
-                camera_levels,
-                level_store: Some(store.clone()),
-                level_streamer: Some(streamer),
-            })
+            level_scene(
+                renderer,
+                args,
+                store.clone(),
+                r.ram_bytes()?,
+                transition,
+                &note,
+            )
         }
         Input::Volume(volume) => {
             let volume = volume.clone();
@@ -227,7 +209,6 @@ pub fn set_up_scene(
                     planned: true,
                     config: Some(config),
                     camera_levels: false,
-                    level_store: None,
                     level_streamer: None,
                 });
             }
@@ -239,7 +220,6 @@ pub fn set_up_scene(
                     planned: false,
                     config: None,
                     camera_levels: false,
-                    level_store: None,
                     level_streamer: None,
                 });
             };
@@ -265,7 +245,6 @@ pub fn set_up_scene(
                     planned: false,
                     config: Some(config),
                     camera_levels,
-                    level_store: None,
                     level_streamer: None,
                 });
             }
@@ -291,36 +270,9 @@ pub fn set_up_scene(
                 planned: false,
                 config: Some(config),
                 camera_levels: false,
-                level_store: None,
                 level_streamer: None,
             })
         }
-    }
-}
-
-/// The first plan of a three-level scene of `grid` with `levels` levels: empty for
-/// `--levels camera` (every brick coarsest until the first view chooses; the flag returned),
-/// the staircase capped at the last level for `--levels staircase`. Other patterns are
-/// two-level ones, an error here.
-fn three_level_plan(
-    grid: &BrickGrid,
-    pattern: LevelsArg,
-    levels: u32,
-) -> Result<(Vec<Option<u32>>, bool)> {
-    match pattern {
-        LevelsArg::Camera => Ok((Vec::new(), true)),
-        LevelsArg::Staircase => {
-            let last = levels.saturating_sub(1);
-            let plan = staircase(grid)
-                .into_iter()
-                .map(|l| l.map(|k| k.min(last)))
-                .collect();
-            Ok((plan, false))
-        }
-        other => Err(Error::InvalidInput(format!(
-            "--levels {other:?} is a two-level pattern; a level store is drawn with --levels \
-             camera (the default) or --levels staircase"
-        ))),
     }
 }
 
@@ -339,65 +291,6 @@ fn plan_levels(
         args.height,
         args.mixed.voxel_px,
     )
-}
-
-/// `--upload-mb` as the per-step upload budget of a three-level scene whose levels come from
-/// the camera (without it, the default of `ResidencyConfig`).
-fn set_level_upload_budget(renderer: &mut Renderer, args: &RenderArgs) -> Result<()> {
-    if let Some(mb) = args.residency.upload_mb {
-        if !(mb.is_finite() && mb > 0.0) {
-            return Err(Error::InvalidInput(format!(
-                "--upload-mb {mb}: expected a positive number of MiB"
-            )));
-        }
-        renderer.set_residency_config(ResidencyConfig {
-            upload_bytes_per_frame: (mb * f64::from(1 << 20)) as u64,
-            ..ResidencyConfig::default()
-        });
-    }
-    Ok(())
-}
-
-/// What a residency change of the three-level cache moved, as one line.
-fn level_update_line(u: &mixvol::levels::LevelUpdateReport) -> String {
-    format!(
-        "level residency: uploaded {} of {} stored bricks ({} moved, {:.1} MB{}), staged in {:.1} ms",
-        u.uploaded_bricks,
-        u.stored_bricks,
-        u.moved_bricks,
-        u.uploaded_bytes as f64 / 1e6,
-        if u.repacked { ", packed afresh" } else { "" },
-        u.stage_ms
-    )
-}
-
-/// What a level store's background reader did.
-fn level_stream_line(s: &mixvol::store::LevelStreamStats) -> String {
-    format!(
-        "level stream: {} stored bricks read in the background ({:.1} MB in {:.1} ms), {} on the render thread, {} failed; peak {:.1} of {:.1} MB RAM",
-        s.loads,
-        s.bytes_read as f64 / 1e6,
-        s.read_time.as_secs_f64() * 1e3,
-        s.blocking_reads,
-        s.failures,
-        s.peak_bytes as f64 / 1e6,
-        s.ram_budget_bytes as f64 / 1e6
-    )
-}
-
-/// Prints the three-level cache a scene draws through.
-fn print_three_level(grid: &BrickGrid, plan: &[Option<u32>], camera_levels: bool, note: &str) {
-    let drawn = if camera_levels {
-        "levels chosen from the camera".to_string()
-    } else {
-        let (deepest, per_level) = per_level_counts(plan);
-        format!("at levels 0..={deepest} ({per_level:?} bricks per level)")
-    };
-    println!(
-        "three-level cache: {} bricks of {}^3 {drawn}{note}",
-        grid.brick_count(),
-        grid.brick_size(),
-    );
 }
 
 /// Draws `streamer` (a brick store's or a streamed image's) through camera-driven residency
@@ -422,7 +315,6 @@ fn planned_scene<S: Streaming + 'static>(
         planned: true,
         config: Some(config),
         camera_levels: false,
-        level_store: None,
         level_streamer: None,
     })
 }
@@ -517,7 +409,13 @@ pub fn render(args: &RenderArgs) -> Result<()> {
     // limits before it is generated.
     crate::input::check_plain_synthetic(args, &ctx)?;
     let (input, meta) = open_input_with_meta(args)?;
-    if args.compare && matches!(input, Input::Store(_) | Input::Zarr { .. }) {
+    let zarr_levels = matches!(
+        args.mixed.levels,
+        Some(LevelsArg::Camera | LevelsArg::Staircase)
+    );
+    if args.compare
+        && (matches!(input, Input::Store(_)) || matches!(input, Input::Zarr { .. }) && !zarr_levels)
+    {
         return Err(Error::InvalidInput(
             "--compare needs the volume in memory for the CPU reference; render the source file \
              (with --gpu-budget-mb) instead of its brick store"
@@ -832,11 +730,12 @@ fn compare(
             // The three-level cache's CPU mirror (the slots' places do not change the field),
             // over the levels of the volume or those read back from the level store.
             let deepest = plan.iter().flatten().max().copied().unwrap_or(0);
-            let (grid, grids, scalar) = match (&scene.level_store, &scene.volume) {
-                (Some(store), _) => {
-                    let mut grids = store.read_grids()?;
+            let backend = scene.level_streamer.as_ref().map(|s| s.backend().clone());
+            let (grid, grids, scalar) = match (backend, &scene.volume) {
+                (Some(backend), _) => {
+                    let mut grids = backend.read_grids()?;
                     grids.truncate(deepest as usize + 1);
-                    (store.grid(), grids, store.header().scalar)
+                    (backend.grid(), grids, backend.scalar())
                 }
                 (None, Some(volume)) => (
                     BrickGrid::new(volume.dims(), config.brick_size)?,

@@ -4,7 +4,7 @@
 use mixvol::bricks::ValueRange;
 use mixvol::renderer::MixedConfig;
 use mixvol::store::{BrickBackend, BrickStore, BrickStreamer, StreamerConfig};
-use mixvol::stream::{ZarrBrickSource, ZarrBricks, ZarrStreamConfig};
+use mixvol::stream::{ZarrBrickSource, ZarrBricks, ZarrLevels, ZarrLevelsConfig, ZarrStreamConfig};
 use mixvol::volume::formats::{RemoteOptions, ZarrChunks, ZarrLocation};
 use mixvol::volume::ScalarType;
 use mixvol::{Error, Result};
@@ -132,4 +132,46 @@ pub fn open_streamed(
             record_load_order: false,
         },
     )?))
+}
+
+/// Opens the image at `location` as the stored bricks of every level of the three-level cache,
+/// read from its own pyramid levels (`--stream --levels camera`), bricks of `brick_size`, half
+/// of `ram` for decoded chunks; `window` (normalised) is the value range of a float image.
+pub fn open_zarr_levels(
+    location: &ZarrLocation,
+    brick_size: u32,
+    ram: u64,
+    window: Option<(f32, f32)>,
+) -> Result<Arc<ZarrLevels>> {
+    let options = RemoteOptions::from_env()?;
+    let scalar = ZarrChunks::open(location, 0, &options)?.scalar();
+    let value_range = match (scalar, window) {
+        (ScalarType::F32, Some((min, max))) => Some(ValueRange { min, max }),
+        (ScalarType::F32, None) => {
+            return Err(Error::InvalidInput(format!(
+                "{location} holds float values: --stream needs their range (--window lo,hi)"
+            )))
+        }
+        _ => None,
+    };
+    let half = usize::try_from(ram / 2).unwrap_or(usize::MAX);
+    let levels = ZarrLevels::open(
+        location,
+        &options,
+        ZarrLevelsConfig {
+            brick_size,
+            levels: None,
+            concurrency: concurrency()?,
+            chunk_cache_bytes: half,
+            value_range,
+        },
+    )?;
+    println!(
+        "streaming {location} at every level: vertex levels 0..{} read from image levels {:?}, \
+         {:.1} MB chunk cache",
+        mixvol::store::LevelBackend::level_count(&levels),
+        levels.image_levels(),
+        half as f64 / 1e6
+    );
+    Ok(Arc::new(levels))
 }

@@ -93,3 +93,90 @@ fn cli_renders_the_chosen_zarr_level() {
     assert!(String::from_utf8_lossy(&not_zarr.stderr).contains("--zarr-level"));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// The number right after `key` in `text`.
+fn number_after(text: &str, key: &str) -> f64 {
+    let start = text
+        .find(key)
+        .unwrap_or_else(|| panic!("no '{key}' in:\n{text}"))
+        + key.len();
+    let rest = text[start..].trim_start();
+    let end = rest
+        .find(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-' || c == 'e'))
+        .unwrap_or(rest.len());
+    rest[..end].parse().unwrap()
+}
+
+/// `render --stream --levels camera` draws a multiscale image at every level through the
+/// three-level cache without converting it: vertex levels past level 0 are read from image
+/// level 1, the stored bricks stream in the background, and the frame matches the CPU
+/// reference over the same levels under the validation layers. Without `--levels`, `--compare`
+/// on a streamed image is still refused.
+#[test]
+fn cli_streams_a_pyramid_at_every_level() {
+    // Its own folder: temp_dir() clears the other test's.
+    let dir = std::env::temp_dir().join(format!("mixvol-cli-pyramid-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let root = dir.join("pyr.zarr");
+    // A smooth ramp: lavapipe filters 8-bit textures with 8-bit weights, so steep data would
+    // measure its rounding rather than the levels.
+    let value = |z: u64, y: u64, x: u64| (x * 3 + y * 2 + z * 2 + 30) as u8;
+    write_array(&root.join("s0"), [32, 24, 32], value);
+    // Level 1 subsamples level 0 (OME-Zarr scale 2, no translation).
+    write_array(&root.join("s1"), [16, 12, 16], |z, y, x| {
+        value(2 * z, 2 * y, 2 * x)
+    });
+    let axes: Vec<_> = ["z", "y", "x"]
+        .iter()
+        .map(|n| json!({"name": n, "type": "space"}))
+        .collect();
+    let dataset = |path: &str, s: f64| json!({"path": path, "coordinateTransformations": [{"type": "scale", "scale": [s, s, s]}]});
+    let multiscale = json!({
+        "version": "0.4", "axes": axes,
+        "datasets": [dataset("s0", 1.0), dataset("s1", 2.0)],
+    });
+    std::fs::write(root.join(".zgroup"), json!({"zarr_format": 2}).to_string()).unwrap();
+    std::fs::write(
+        root.join(".zattrs"),
+        json!({ "multiscales": [multiscale] }).to_string(),
+    )
+    .unwrap();
+    let png = dir.join("out.png");
+    let args = [
+        "--stream",
+        "--levels",
+        "camera",
+        "--brick-size",
+        "8",
+        "--voxel-px",
+        "3",
+        "--compare",
+        "--validation",
+    ];
+    let out = render(&root, &png, &args);
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{text}");
+    assert!(
+        text.contains("at every level: vertex levels 0..5 read from image levels [0, 1, 1, 1, 1]"),
+        "{text}"
+    );
+    assert!(text.contains("from the image's pyramid"), "{text}");
+    let stream = text
+        .lines()
+        .find(|l| l.starts_with("level stream:"))
+        .unwrap_or_else(|| panic!("no level stream line:\n{text}"));
+    assert!(number_after(stream, "level stream:") > 0.0, "{text}");
+    assert!(stream.contains(" 0 failed"), "{text}");
+    assert!(
+        number_after(&text, "max per-channel difference") < 0.06,
+        "{text}"
+    );
+    assert!(number_after(&text, "mean") < 4e-3, "{text}");
+    assert!(text.contains("validation: 0 warnings/errors"), "{text}");
+
+    let refused = render(&root, &png, &["--stream", "--compare"]);
+    assert!(!refused.status.success());
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("--compare"));
+    std::fs::remove_dir_all(&dir).ok();
+}

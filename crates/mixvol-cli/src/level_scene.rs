@@ -1,0 +1,148 @@
+//! Scenes drawn through the three-level cache from stored bricks read in the background: a
+//! level store, or an OME-Zarr image's own pyramid (`--stream --levels camera`); and the
+//! plans, budgets and report lines every three-level scene shares.
+
+use crate::args::{LevelsArg, RenderArgs};
+use crate::levels::{per_level_counts, staircase};
+use crate::render::Scene;
+use mixvol::bricks::BrickGrid;
+use mixvol::renderer::{MixedConfig, Renderer, ResidencyConfig, VolumeSource};
+use mixvol::scene::Transition;
+use mixvol::store::{LevelBackend, LevelStreamConfig, LevelStreamer};
+use mixvol::{Error, Result};
+use std::sync::Arc;
+
+/// Draws `backend` through the three-level cache at `--levels` (default: from the camera),
+/// its stored bricks read in the background into `stream_ram` bytes of RAM (`ram`: the whole
+/// budget, for the message), and prints the set-up (`note` names where the levels come from).
+pub fn level_scene(
+    renderer: &mut Renderer,
+    args: &RenderArgs,
+    backend: Arc<dyn LevelBackend>,
+    stream_ram: u64,
+    transition: Transition,
+    note: &str,
+) -> Result<Scene> {
+    if args.residency.gpu_budget_mb.is_some() {
+        return Err(Error::InvalidInput(
+            "a level store or pyramid is drawn through the three-level cache under --cache-mb; \
+             --gpu-budget-mb sizes the two-level cache of a brick store or volume"
+                .into(),
+        ));
+    }
+    let pattern = args.mixed.levels.unwrap_or(LevelsArg::Camera);
+    let grid = backend.grid();
+    let config = MixedConfig {
+        brick_size: grid.brick_size(),
+        transition,
+        ..args.mixed.config()?
+    };
+    let (plan, camera_levels) = three_level_plan(&grid, pattern, backend.level_count())?;
+    set_level_upload_budget(renderer, args)?;
+    // Stored bricks are read in the background: views step onto those in RAM.
+    let streamer = Arc::new(LevelStreamer::new(
+        backend.clone(),
+        LevelStreamConfig {
+            ram_budget_bytes: usize::try_from(stream_ram).unwrap_or(usize::MAX),
+        },
+    )?);
+    renderer.set_source(VolumeSource::LevelStream {
+        streamer: streamer.clone(),
+        levels: &plan,
+        config,
+    })?;
+    print_three_level(&grid, &plan, camera_levels, note);
+    Ok(Scene {
+        volume: None,
+        streamer: None,
+        planned: false,
+        config: Some(config),
+        camera_levels,
+        level_streamer: Some(streamer),
+    })
+}
+
+/// The first plan of a three-level scene of `grid` with `levels` levels: empty for
+/// `--levels camera` (every brick coarsest until the first view chooses; the flag returned),
+/// the staircase capped at the last level for `--levels staircase`. Other patterns are
+/// two-level ones, an error here.
+pub fn three_level_plan(
+    grid: &BrickGrid,
+    pattern: LevelsArg,
+    levels: u32,
+) -> Result<(Vec<Option<u32>>, bool)> {
+    match pattern {
+        LevelsArg::Camera => Ok((Vec::new(), true)),
+        LevelsArg::Staircase => {
+            let last = levels.saturating_sub(1);
+            let plan = staircase(grid)
+                .into_iter()
+                .map(|l| l.map(|k| k.min(last)))
+                .collect();
+            Ok((plan, false))
+        }
+        other => Err(Error::InvalidInput(format!(
+            "--levels {other:?} is a two-level pattern; a level store is drawn with --levels \
+             camera (the default) or --levels staircase"
+        ))),
+    }
+}
+
+/// `--upload-mb` as the per-step upload budget of a three-level scene whose levels come from
+/// the camera (without it, the default of `ResidencyConfig`).
+pub fn set_level_upload_budget(renderer: &mut Renderer, args: &RenderArgs) -> Result<()> {
+    if let Some(mb) = args.residency.upload_mb {
+        if !(mb.is_finite() && mb > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "--upload-mb {mb}: expected a positive number of MiB"
+            )));
+        }
+        renderer.set_residency_config(ResidencyConfig {
+            upload_bytes_per_frame: (mb * f64::from(1 << 20)) as u64,
+            ..ResidencyConfig::default()
+        });
+    }
+    Ok(())
+}
+
+/// What a residency change of the three-level cache moved, as one line.
+pub fn level_update_line(u: &mixvol::levels::LevelUpdateReport) -> String {
+    format!(
+        "level residency: uploaded {} of {} stored bricks ({} moved, {:.1} MB{}), staged in {:.1} ms",
+        u.uploaded_bricks,
+        u.stored_bricks,
+        u.moved_bricks,
+        u.uploaded_bytes as f64 / 1e6,
+        if u.repacked { ", packed afresh" } else { "" },
+        u.stage_ms
+    )
+}
+
+/// What a level store's background reader did.
+pub fn level_stream_line(s: &mixvol::store::LevelStreamStats) -> String {
+    format!(
+        "level stream: {} stored bricks read in the background ({:.1} MB in {:.1} ms), {} on the render thread, {} failed; peak {:.1} of {:.1} MB RAM",
+        s.loads,
+        s.bytes_read as f64 / 1e6,
+        s.read_time.as_secs_f64() * 1e3,
+        s.blocking_reads,
+        s.failures,
+        s.peak_bytes as f64 / 1e6,
+        s.ram_budget_bytes as f64 / 1e6
+    )
+}
+
+/// Prints the three-level cache a scene draws through.
+pub fn print_three_level(grid: &BrickGrid, plan: &[Option<u32>], camera_levels: bool, note: &str) {
+    let drawn = if camera_levels {
+        "levels chosen from the camera".to_string()
+    } else {
+        let (deepest, per_level) = per_level_counts(plan);
+        format!("at levels 0..={deepest} ({per_level:?} bricks per level)")
+    };
+    println!(
+        "three-level cache: {} bricks of {}^3 {drawn}{note}",
+        grid.brick_count(),
+        grid.brick_size(),
+    );
+}

@@ -252,3 +252,112 @@ fn hysteresis_keeps_a_plan_while_the_camera_hovers_at_a_boundary() {
         "far from any boundary, no difference"
     );
 }
+
+/// An orthographic view of the whole volume: every brick's voxels project to the same size, so
+/// every brick crosses its level boundary at the same bias, and the bias alone would leave most
+/// of a mid-sized cache empty. The chooser then refines bricks as far as the slots allow: the
+/// plan fills at least half the cache, never more, and keeps the rule and the blocks.
+#[test]
+fn the_slots_left_by_the_bias_are_filled() {
+    let bricks = UVec3::splat(12);
+    let geometry = geometry(bricks);
+    let grid = *geometry.grid();
+    let mut rng = Rng(0x91a4_0005);
+    let volume = textured_volume(&mut rng, bricks * N);
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let active = vec![true; grid.brick_count()];
+    let camera = Camera::orthographic(Vec3::new(0.3, 0.2, 6.0), Vec3::ZERO, 1.6);
+    let view = LodView::new(&camera, 256, 256).unwrap();
+    let finest = choose_levels(&geometry, &view, &active, LEVELS, u64::MAX, 1.0).unwrap();
+    let coarsest = choose_levels(&geometry, &view, &active, LEVELS, 1, 1.0).unwrap();
+    assert!(
+        finest.slots > 8 * coarsest.slots.max(1),
+        "{} {}",
+        finest.slots,
+        coarsest.slots
+    );
+    let mut filled = 0;
+    for slots in [
+        finest.slots / 2,
+        finest.slots / 4,
+        finest.slots / 8,
+        3 * coarsest.slots.max(1),
+    ] {
+        let choice = choose_levels(&geometry, &view, &active, LEVELS, slots, 1.0).unwrap();
+        assert!(choice.slots <= slots);
+        LevelField::new(&grid, &grids, &choice.levels).unwrap();
+        if choice.slots * 2 >= slots {
+            filled += 1;
+        }
+    }
+    assert_eq!(filled, 4, "the plans fill every budget");
+}
+
+/// With room for every wanted level, a brick is drawn finer than it wants only where it must
+/// be: a neighbour one level finer (the rule), or, at a block level's edge, a finer brick in
+/// the aligned block of the next level (blocks are uniform). Bricks outside the frustum want the
+/// coarsest level, whose block spans the grid; they must not pull the bricks in view finer.
+#[test]
+fn bricks_are_refined_only_where_the_rule_or_a_block_forces_it() {
+    let mut rng = Rng(0x91a4_0006);
+    let bricks = UVec3::new(16, 12, 14);
+    let geometry = geometry(bricks);
+    let grid = *geometry.grid();
+    let active = vec![true; grid.brick_count()];
+    let index = |b: UVec3| grid.linear_index(b);
+    let mut forced = 0;
+    for round in 0..12 {
+        let camera = random_camera(&mut rng);
+        let view = LodView::new(&camera, 160, 120).unwrap();
+        let choice = choose_levels(&geometry, &view, &active, LEVELS, u64::MAX, 2.0).unwrap();
+        assert_eq!(choice.pixels_per_voxel, 2.0);
+        for (i, b) in grid.bricks().enumerate() {
+            let (min, max) = geometry.brick_box(b);
+            let wanted = if view.box_outside_frustum(min, max) {
+                LEVELS - 1
+            } else {
+                let p = hi_res_pixels(&geometry, &view, b);
+                ((2.0 / p).log2().floor().max(0.0) as u32).min(LEVELS - 1)
+            };
+            let level = choice.levels[i].unwrap();
+            assert!(
+                level <= wanted,
+                "round {round} brick {b}: {level} > {wanted}"
+            );
+            if level == wanted {
+                continue;
+            }
+            forced += 1;
+            let finer_neighbour = (-1..=1).any(|z| {
+                (-1..=1).any(|y| {
+                    (-1..=1).any(|x| {
+                        let n = b.as_ivec3() + glam::IVec3::new(x, y, z);
+                        n.cmpge(glam::IVec3::ZERO).all()
+                            && n.cmplt(bricks.as_ivec3()).all()
+                            && choice.levels[index(n.as_uvec3())] == Some(level - 1)
+                    })
+                })
+            });
+            let next = level + 1;
+            let finer_in_block = next >= 3 && {
+                let block = block_bricks(next);
+                let first = b / block * block;
+                let end = (first + UVec3::splat(block)).min(bricks);
+                (first.z..end.z).any(|z| {
+                    (first.y..end.y).any(|y| {
+                        (first.x..end.x).any(|x| {
+                            choice.levels[index(UVec3::new(x, y, z))].unwrap() <= level
+                                && UVec3::new(x, y, z) != b
+                        })
+                    })
+                })
+            };
+            assert!(
+                finer_neighbour || finer_in_block,
+                "round {round} brick {b}: level {level} below its wanted {wanted} with no \
+                 finer neighbour and no finer brick in its block"
+            );
+        }
+    }
+    assert!(forced > 0, "some bricks are forced finer");
+}

@@ -9,15 +9,25 @@
 //!    brick outside the frustum, or culled, wants the coarsest level (it draws nothing a ray
 //!    sees now, and asks for nothing).
 //! 2. **The rule and the blocks**: a brick is refined to at most one level coarser than any of
-//!    its 26 neighbours (a Chebyshev distance transform: two raster sweeps), and a block level's
-//!    aligned block is refined as a whole to its finest brick's level
-//!    ([`crate::cache::block_bricks`]); both are repeated until neither changes a level. Levels
-//!    only ever get finer, so the plan keeps every brick at least as fine as it wanted.
+//!    its 26 neighbours (a Chebyshev distance transform: two raster sweeps), and a brick of a
+//!    block level whose aligned block ([`crate::cache::block_bricks`]) holds a finer brick takes
+//!    the coarsest level whose block holds none ([`keep_blocks`]: an octree-like split, so that
+//!    a culled corner that wants the coarsest level, whose block spans the grid, does not pull
+//!    the whole volume to the finest level drawn); both are repeated until neither changes a
+//!    level. Levels only ever get finer, so the plan keeps every brick at least as fine as it
+//!    wanted.
 //! 3. **Culled bricks** are not drawn, unless a drawn block covers them (its stored brick holds
 //!    them anyway; drawing them costs nothing).
 //! 4. **The budget**: when the plan needs more slots than the cache has
 //!    ([`crate::cache::slots_for_plan`]), the target grows by `2^b`, with the smallest `b` in
 //!    `[0, levels]` that fits found by bisection (slots never grow with `b`).
+//! 5. **Filling the slots left**: many bricks can cross a level boundary at the same bias (a
+//!    distant view of the whole volume moves them all at once), so the plan at `b` may use a
+//!    small part of the cache. The bricks that the bias just below `b` would refine are then
+//!    refined neediest first (smallest headroom: the largest voxels on screen), as many as fit
+//!    (a second bisection, over their count; the rule and the blocks applied as in step 2).
+//!    A larger cache still never coarsens a brick: it stops the first bisection at the same or
+//!    a smaller bias, and with the same one it refines at least as many.
 //!
 //! [`choose_levels_near`] adds hysteresis against the last choice. There is no streaming (the
 //! two-level [`super::ResidencyPlanner`] has it): the host calls it per view, and
@@ -161,7 +171,9 @@ pub fn choose_levels_near(
             Some((target_pixels / pixels).log2())
         })
         .collect();
-    let plan = |bias: f32| plan_for(geometry, active, &headroom, previous, levels, bias);
+    let plan_each =
+        |bias: &dyn Fn(usize) -> f32| plan_for(geometry, active, &headroom, previous, levels, bias);
+    let plan = |bias: f32| plan_each(&|_| bias);
     let coarsest = plan(levels as f32);
     let needed = slots_for_plan(grid.bricks_per_axis(), &coarsest);
     if needed > slots {
@@ -182,6 +194,36 @@ pub fn choose_levels_near(
                 lo = mid;
             }
         }
+        // Fill the slots left: the bricks `lo` would refine, neediest first, as many as fit.
+        let wanted_at = |i: usize, bias: f32| {
+            headroom[i].map(|h| wanted_level(h + bias, previous.get(i).copied().flatten(), levels))
+        };
+        let mut candidates: Vec<usize> = (0..headroom.len())
+            .filter(|&i| wanted_at(i, lo) < wanted_at(i, hi))
+            .collect();
+        candidates.sort_by(|&a, &b| {
+            let (ha, hb) = (
+                headroom[a].unwrap_or(f32::MAX),
+                headroom[b].unwrap_or(f32::MAX),
+            );
+            ha.total_cmp(&hb).then(a.cmp(&b))
+        });
+        let mut rank = vec![usize::MAX; headroom.len()];
+        for (r, &i) in candidates.iter().enumerate() {
+            rank[i] = r;
+        }
+        let with_first = |m: usize| plan_each(&|i| if rank[i] < m { lo } else { hi });
+        // The largest count that fits (0 always does: it is `best`).
+        let (mut fit, mut over) = (0, candidates.len() + 1);
+        while over - fit > 1 {
+            let mid = (fit + over) / 2;
+            let candidate = with_first(mid);
+            if slots_for_plan(grid.bricks_per_axis(), &candidate) <= slots {
+                (fit, best) = (mid, candidate);
+            } else {
+                over = mid;
+            }
+        }
         (hi, best)
     };
     Ok(LevelChoice {
@@ -192,16 +234,29 @@ pub fn choose_levels_near(
     })
 }
 
-/// Steps 1-3 of the module docs with the target grown by `2^bias`, each wanted level kept at
-/// `previous` (when given) within [`LEVEL_HYSTERESIS`] of its boundaries. The wanted level
-/// stays a non-decreasing function of `bias`, so the slots still never grow with it.
+/// The level a brick wants at `raw` (log2 of the target, grown by the bias, over its projected
+/// hi-res voxel): `floor(raw)`, or its `previous` level while `raw` lies within
+/// [`LEVEL_HYSTERESIS`] of that level's boundaries; clamped to the levels. A non-decreasing
+/// function of `raw`.
+fn wanted_level(raw: f32, previous: Option<u32>, levels: u32) -> u32 {
+    let wanted = match previous.map(|p| p as f32) {
+        Some(p) if raw >= p - LEVEL_HYSTERESIS && raw < p + 1.0 + LEVEL_HYSTERESIS => p,
+        _ => raw.floor(),
+    };
+    wanted.clamp(0.0, (levels - 1) as f32) as u32
+}
+
+/// Steps 1-3 of the module docs with brick `i`'s target grown by `2^bias(i)`, each wanted
+/// level kept at `previous` (when given) within [`LEVEL_HYSTERESIS`] of its boundaries. The
+/// wanted level stays a non-decreasing function of every brick's bias, so the slots still
+/// never grow with it.
 fn plan_for(
     geometry: &BrickGeometry,
     active: &[bool],
     headroom: &[Option<f32>],
     previous: &[Option<u32>],
     levels: u32,
-    bias: f32,
+    bias: &dyn Fn(usize) -> f32,
 ) -> Vec<Option<u32>> {
     let grid = geometry.grid();
     let coarsest = levels - 1;
@@ -209,15 +264,7 @@ fn plan_for(
         .iter()
         .enumerate()
         .map(|(i, h)| match h {
-            Some(h) => {
-                let raw = h + bias;
-                let kept = previous.get(i).copied().flatten().map(|p| p as f32);
-                let wanted = match kept {
-                    Some(p) if raw >= p - LEVEL_HYSTERESIS && raw < p + 1.0 + LEVEL_HYSTERESIS => p,
-                    _ => raw.floor(),
-                };
-                wanted.clamp(0.0, coarsest as f32) as u32
-            }
+            Some(h) => wanted_level(h + bias(i), previous.get(i).copied().flatten(), levels),
             None => coarsest,
         })
         .collect();
@@ -282,44 +329,69 @@ pub(super) fn keep_rule(bricks: UVec3, level: &mut [u32]) -> bool {
     changed
 }
 
-/// Refines every block of a block level whose bricks differ to its finest brick's level.
-/// Returns whether a level changed.
+/// Makes every block of a block level uniform, refining as little as it must: a brick at a
+/// block level `k` whose aligned block holds a finer brick takes the coarsest level `j < k`
+/// whose block around it holds none finer than `j` (level 2 at worst, a single brick), repeated
+/// until every block is uniform. Refining a whole block to its finest brick instead would let
+/// one culled brick that wants the coarsest level (its block spans the grid) pull every brick
+/// of the volume down to the finest level anywhere. Levels only get finer, and finer inputs
+/// give finer outputs. Returns whether a level changed.
 pub(super) fn keep_blocks(bricks: UVec3, level: &mut [u32]) -> bool {
     let index = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
     let mut changed = false;
-    for z in 0..bricks.z {
-        for y in 0..bricks.y {
-            for x in 0..bricks.x {
-                let b = UVec3::new(x, y, z);
-                let block = block_bricks(level[index(b)]);
-                let first = block_origin(b, level[index(b)]);
-                // Each block once: from its first brick, or from a brick whose first brick is
-                // at another level (the block is then mixed and would be missed).
-                if block == 1 || (first != b && level[index(first)] == level[index(b)]) {
-                    continue;
-                }
-                let end = (first + UVec3::splat(block)).min(bricks);
-                let mut finest = u32::MAX;
-                for bz in first.z..end.z {
-                    for by in first.y..end.y {
-                        for bx in first.x..end.x {
-                            finest = finest.min(level[index(UVec3::new(bx, by, bz))]);
-                        }
-                    }
-                }
-                for bz in first.z..end.z {
-                    for by in first.y..end.y {
-                        for bx in first.x..end.x {
-                            let i = index(UVec3::new(bx, by, bz));
-                            if level[i] != finest {
-                                level[i] = finest;
-                                changed = true;
-                            }
-                        }
+    loop {
+        let deepest = level.iter().copied().max().unwrap_or(0);
+        if deepest < 3 {
+            return changed;
+        }
+        let mins = block_minima(bricks, level, deepest);
+        let mut pass_changed = false;
+        for z in 0..bricks.z {
+            for y in 0..bricks.y {
+                for x in 0..bricks.x {
+                    let b = UVec3::new(x, y, z);
+                    let i = index(b);
+                    let uniform = |j: u32| {
+                        let (counts, values) = &mins[(j - 3) as usize];
+                        let c = b / block_bricks(j);
+                        values[(c.x + counts.x * (c.y + counts.y * c.z)) as usize] >= j
+                    };
+                    let kept = (3..=level[i]).rev().find(|&j| uniform(j)).unwrap_or(2);
+                    if kept < level[i] {
+                        level[i] = kept;
+                        pass_changed = true;
                     }
                 }
             }
         }
+        if !pass_changed {
+            return changed;
+        }
+        changed = true;
     }
-    changed
+}
+
+/// For every block level `3..=deepest`: the blocks per axis and the smallest brick level in
+/// each block (x fastest).
+fn block_minima(bricks: UVec3, level: &[u32], deepest: u32) -> Vec<(UVec3, Vec<u32>)> {
+    let mut out: Vec<(UVec3, Vec<u32>)> = Vec::new();
+    // Level 3's blocks (2 bricks per axis) from the bricks, each coarser level from the last.
+    let (mut counts, mut values) = (bricks, level.to_vec());
+    for _ in 3..=deepest {
+        let next = (counts + UVec3::ONE) / 2;
+        let mut reduced = vec![u32::MAX; next.element_product() as usize];
+        for z in 0..counts.z {
+            for y in 0..counts.y {
+                for x in 0..counts.x {
+                    let v = values[(x + counts.x * (y + counts.y * z)) as usize];
+                    let c = UVec3::new(x, y, z) / 2;
+                    let slot = &mut reduced[(c.x + next.x * (c.y + next.y * c.z)) as usize];
+                    *slot = (*slot).min(v);
+                }
+            }
+        }
+        out.push((next, reduced.clone()));
+        (counts, values) = (next, reduced);
+    }
+    out
 }

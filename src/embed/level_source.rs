@@ -83,6 +83,22 @@ impl LevelData {
         }
     }
 
+    /// The normalised texels of the stored brick of `level` that holds `brick` (linear index of
+    /// its first brick `first`), read from the store or through the streamer (from RAM, else
+    /// on this thread). Grids in RAM are packed by the caller instead.
+    fn read_stored(&self, level: u32, first: usize, brick: UVec3) -> Result<Vec<f32>> {
+        match self {
+            LevelData::Grids(_) => Err(Error::InvalidInput(
+                "a source in RAM packs its bricks from its grids".into(),
+            )),
+            LevelData::Store(store) => Ok(store.read_stored(level, brick)?),
+            LevelData::Streamed(streamer) => Ok(dequantize(
+                &streamer.read_now((level, first))?,
+                streamer.backend().scalar(),
+            )),
+        }
+    }
+
     /// Where the stored bricks are read from, for sources read from a store or a pyramid.
     fn backend(&self) -> Option<&dyn LevelBackend> {
         match self {
@@ -124,57 +140,36 @@ impl LevelState {
         let scalar = self.scalar;
         let texel_bytes = scalar.size_bytes();
         let mut uploaded_bytes = 0;
-        let staged = match &self.data {
+        // The texels of each uploaded stored brick: packed from the grids in RAM, or read.
+        let field = match &self.data {
             LevelData::Grids(grids) => {
-                let field = LevelField::new(&self.grid, grids, levels).map_err(|e| refused(&e))?;
-                stage_three_level(
-                    &mut self.gpu,
-                    packed,
-                    geometry,
-                    scalar,
-                    &update.upload,
-                    &mut |brick| {
-                        let texels = packed.stored_values(&field, geometry, brick);
-                        uploaded_bytes += texel_bytes * texels.len();
-                        Ok(texels)
-                    },
-                )
+                Some(LevelField::new(&self.grid, grids, levels).map_err(|e| refused(&e))?)
             }
-            LevelData::Store(store) => {
-                let grid = self.grid;
-                stage_three_level(
-                    &mut self.gpu,
-                    packed,
-                    geometry,
-                    scalar,
-                    &update.upload,
-                    &mut |brick| {
-                        let level = packed.places[brick].map_or(0, |p| p.level);
-                        let texels = store.read_stored(level, grid.brick_coords(brick))?;
-                        uploaded_bytes += texel_bytes * texels.len();
-                        Ok(texels)
-                    },
-                )
-            }
-            LevelData::Streamed(streamer) => {
-                let grid = self.grid;
-                stage_three_level(
-                    &mut self.gpu,
-                    packed,
-                    geometry,
-                    scalar,
-                    &update.upload,
-                    &mut |brick| {
-                        let level = packed.places[brick].map_or(0, |p| p.level);
-                        let first =
-                            grid.linear_index(block_origin(grid.brick_coords(brick), level));
-                        let bytes = streamer.read_now((level, first))?;
-                        uploaded_bytes += bytes.len();
-                        Ok(dequantize(&bytes, scalar))
-                    },
-                )
-            }
+            _ => None,
         };
+        let (data, grid) = (&self.data, self.grid);
+        let staged = stage_three_level(
+            &mut self.gpu,
+            packed,
+            geometry,
+            scalar,
+            &update.upload,
+            &mut |brick| {
+                let texels = match &field {
+                    Some(field) => packed.stored_values(field, geometry, brick),
+                    None => {
+                        let level = packed.places[brick].map_or(0, |p| p.level);
+                        data.read_stored(
+                            level,
+                            grid.linear_index(block_origin(grid.brick_coords(brick), level)),
+                            grid.brick_coords(brick),
+                        )?
+                    }
+                };
+                uploaded_bytes += texel_bytes * texels.len();
+                Ok(texels)
+            },
+        );
         match staged {
             Ok(facts) => self.facts = facts,
             Err(e) => {

@@ -240,8 +240,7 @@ fn reference_frame(renderer: &Renderer, store: &LevelStore) -> Vec<Vec4> {
 
 /// A streamed store never waits on the disk when the camera plans: the first plan after
 /// attaching has nothing in RAM and keeps the drawn levels; as the reader catches up the source
-/// steps under a small upload budget (one level finer at most per step) to exactly the plan a
-/// synchronous store draws at once, its frame equal to that source's and to the CPU reference, and no stored
+/// steps under a small upload budget to exactly the plan a synchronous store draws at once, its frame equal to that source's and to the CPU reference, and no stored
 /// brick was read on the render thread after attaching.
 #[test]
 fn a_streamed_level_store_steps_onto_bricks_in_ram_and_reaches_the_camera_plan() {
@@ -267,7 +266,7 @@ fn a_streamed_level_store_steps_onto_bricks_in_ram_and_reaches_the_camera_plan()
                 config: config(),
             },
         );
-        // A small upload budget: the streamed source steps (one level finer at most per step).
+        // A small upload budget: the streamed source takes several steps.
         streamed.set_residency_config(ResidencyConfig {
             upload_bytes_per_frame: 2 << 10,
             ..ResidencyConfig::default()
@@ -298,13 +297,7 @@ fn a_streamed_level_store_steps_onto_bricks_in_ram_and_reaches_the_camera_plan()
                 .unwrap();
             steps += 1;
             let now = streamed.brick_levels().unwrap().to_vec();
-            for (i, (a, b)) in previous.iter().zip(&now).enumerate() {
-                let (a, b) = (a.unwrap(), b.unwrap());
-                assert!(
-                    b + 1 >= a,
-                    "brick {i} refined by more than one level: {a} -> {b}"
-                );
-            }
+            assert_ne!(now, previous, "step {steps} moves: the reader caught up");
             previous = now;
             if choice.waiting == 0 {
                 break;
@@ -314,7 +307,7 @@ fn a_streamed_level_store_steps_onto_bricks_in_ram_and_reaches_the_camera_plan()
         assert_eq!(previous, wanted);
         assert!(
             steps >= 2,
-            "from the coarsest to a mix of levels takes steps"
+            "the small upload budget takes several steps: {steps}"
         );
         let stats = streamer.stats();
         assert_eq!(stats.blocking_reads, at_attach, "{stats:?}");

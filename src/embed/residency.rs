@@ -23,7 +23,7 @@ use super::level_source::LevelState;
 use super::source::{ResidencyReport, Source};
 use super::VolumePass;
 use crate::bricks::Level;
-use crate::cache::{block_origin, slots_for_plan};
+use crate::cache::{block_origin, slots_for_plan, stored_brick_edge};
 use crate::error::{Error, Result};
 use crate::lod::{cull_bricks, CullParams, LodView, ValueCulling};
 use crate::plan::{
@@ -329,8 +329,8 @@ fn brick_distances(state: &LevelState, view: &LodView) -> Vec<f32> {
 }
 
 /// The stored bricks a streamed source asks its streamer for, highest priority first: the
-/// uploads of the next step towards `wanted` (in [`admit_by_budget`]'s order), the stored
-/// bricks drawn now (a change of their coarser neighbours uploads them again, from RAM), then
+/// uploads of the next steps towards `wanted` (each [`next_target`] in turn, each in
+/// [`admit_by_budget`]'s order), the stored bricks drawn now (a change of their coarser neighbours uploads them again, from RAM), then
 /// the rest of the wanted plan's uploads.
 fn stream_request(state: &LevelState, view: &LodView, wanted: &[Option<u32>]) -> Vec<(u32, usize)> {
     let grid = state.bricks.grid();
@@ -349,11 +349,22 @@ fn stream_request(state: &LevelState, view: &LodView, wanted: &[Option<u32>]) ->
             u64::MAX,
         )
     };
-    let target = next_target(bricks, state.level_count(), &state.current, wanted);
-    let mut keys: Vec<(u32, usize)> = uploads(&target)
-        .into_iter()
-        .map(|(first, level)| (level, first))
-        .collect();
+    // The uploads of the next steps, level by level (a streamed source steps on through those
+    // in RAM within one call).
+    let mut keys: Vec<(u32, usize)> = Vec::new();
+    let mut from = state.current.clone();
+    for _ in 0..state.level_count() {
+        let target = next_target(bricks, state.level_count(), &from, wanted);
+        if target == from {
+            break;
+        }
+        keys.extend(
+            uploads(&target)
+                .into_iter()
+                .map(|(first, level)| (level, first)),
+        );
+        from = target;
+    }
     for (i, level) in state.current.iter().enumerate() {
         if let Some(level) = *level {
             let first = grid.linear_index(block_origin(grid.brick_coords(i), level));
@@ -376,8 +387,9 @@ fn stream_request(state: &LevelState, view: &LodView, wanted: &[Option<u32>]) ->
 /// [`admit_by_budget`] admits under `budget` bytes, cut (fewest admitted first) until it fits
 /// the cache's slots. A step that would not move at all takes the whole target, over the
 /// budget, so that the source always reaches `wanted`. For a streamed source only stored
-/// bricks in the streamer's RAM are admitted, and a step that would not move waits for them
-/// instead.
+/// bricks in the streamer's RAM are admitted, a step that would not move waits for them
+/// instead, and a step that moves goes on towards the next levels while their bricks are in
+/// RAM and the whole move's uploads fit the budget.
 fn budgeted_step(
     state: &LevelState,
     view: &LodView,
@@ -435,6 +447,29 @@ fn budgeted_step(
             }
         }
         chosen = step(lo);
+    }
+    if streamer.is_some() && chosen != state.current {
+        // A streamed source steps on, a level at a time, while the next level's bricks are in
+        // RAM and the uploads of the whole move still fit the budget.
+        let ready = |first: usize, level: u32| resident(first, level) || in_ram(first, level);
+        let upload_bytes = |plan: &[Option<u32>]| -> u64 {
+            admit(plan, u64::MAX, &resident)
+                .iter()
+                .map(|&(_, level)| {
+                    u64::from(stored_brick_edge(state.brick_size, level)).pow(3)
+                        * state.scalar.size_bytes() as u64
+                })
+                .sum()
+        };
+        for _ in 0..state.level_count() {
+            let next_goal = next_target(bricks, state.level_count(), &chosen, wanted);
+            let next = step_towards(bricks, &chosen, &next_goal, &ready);
+            if next == chosen || !fits(&next) || upload_bytes(&next) > budget {
+                break;
+            }
+            chosen = next;
+        }
+        return chosen;
     }
     if chosen == state.current && target != state.current {
         // No step under the budget moves (the bricks it admits all fall back): take the target

@@ -5,7 +5,10 @@
 //! The camera turns about the target (one turn per [`ORBIT_FRAMES`] frames), dollies in to
 //! [`DOLLY_NEAR`] of its distance and back out every [`DOLLY_FRAMES`] frames, and bobs in
 //! elevation every [`BOB_FRAMES`] frames (periods with no common factor, so the path does not
-//! repeat within a soak), so the planner changes brick levels every few frames.
+//! repeat within a soak), so the planner changes brick levels every few frames. A three-level
+//! scene (a level store, or `--levels camera`) chooses its levels from the camera before every
+//! frame (`plan_brick_levels`, the level store's bricks streamed in the background) and prints
+//! the levels it drew.
 //!
 //! Every `max(1, N / 1000)` frames (and at the end of the warm-up and the last frame) it samples
 //! RSS (`VmRSS`, after returning free heap memory to the system, so freed chunks the allocator
@@ -300,9 +303,11 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
     renderer.set_model_transform(model);
     let scene = set_up_scene(&mut renderer, r, &input, r.mixed.transition.transition())?;
     drop(input);
-    if !scene.planned {
+    if !scene.planned && !scene.camera_levels {
         return Err(Error::InvalidInput(
-            "--soak needs camera-driven residency: --gpu-budget-mb or a brick store".into(),
+            "--soak needs camera-driven residency: --gpu-budget-mb, a brick store, or levels \
+             from the camera (--levels camera, a level store)"
+                .into(),
         ));
     }
     let warm_up = warm_up_frames(frames);
@@ -314,6 +319,9 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
     );
     let mut samples = Vec::new();
     let mut previous = renderer.brick_cache().map(|c| c.levels());
+    // A three-level scene: its levels, chosen from the camera before every frame.
+    let mut previous_levels = renderer.brick_levels().map(<[_]>::to_vec);
+    let mut levels_drawn = std::collections::BTreeSet::new();
     let (mut level_changes, mut changes_at_warm, mut uploaded) = (0u64, 0u64, 0u64);
     let (mut uploading, mut deferring, mut largest_cache) = (0u32, 0u32, 0u64);
     let start = Instant::now();
@@ -330,6 +338,23 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
     };
     for i in 0..frames {
         let camera = soak_camera(&base, i)?;
+        if scene.camera_levels {
+            renderer.plan_brick_levels(&camera, &settings, r.width, r.height, r.mixed.voxel_px)?;
+            let levels = renderer.brick_levels().map(<[_]>::to_vec);
+            if let (Some(a), Some(b)) = (&previous_levels, &levels) {
+                let changed = a.iter().zip(b).filter(|(x, y)| x != y).count() as u64;
+                if changed > 0 {
+                    let update = renderer.last_level_update().cloned().unwrap_or_default();
+                    level_changes += changed;
+                    uploaded += update.uploaded_bricks as u64;
+                    uploading += 1;
+                    // The staging buffer grows to hold the largest change.
+                    largest_cache = largest_cache.max(update.uploaded_bytes as u64);
+                }
+            }
+            levels_drawn.extend(levels.iter().flatten().flatten().copied());
+            previous_levels = levels;
+        }
         let frame = renderer.render(&camera, &settings, r.width, r.height)?;
         if let Some(report) = &frame.residency {
             uploaded += report.residency.uploaded_bricks as u64;
@@ -351,6 +376,9 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
         }
     }
     let seconds = start.elapsed().as_secs_f64();
+    if scene.camera_levels {
+        println!("soak: levels drawn {levels_drawn:?}");
+    }
     drop(renderer);
     drop(scene);
     let live = ctx.live_allocation_count();

@@ -212,3 +212,70 @@ fn a_soak_fails_on_a_still_scene_and_on_a_validation_message() {
     assert_eq!(json["summary"]["passed"], Value::Bool(false), "{json}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A soak of a level store drawn through the three-level cache at levels chosen from the camera
+/// every frame, its stored bricks streamed in the background (issue 19's "validation-clean soak
+/// with residency changes across all levels"): two 300-frame soaks (drawn voxels of at most 2
+/// and 4 pixels) are validation-clean, leave no allocation, change levels all along, and
+/// between them draw every level from 0 to 4.
+#[test]
+fn a_three_level_soak_is_clean_across_the_levels() {
+    let dir = temp_dir("levels");
+    let store = dir.join("ml.mvl");
+    let out = Command::new(env!("CARGO_BIN_EXE_mixvol"))
+        .args(["convert", "ml", store.to_str().unwrap()])
+        .args(["--dims", "128,128,128", "--brick-size", "8", "--all-levels"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{out:?}");
+    let mut drawn = std::collections::BTreeSet::new();
+    for voxel_px in ["2", "4"] {
+        let csv = dir.join(format!("soak-{voxel_px}.csv"));
+        let out = Command::new(env!("CARGO_BIN_EXE_mixvol"))
+            .args([
+                "bench",
+                "--volume",
+                store.to_str().unwrap(),
+                "--soak",
+                "300",
+            ])
+            .args(["--cache-mb", "2", "--width", "48", "--height", "48"])
+            .args(["--ram-budget-mb", "8", "--voxel-px", voxel_px])
+            .args(["--soak-log", csv.to_str().unwrap()])
+            .env_remove("MIXVOL_TEST_INVALID_VULKAN_CALL")
+            .output()
+            .unwrap();
+        let text = format!(
+            "{}\n{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert_eq!(out.status.code(), Some(0), "{text}");
+        assert!(text.contains("validation: 0 warnings/errors"), "{text}");
+        assert!(
+            text.contains("live GPU allocations at shutdown: 0"),
+            "{text}"
+        );
+        assert!(text.contains("soak: passed"), "{text}");
+        let json: Value =
+            serde_json::from_str(&std::fs::read_to_string(csv.with_extension("json")).unwrap())
+                .unwrap();
+        let s = &json["summary"];
+        assert_eq!(u64_at(s, "/validation_problems"), 0, "{s}");
+        let changes_after = u64_at(s, "/level_changes_after_warm_up");
+        assert!(changes_after >= 100, "{changes_after} level changes: {s}");
+        let line = text
+            .lines()
+            .find_map(|l| l.strip_prefix("soak: levels drawn {"))
+            .unwrap_or_else(|| panic!("no levels drawn in:\n{text}"));
+        drawn.extend(
+            line.trim_end_matches('}')
+                .split(", ")
+                .map(|v| v.parse::<u32>().unwrap()),
+        );
+    }
+    for level in 0..=4 {
+        assert!(drawn.contains(&level), "level {level} drawn: {drawn:?}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

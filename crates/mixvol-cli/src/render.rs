@@ -545,11 +545,19 @@ fn render_view(
         let start = std::time::Instant::now();
         let mut steps = 0;
         let mut uploaded = 0;
+        let mut drawn = renderer.brick_levels().map(<[_]>::to_vec);
         let choice = loop {
             let choice = plan_levels(renderer, camera, settings, args)?;
             steps += 1;
-            uploaded += renderer.last_level_update().map_or(0, |u| u.uploaded_bytes);
-            if choice.waiting == 0 || steps >= MAX_CONVERGE_FRAMES {
+            let now = renderer.brick_levels().map(<[_]>::to_vec);
+            let moved = now != drawn;
+            if moved {
+                uploaded += renderer.last_level_update().map_or(0, |u| u.uploaded_bytes);
+            }
+            drawn = now;
+            // A step after the first that does not move cannot be followed by one that does:
+            // what is left failed to read, or does not fit the RAM budget.
+            if choice.waiting == 0 || steps >= MAX_CONVERGE_FRAMES || (!moved && steps > 1) {
                 break choice;
             }
             if let Some(streamer) = &scene.level_streamer {
@@ -574,6 +582,9 @@ fn render_view(
         }
         if let Some(streamer) = &scene.level_streamer {
             println!("{}", level_stream_line(&streamer.stats()));
+            if let Some(e) = streamer.first_failure() {
+                println!("level stream: first failed read: {e}");
+            }
         }
     }
     if scene.planned {

@@ -671,3 +671,72 @@ fn corrupt_bricks_in_a_store_are_reported_and_drawn_at_their_fallback() {
     assert!(covered(&pixels(&png), BACKGROUND) > 0.2, "{text}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A level store whose level-0 bricks are damaged still renders: the background reader keeps
+/// each CRC failure, the view steps onto what it could read and stops once nothing more can
+/// move (it does not loop until the step limit), and the output names the failure.
+#[test]
+fn a_damaged_level_store_renders_what_it_can_read_and_names_the_failure() {
+    let dir = temp_dir("damaged_level_store");
+    let store = dir.join("ml.mvl");
+    let (out, text) = run(&[
+        "convert",
+        "ml",
+        store.to_str().unwrap(),
+        "--dims",
+        "64,64,64",
+        "--brick-size",
+        "8",
+        "--all-levels",
+    ]);
+    assert!(out.status.success(), "{text}");
+    // Header: data_offset is the u64 at byte 76 (docs/brick-store.md); level 0's 512 stored
+    // bricks of 12^3 u8 come first. One byte of every level-0 brick flipped.
+    let mut bytes = std::fs::read(&store).unwrap();
+    let data = u64::from_le_bytes(bytes[76..84].try_into().unwrap()) as usize;
+    for brick in 0..512 {
+        bytes[data + brick * 12 * 12 * 12 + 100] ^= 0x5a;
+    }
+    std::fs::write(&store, &bytes).unwrap();
+    let start = std::time::Instant::now();
+    let (out, text) = run(&[
+        "render",
+        "--volume",
+        store.to_str().unwrap(),
+        "--cache-mb",
+        "2",
+        "--width",
+        "64",
+        "--height",
+        "64",
+        "--frames",
+        "1",
+        "--validation",
+        "-o",
+        dir.join("r.png").to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{text}");
+    let stream = text
+        .lines()
+        .find(|l| l.starts_with("level stream:"))
+        .unwrap_or_else(|| panic!("no level stream line:\n{text}"));
+    assert!(
+        number_after(stream, "on the render thread,") > 0.0,
+        "{text}"
+    );
+    assert!(
+        text.contains("first failed read:") && text.contains("CRC-32"),
+        "{text}"
+    );
+    // The bricks whose reads failed still wait: the view stopped short of the camera's plan.
+    assert!(
+        text.contains("bricks still waiting") && !text.contains(" 0 bricks still waiting"),
+        "{text}"
+    );
+    assert!(text.contains("validation: 0 warnings/errors"), "{text}");
+    assert!(
+        start.elapsed() < std::time::Duration::from_secs(60),
+        "stopped stepping once nothing could move"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -68,7 +68,8 @@ pub enum VolumeSource<'a> {
     /// vertex levels then jump by at most half a step, `docs/cache-layout.md`; f32: C0
     /// everywhere); `config.filter` is not used (the levels are the vertex pyramid). The
     /// two-level planner does not drive it; `VolumePass::plan_brick_levels` chooses levels
-    /// from a camera, else renders draw these levels until the next `set_source` (issue 19).
+    /// from a camera, else renders draw these levels until the next `set_brick_levels` or
+    /// `set_source`.
     Levels {
         /// The volume.
         volume: &'a Volume,

@@ -6,10 +6,12 @@
 //! compute dispatches, and the field read with the ray-caster's own functions (`probe.comp`
 //! includes `mixed.glsl`, unchanged: a level-0 brick blends, a coarser one is a plain fetch).
 //!
-//! The residency planner does not drive three levels yet (issue 19, item 4): the host sets the
-//! levels, through [`crate::renderer::VolumeSource::Levels`] to render, or through
-//! [`GpuLevelCache`] to read the field and the cache back (the tests check the GPU cache, its
-//! fixups and its sampling against [`crate::reference::LevelReferenceCache`]).
+//! The levels come from the host ([`crate::renderer::Renderer::set_brick_levels`]) or from the
+//! camera ([`crate::renderer::Renderer::plan_brick_levels`], [`crate::plan::choose_levels`]), for a
+//! volume in RAM, a level store, or stored bricks streamed in the background
+//! ([`crate::store::LevelStreamer`]: a level store, an OME-Zarr pyramid);
+//! [`GpuLevelCache`] fills a cache once to read the field and the cache back (the tests check
+//! the GPU cache, its fixups and its sampling against [`crate::reference::LevelReferenceCache`]).
 
 mod ranges;
 mod residency;

@@ -29,10 +29,10 @@
 //!    A larger cache still never coarsens a brick: it stops the first bisection at the same or
 //!    a smaller bias, and with the same one it refines at least as many.
 //!
-//! [`choose_levels_near`] adds hysteresis against the last choice. There is no streaming (the
-//! two-level [`super::ResidencyPlanner`] has it): the host calls it per view, and
-//! [`crate::embed::VolumePass::plan_brick_levels`] moves the cache towards its choice under the
-//! per-frame upload budget ([`super::step_towards`]).
+//! [`choose_levels_near`] adds hysteresis against the last choice. The host calls it per view
+//! through [`crate::embed::VolumePass::plan_brick_levels`], which moves the cache towards its
+//! choice under the per-frame upload budget ([`super::step_towards`]) and, for a streamed
+//! source, onto the stored bricks its [`crate::store::LevelStreamer`] holds in RAM.
 
 use crate::cache::{block_bricks, block_origin, slots_for_plan};
 use crate::lod::{BrickGeometry, LodView};

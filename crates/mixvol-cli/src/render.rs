@@ -106,6 +106,12 @@ pub fn set_up_scene(
                 Some(LevelsArg::Camera | LevelsArg::Staircase)
             ) {
                 // Every level of the image's own pyramid, through the three-level cache.
+                if *level != 0 {
+                    return Err(Error::InvalidInput(format!(
+                        "--zarr-level {level} streams one level through the two-level cache; \
+                         --levels camera draws every level of the image from level 0"
+                    )));
+                }
                 let ram = r.ram_bytes()?;
                 let brick_size = args.mixed.config()?.brick_size;
                 let window = window_of(args, None)?;

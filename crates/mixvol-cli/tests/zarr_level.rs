@@ -178,5 +178,9 @@ fn cli_streams_a_pyramid_at_every_level() {
     let refused = render(&root, &png, &["--stream", "--compare"]);
     assert!(!refused.status.success());
     assert!(String::from_utf8_lossy(&refused.stderr).contains("--compare"));
+    let one_level = ["--stream", "--levels", "camera", "--zarr-level", "1"];
+    let refused = render(&root, &png, &one_level);
+    assert!(!refused.status.success());
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("--zarr-level 1"));
     std::fs::remove_dir_all(&dir).ok();
 }

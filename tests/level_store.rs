@@ -260,9 +260,19 @@ fn the_writer_refuses_bad_requests_and_leaves_nothing() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Files in `dir` left by a writer: partial stores and the levels it builds on disk.
+fn temporary_files(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| name.contains(".partial"))
+        .collect()
+}
+
 /// The slab writer writes, byte for byte, the store the in-memory writer writes from the loaded
 /// volume: for every scalar type, extents that are no multiple of the brick size, default and
-/// fewer levels; and refuses a RAM budget below what it needs before creating anything.
+/// fewer levels, building the levels above 0 in temporary files that it removes; and refuses a
+/// RAM budget below what it needs before creating anything.
 #[test]
 fn the_slab_writer_writes_the_same_bytes_as_the_volume_writer() {
     use mixvol::store::{level_slab_bytes, write_level_store_from_slabs};
@@ -304,6 +314,11 @@ fn the_slab_writer_writes_the_same_bytes_as_the_volume_writer() {
             std::fs::read(&from_slabs).unwrap() == std::fs::read(&from_volume).unwrap(),
             "{dims} {scalar:?}: the slab writer's bytes differ"
         );
+        assert_eq!(
+            temporary_files(&dir),
+            Vec::<String>::new(),
+            "levels built on disk are removed"
+        );
         // A budget one byte short is refused, and nothing is written.
         let needed = level_slab_bytes(dims, scalar.size_bytes() as u64, N, reader.scratch_bytes());
         let mut reader = open_raw_slabs(&raw, &desc).unwrap();
@@ -341,6 +356,7 @@ fn the_slab_writer_writes_the_same_bytes_as_the_volume_writer() {
                     .unwrap_err();
             assert!(matches!(err, StoreError::Input(_)), "{err}");
             assert!(!out.exists() && !dir.join("cut.mvl.partial").exists());
+            assert_eq!(temporary_files(&dir), Vec::<String>::new());
         }
     }
     let _ = std::fs::remove_dir_all(&dir);

@@ -356,25 +356,8 @@ impl LevelGrid {
         let next_level = self.level + 1;
         let dims = Self::covering_dims(next_level, placement, volume_dims);
         let s = self.spacing();
-        let next_position = |j: i32| match placement {
-            SamplePlacement::CellCentred => 2.0 * s * (j as f32 + 0.5),
-            SamplePlacement::Vertex => 2.0 * s * j as f32,
-        };
         // Per axis and new index: (this level's index, weight) taps.
-        let taps = |j: i32| -> Vec<(i32, f32)> {
-            let p = next_position(j);
-            let u = match self.placement {
-                SamplePlacement::CellCentred => p / s - 0.5,
-                SamplePlacement::Vertex => p / s,
-            };
-            if u.fract() == 0.0 {
-                let c = u as i32;
-                vec![(c - 1, 0.25), (c, 0.5), (c + 1, 0.25)]
-            } else {
-                let c = u.floor() as i32;
-                vec![(c, 0.5), (c + 1, 0.5)]
-            }
-        };
+        let taps = |j: i32| downsample_taps(s, self.placement, placement, j);
         let taps_x: Vec<Vec<(i32, f32)>> = (0..dims.x as i32).map(taps).collect();
         let mut values = Vec::with_capacity(dims.x as usize * dims.y as usize * dims.z as usize);
         for z in 0..dims.z as i32 {
@@ -401,6 +384,33 @@ impl LevelGrid {
             dims,
             values,
         }
+    }
+}
+
+/// The taps `(index, weight)` along one axis of the sample `j` of the next coarser level (placed
+/// `to`) over a level of sample `spacing` placed `from` ([`LevelGrid::downsampled`]): the tent
+/// `1/4, 1/2, 1/4` where the new sample coincides with an old one, else the mean of the two
+/// around it. Indices may fall outside the level (clamp-to-edge is the reader's).
+pub(crate) fn downsample_taps(
+    spacing: f32,
+    from: SamplePlacement,
+    to: SamplePlacement,
+    j: i32,
+) -> Vec<(i32, f32)> {
+    let p = match to {
+        SamplePlacement::CellCentred => 2.0 * spacing * (j as f32 + 0.5),
+        SamplePlacement::Vertex => 2.0 * spacing * j as f32,
+    };
+    let u = match from {
+        SamplePlacement::CellCentred => p / spacing - 0.5,
+        SamplePlacement::Vertex => p / spacing,
+    };
+    if u.fract() == 0.0 {
+        let c = u as i32;
+        vec![(c - 1, 0.25), (c, 0.5), (c + 1, 0.25)]
+    } else {
+        let c = u.floor() as i32;
+        vec![(c, 0.5), (c + 1, 0.5)]
     }
 }
 

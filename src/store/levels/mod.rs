@@ -9,7 +9,8 @@
 //! - [`write_level_store`] writes one from an in-memory volume (level by level, two levels in
 //!   RAM at a time), into `<path>.partial`, renamed into place once complete;
 //!   [`write_level_store_from_slabs`] writes the same bytes from a volume file read in slabs
-//!   (level 0 streamed, level 1 and coarser in RAM: about half a byte per voxel).
+//!   (level 0 streamed, each coarser level built plane by plane in a temporary file: a few
+//!   planes in RAM).
 //! - [`LevelStore`] opens and checks one and reads stored bricks ([`LevelStore::read_stored`],
 //!   CRC-checked) and their value ranges; [`LevelStreamer`] reads them on a background thread
 //!   into a RAM cache under a byte budget, so that a moving camera does not wait on the disk.
@@ -18,6 +19,7 @@
 
 mod backend;
 pub mod format;
+mod plane_file;
 mod reader;
 mod slab_writer;
 mod streamer;

@@ -1,24 +1,30 @@
 //! Writing a level store from a volume file read in slabs of z planes, never holding the
-//! volume: level 0's stored bricks come from a window of `n + 4` planes that slides along z, and
-//! level 1 (the vertex level, an eighth of the samples) is built plane by plane from the same
-//! window and kept in RAM, as f32, with the levels downsampled from it.
+//! volume or any level of it: level 0's stored bricks come from a window of `n + 4` planes that
+//! slides along z, and level 1 (the vertex level, an eighth of the samples) is built plane by
+//! plane from the same window into a temporary file next to the store (`plane_file.rs`); each
+//! coarser level is then built plane by plane from the file of the level below into a file of
+//! its own, and every level's stored bricks are read back from its file through a window of
+//! planes. The temporary files are removed as soon as the next level is built (and on error).
 //!
 //! The bytes equal those [`super::write_level_store`] writes from the loaded volume: level 1's
 //! samples are the same sums in the same order as [`LevelGrid::downsampled`] (the mean of the
-//! eight voxels around a vertex, clamped to the volume), and every coarser level is
-//! [`LevelGrid::downsampled`] itself.
+//! eight voxels around a vertex, clamped to the volume), and every coarser level the very sums
+//! of [`LevelGrid::downsampled`], in its order.
 //!
-//! RAM: the window (`n + 4` planes as f32), one slab of raw planes, level 1 (about half a byte
-//! per voxel) and level 2 while it is built; checked against the budget before any work.
+//! RAM: the window (`n + 4` planes as f32), one slab of raw planes, and a few planes of the
+//! level being built or read (checked against the budget before any work). Disk: the temporary
+//! files of two adjacent levels at a time, at most about half a byte per voxel (level 1 as f32).
 
-use super::writer::{assemble_level_store, check_level_desc, LevelWriteSummary};
-use crate::bricks::ValueRange;
+use super::plane_file::{downsample_file, PlaneFile, PlaneFileWriter, PlaneWindow};
+use super::writer::{assemble_level_store, check_level_desc, LevelWriteSummary, TexelSink};
+use crate::bricks::{BrickGrid, ValueRange};
+use crate::cache::{block_bricks, stored_brick_edge, stored_bricks_per_axis, stored_first_sample};
 use crate::reference::{LevelGrid, SamplePlacement};
 use crate::store::StoreError;
 use crate::volume::{SlabMut, SlabReader, VoxelData};
 use glam::{IVec3, UVec3};
 use std::collections::VecDeque;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Planes read per slab.
 const SLAB_PLANES: u32 = 8;
@@ -29,12 +35,11 @@ pub fn level_slab_bytes(dims: UVec3, voxel_bytes: u64, brick_size: u32, reader_b
     let plane = u64::from(dims.x) * u64::from(dims.y);
     let window = plane * u64::from(brick_size + 4 + SLAB_PLANES) * 4;
     let slab = plane * u64::from(SLAB_PLANES) * voxel_bytes;
-    let level1 = LevelGrid::covering_dims(1, SamplePlacement::Vertex, dims)
-        .as_u64vec3()
-        .element_product()
-        * 4;
-    // Level 2 while it is built from level 1: an eighth more.
-    window + slab + level1 + level1 / 8 + reader_bytes
+    // Level 1's window of planes (as f32): the planes of a stored brick, or the three a coarser
+    // plane reads, whichever is more; coarser levels hold fewer, smaller planes.
+    let level1 = LevelGrid::covering_dims(1, SamplePlacement::Vertex, dims).as_u64vec3();
+    let level1_window = level1.x * level1.y * u64::from((brick_size / 2 + 1).max(3) + 1) * 4;
+    window + slab + level1_window + reader_bytes
 }
 
 /// Writes every level of the volume `reader` reads (levels `0..levels`; `None`: the default)
@@ -66,8 +71,8 @@ pub fn write_level_store_from_slabs(
             needed,
             budget: ram_budget,
             message: format!(
-                "a window of {} z planes of {}x{} voxels as f32 and level 1 of the volume \
-                 (half a byte per voxel)",
+                "a window of {} z planes of {}x{} voxels as f32 (level 1 and coarser are built \
+                 on disk)",
                 brick_size + 4,
                 dims.x,
                 dims.y
@@ -79,7 +84,7 @@ pub fn write_level_store_from_slabs(
         header,
         &mut |sink| {
             let mut planes = Planes::new(&mut *reader, dims);
-            let mut level1 = LevelOne::new(dims);
+            let mut level1 = LevelOne::new(dims, level_temp(path, 1))?;
             let n = brick_size;
             let bricks = grid.bricks_per_axis();
             // Level 0, one row of bricks along z at a time.
@@ -97,13 +102,13 @@ pub fn write_level_store_from_slabs(
             }
             planes.load_through(dims.z - 1, &mut |p, planes| level1.plane_ready(p, planes))?;
             planes.finish()?;
-            // Level 1 from its planes, then each level from the one before.
-            let mut level_grid = level1.finish()?;
+            // Level 1 from its file, then each level from the file of the one before.
+            let mut level_file = level1.finish()?;
             for level in 1..header.levels {
                 if level > 1 {
-                    level_grid = level_grid.downsampled(SamplePlacement::Vertex, dims);
+                    level_file = downsample_file(&level_file, dims, level_temp(path, level))?;
                 }
-                sink.write_level(&grid, &level_grid)?;
+                write_level_from_file(sink, &grid, &level_file)?;
             }
             Ok(planes.value_range)
         },
@@ -144,7 +149,7 @@ impl<'a> Planes<'a> {
     fn load_through(
         &mut self,
         last: u32,
-        ready: &mut dyn FnMut(u32, &Planes<'_>),
+        ready: &mut dyn FnMut(u32, &Planes<'_>) -> Result<(), StoreError>,
     ) -> Result<(), StoreError> {
         let plane = self.dims.x as usize * self.dims.y as usize;
         while self.read <= last {
@@ -166,7 +171,7 @@ impl<'a> Planes<'a> {
                 }
                 self.window.push_back(values);
                 let p = self.read + k as u32;
-                ready(p, self);
+                ready(p, self)?;
             }
             self.read = end;
         }
@@ -208,32 +213,34 @@ impl<'a> Planes<'a> {
     }
 }
 
-/// Level 1 (vertex samples every 2 voxels) built plane by plane.
+/// Level 1 (vertex samples every 2 voxels) built plane by plane into its temporary file.
 struct LevelOne {
     volume: UVec3,
     dims: UVec3,
-    values: Vec<f32>,
+    out: PlaneFileWriter,
     /// The next level-1 plane to build.
     next: u32,
 }
 
 impl LevelOne {
-    fn new(volume: UVec3) -> Self {
+    fn new(volume: UVec3, path: PathBuf) -> Result<Self, StoreError> {
         let dims = LevelGrid::covering_dims(1, SamplePlacement::Vertex, volume);
-        Self {
+        Ok(Self {
             volume,
             dims,
-            values: Vec::with_capacity(dims.x as usize * dims.y as usize * dims.z as usize),
+            out: PlaneFileWriter::create(path, 1, dims)?,
             next: 0,
-        }
+        })
     }
 
     /// Builds every level-1 plane whose voxel planes have all arrived once plane `p` has.
-    fn plane_ready(&mut self, p: u32, planes: &Planes<'_>) {
+    fn plane_ready(&mut self, p: u32, planes: &Planes<'_>) -> Result<(), StoreError> {
         while self.next < self.dims.z && Self::taps(self.next, self.volume.z).1 <= p as i32 {
-            self.build_plane(self.next, planes);
+            let plane = self.build_plane(self.next, planes);
+            self.out.push(&plane)?;
             self.next += 1;
         }
+        Ok(())
     }
 
     /// The two voxel indices (clamped) whose mean is vertex sample `j` on an axis of `d`
@@ -248,8 +255,9 @@ impl LevelOne {
 
     /// Level-1 plane `jz`: per sample, the sum `LevelGrid::downsampled` forms (z taps, then y,
     /// then x; weights 1/2 per axis; in f64).
-    fn build_plane(&mut self, jz: u32, planes: &Planes<'_>) {
+    fn build_plane(&self, jz: u32, planes: &Planes<'_>) -> Vec<f32> {
         let (z0, z1) = Self::taps(jz, self.volume.z);
+        let mut plane = Vec::with_capacity(self.dims.x as usize * self.dims.y as usize);
         for jy in 0..self.dims.y {
             let (y0, y1) = Self::taps(jy, self.volume.y);
             for jx in 0..self.dims.x {
@@ -263,17 +271,54 @@ impl LevelOne {
                         }
                     }
                 }
-                self.values.push(sum as f32);
+                plane.push(sum as f32);
+            }
+        }
+        plane
+    }
+
+    fn finish(self) -> Result<PlaneFile, StoreError> {
+        self.out.finish()
+    }
+}
+
+/// The temporary file of `level`'s samples while the store at `path` is written.
+fn level_temp(path: &Path, level: u32) -> PathBuf {
+    let mut name = crate::store::writer::partial_path(path).into_os_string();
+    name.push(format!(".level{level}"));
+    PathBuf::from(name)
+}
+
+/// Appends every stored brick of `file`'s level for `grid`, blocks in linear order, reading
+/// the level's planes in order: the texels [`LevelGrid::stored_brick`] gives.
+fn write_level_from_file(
+    sink: &mut TexelSink<'_>,
+    grid: &BrickGrid,
+    file: &PlaneFile,
+) -> Result<(), StoreError> {
+    let (level, n) = (file.level, grid.brick_size());
+    let stored = stored_bricks_per_axis(grid.bricks_per_axis(), level);
+    let block = block_bricks(level);
+    let edge = stored_brick_edge(n, level) as i32;
+    let mut window = PlaneWindow::open(file)?;
+    let mut values = Vec::with_capacity(edge.pow(3) as usize);
+    for z in 0..stored.z {
+        let start_z = stored_first_sample(UVec3::new(0, 0, z) * block, n, level).z;
+        window.hold(start_z, start_z + edge - 1)?;
+        for y in 0..stored.y {
+            for x in 0..stored.x {
+                let start = stored_first_sample(UVec3::new(x, y, z) * block, n, level);
+                values.clear();
+                for tz in 0..edge {
+                    for ty in 0..edge {
+                        for tx in 0..edge {
+                            values.push(window.value(start + IVec3::new(tx, ty, tz)));
+                        }
+                    }
+                }
+                sink.push(&values)?;
             }
         }
     }
-
-    fn finish(self) -> Result<LevelGrid, StoreError> {
-        LevelGrid::new(1, SamplePlacement::Vertex, self.dims, self.values).map_err(|e| {
-            StoreError::InvalidDesc {
-                field: "dims",
-                message: e.to_string(),
-            }
-        })
-    }
+    Ok(())
 }

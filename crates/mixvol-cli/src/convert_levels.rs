@@ -2,8 +2,8 @@
 //! level, as the three-level cache stores it; `mixvol::store::levels`).
 //!
 //! Files (and OME-Zarr images) are read slab by slab: level 0 streams through a window of
-//! planes, level 1 and the coarser levels are built in RAM (about half a byte per voxel;
-//! [`mixvol::store::write_level_store_from_slabs`]). Synthetic fields and DICOM series are
+//! planes, level 1 and each coarser level are built plane by plane in temporary files next to
+//! the store ([`mixvol::store::write_level_store_from_slabs`]). Synthetic fields and DICOM series are
 //! generated or loaded whole, and the levels built from the volume in RAM. Either way the RAM
 //! the write needs is checked against `--ram-budget-mb` before any work. The store is written
 //! to `STORE.partial` and renamed at the end, as `convert` does.

@@ -59,29 +59,32 @@ fn main() -> mixvol::Result<()> {
     })?;
     let settings = RenderSettings::default();
     let (mut direct_ms, mut streamed_ms) = (Vec::new(), Vec::new());
+    let (mut direct_stage, mut streamed_stage) = (Vec::new(), Vec::new());
     let (mut direct_bytes, mut streamed_bytes, mut behind) = (0usize, 0usize, 0usize);
     for view in 0..views {
         let angle = view as f32 / views as f32 * std::f32::consts::TAU;
         let eye = Vec3::new(1.3 * angle.cos(), 0.5, 1.3 * angle.sin());
         let camera = Camera::perspective(eye, Vec3::ZERO, 40.0);
-        let step = |r: &mut Renderer| -> mixvol::Result<(f64, usize, usize)> {
+        // (call ms, staging ms, bytes staged, bricks waiting)
+        let step = |r: &mut Renderer| -> mixvol::Result<(f64, f64, usize, usize)> {
             let before = r.brick_levels().map(<[_]>::to_vec);
             let start = Instant::now();
             let choice = r.plan_brick_levels(&camera, &settings, size, size, 1.0)?;
             let ms = start.elapsed().as_secs_f64() * 1e3;
             let changed = r.brick_levels() != before.as_deref();
-            let bytes = if changed {
-                r.last_level_update().map_or(0, |u| u.uploaded_bytes)
-            } else {
-                0
+            let (stage_ms, bytes) = match r.last_level_update() {
+                Some(u) if changed => (u.stage_ms, u.uploaded_bytes),
+                _ => (0.0, 0),
             };
             r.render(&camera, &settings, size, size)?;
-            Ok((ms, bytes, choice.waiting))
+            Ok((ms, stage_ms, bytes, choice.waiting))
         };
-        let (d_ms, d_bytes, _) = step(&mut direct)?;
-        let (s_ms, s_bytes, waiting) = step(&mut streamed)?;
+        let (d_ms, d_stage, d_bytes, _) = step(&mut direct)?;
+        let (s_ms, s_stage, s_bytes, waiting) = step(&mut streamed)?;
         direct_ms.push(d_ms);
         streamed_ms.push(s_ms);
+        direct_stage.push(d_stage);
+        streamed_stage.push(s_stage);
         direct_bytes += d_bytes;
         streamed_bytes += s_bytes;
         behind += usize::from(waiting > 0);
@@ -100,16 +103,20 @@ fn main() -> mixvol::Result<()> {
          {views} views ({}):",
         ctx.info().name
     );
-    println!("| source | plan_brick_levels median ms | max ms | MB staged |");
-    println!("|---|---|---|---|");
     println!(
-        "| level store, read in the call | {dm:.1} | {:.1} | {:.1} |",
+        "| source | plan_brick_levels median ms | max ms | of which staging (reads, packing), median ms | MB staged |"
+    );
+    println!("|---|---|---|---|---|");
+    println!(
+        "| level store, read in the call | {dm:.1} | {:.1} | {:.1} | {:.1} |",
         max(&direct_ms),
+        median(direct_stage),
         direct_bytes as f64 / 1e6
     );
     println!(
-        "| level store, streamed | {sm:.1} | {:.1} | {:.1} |",
+        "| level store, streamed | {sm:.1} | {:.1} | {:.1} | {:.1} |",
         max(&streamed_ms),
+        median(streamed_stage),
         streamed_bytes as f64 / 1e6
     );
     println!(

@@ -222,9 +222,10 @@ impl Renderer {
         Ok(report)
     }
 
-    /// Moves a three-level source ([`VolumeSource::Levels`], [`VolumeSource::LevelStore`]) to
-    /// `levels` (see [`VolumePass::set_brick_levels`]): uploads the stored bricks that changed,
-    /// rewrites the tables, runs the fixups of the uploaded bricks and waits.
+    /// Moves a three-level source ([`VolumeSource::Levels`], [`VolumeSource::LevelStore`],
+    /// [`VolumeSource::LevelStream`]) to `levels` (see [`VolumePass::set_brick_levels`]):
+    /// uploads the stored bricks that changed (a streamed source reads those not in RAM on this
+    /// thread), rewrites the tables, runs the fixups of the uploaded bricks and waits.
     pub fn set_brick_levels(
         &mut self,
         levels: &[Option<u32>],
@@ -242,7 +243,9 @@ impl Renderer {
 
     /// Chooses the level of every brick of a three-level source from `camera` and `settings`
     /// (culling what the transfer function leaves empty; see
-    /// [`VolumePass::plan_brick_levels`]), uploads what changed, runs the fixups, and waits.
+    /// [`VolumePass::plan_brick_levels`]), uploads what changed, runs the fixups, and waits. A
+    /// streamed source ([`VolumeSource::LevelStream`]) steps only onto stored bricks in RAM and
+    /// never waits for its reader.
     pub fn plan_brick_levels(
         &mut self,
         camera: &Camera,

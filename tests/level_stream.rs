@@ -149,6 +149,77 @@ fn the_streamer_keeps_the_highest_priority_prefix_that_fits_its_budget() {
     let _ = std::fs::remove_file(&path);
 }
 
+/// Random requests over every level's stored bricks (duplicates, reordering, bricks of
+/// different sizes), budget changes and reads: after the loader settles, the highest-priority
+/// prefix of each request that fits the budget is in RAM, the bytes in RAM never exceed the
+/// budget, the counters agree with what `is_ready` reports, and every brick returned holds the
+/// file's bytes.
+#[test]
+fn random_requests_keep_the_budget_and_the_priority_prefix() {
+    let path = temp_path("random");
+    let store = write_store(&path, UVec3::new(4 * N, 3 * N, 4 * N), 0x5713_0004);
+    let grid = store.grid();
+    let all: Vec<StoredKey> = (0..store.level_count())
+        .flat_map(|level| stored_keys(&grid, level))
+        .collect();
+    let bytes = |key: StoredKey| store.header().stored_bytes(key.0) as usize;
+    let mut rng = Rng(0x5713_0005);
+    let mut budget = 6 * bytes((0, 0));
+    let streamer = LevelStreamer::new(
+        store.clone(),
+        LevelStreamConfig {
+            ram_budget_bytes: budget,
+        },
+    )
+    .unwrap();
+    for round in 0..60 {
+        if round % 10 == 9 {
+            budget = (2 + (rng.next() % 10) as usize) * bytes((0, 0));
+            streamer.set_ram_budget(budget);
+        }
+        let count = 1 + (rng.next() % 24) as usize;
+        let request: Vec<StoredKey> = (0..count)
+            .map(|_| all[(rng.next() % all.len() as u64) as usize])
+            .collect();
+        streamer.request(&request);
+        assert!(
+            streamer.wait_idle(WAIT),
+            "round {round}: the loader settles"
+        );
+        // The request without duplicates, in priority order.
+        let mut seen = std::collections::HashSet::new();
+        let wanted: Vec<StoredKey> = request.into_iter().filter(|k| seen.insert(*k)).collect();
+        let mut sum = 0;
+        for &key in &wanted {
+            sum += bytes(key);
+            if sum > budget {
+                break;
+            }
+            assert!(
+                streamer.is_ready(key),
+                "round {round}: {key:?} of the prefix is in RAM"
+            );
+        }
+        let stats = streamer.stats();
+        assert!(stats.resident_bytes <= budget, "round {round}: {stats:?}");
+        assert_eq!(stats.wanted_bricks, wanted.len());
+        let ready = wanted.iter().filter(|&&k| streamer.is_ready(k)).count();
+        assert_eq!(stats.wanted_resident, ready, "round {round}: {stats:?}");
+        assert_eq!(stats.failures, 0);
+        let key = wanted[(rng.next() % wanted.len() as u64) as usize];
+        if let Some(got) = streamer.get(key) {
+            let file = store
+                .read_stored_bytes(key.0, grid.brick_coords(key.1))
+                .unwrap();
+            assert_eq!(&got.unwrap()[..], &file[..], "round {round}: {key:?}");
+        }
+    }
+    let stats = streamer.stats();
+    assert!(stats.evictions > 0 && stats.loads > 60, "{stats:?}");
+    drop(streamer);
+    let _ = std::fs::remove_file(&path);
+}
+
 /// A stored brick whose bytes no longer match their CRC fails its background read: the error
 /// names the level and is kept (not read again) until `clear_failures`; the other bricks load.
 #[test]

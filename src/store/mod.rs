@@ -156,6 +156,17 @@ pub enum StoreError {
         /// The brick index given.
         brick: u32,
     },
+    /// A request for a remote level store failed (after the retries of
+    /// [`crate::volume::formats::RemoteOptions`]): the error names the object's URL.
+    #[error("level store {url}: {action}: {source}")]
+    Remote {
+        /// The store's URL.
+        url: String,
+        /// What was being read.
+        action: &'static str,
+        /// What the object store said.
+        source: crate::volume::VolumeError,
+    },
     /// Reading the input volume failed (truncated or corrupt data, a non-finite value, an OS
     /// error); the error names the file and the field.
     #[error("reading the input volume: {0}")]

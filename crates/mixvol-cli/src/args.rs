@@ -254,8 +254,9 @@ pub struct RenderArgs {
     /// of DICOM files, a DICOMDIR or one .dcm file; see --series), an OME-Zarr folder or
     /// remote image (s3://BUCKET/PATH.zarr with the AWS_* environment
     /// variables, http(s)://HOST/PATH.zarr; MIXVOL_REMOTE_TIMEOUT_MS / _RETRIES bound each
-    /// fetch), a brick store (streamed from disk under --ram-budget-mb), or a headerless raw
-    /// file (then --dims, --scalar, --spacing describe it).
+    /// fetch), a brick store (streamed from disk under --ram-budget-mb), a level store (a
+    /// file, or s3://.../STORE.mvl, http(s)://.../STORE.mvl read with range requests), or a
+    /// headerless raw file (then --dims, --scalar, --spacing describe it).
     #[arg(long, default_value = "ml")]
     pub volume: String,
     /// Dimensions x,y,z: of the synthetic field, or of the raw file.

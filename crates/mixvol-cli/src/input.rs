@@ -248,6 +248,11 @@ pub fn open_input_with_meta(args: &RenderArgs) -> Result<(Input, Option<VolumeMe
             Some(meta),
         ));
     }
+    if ZarrLocation::is_url(&args.volume) && args.volume.ends_with(".mvl") {
+        // A level store on S3 or behind HTTP: read with range requests.
+        let store = LevelStore::open_remote(&args.volume, &RemoteOptions::from_env()?)?;
+        return Ok((Input::LevelStore(Arc::new(store)), None));
+    }
     let magic = (!ZarrLocation::is_url(&args.volume))
         .then(|| magic_of(path))
         .flatten();

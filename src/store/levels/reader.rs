@@ -10,6 +10,7 @@ use crate::reference::{LevelGrid, SamplePlacement};
 use crate::store::format::{brick_crc, format_error};
 use crate::store::reader::open_regular_file;
 use crate::store::StoreError;
+use crate::volume::formats::{RemoteObject, RemoteOptions};
 use glam::{IVec3, UVec3};
 use std::fs::File;
 use std::os::unix::fs::FileExt;
@@ -22,7 +23,7 @@ use std::path::{Path, PathBuf};
 #[derive(Debug)]
 pub struct LevelStore {
     path: PathBuf,
-    file: File,
+    source: Source,
     header: LevelStoreHeader,
     grid: BrickGrid,
     entries: Vec<LevelEntry>,
@@ -30,29 +31,63 @@ pub struct LevelStore {
     level_starts: Vec<usize>,
 }
 
+/// Where a level store's bytes are read from.
+#[derive(Debug)]
+enum Source {
+    /// A local file (positioned reads).
+    Local(File),
+    /// An object on S3 or behind HTTP (range requests).
+    Remote(RemoteObject),
+}
+
 impl LevelStore {
     /// Opens the level store at `path` and checks its header and table: any inconsistency is a
     /// [`StoreError::Format`] naming the field, an OS failure a [`StoreError::Io`].
     pub fn open(path: impl AsRef<Path>) -> Result<Self, StoreError> {
         let path = path.as_ref().to_path_buf();
-        let io = |action: &'static str| {
-            let p = path.clone();
-            move |source| StoreError::Io {
-                path: p,
-                action,
-                source,
-            }
-        };
         let (file, len) = open_regular_file(&path, "a level store")?;
+        Self::open_source(path, Source::Local(file), len)
+    }
+
+    /// Opens the level store at `url` (`s3://BUCKET/PATH/STORE.mvl` with the AWS environment,
+    /// or `http(s)://HOST/PATH/STORE.mvl`, fetched with range requests as `options` says) and
+    /// checks its header and table as [`LevelStore::open`] does; every stored brick is then
+    /// one range request. A failed request is a [`StoreError::Remote`] naming the URL.
+    pub fn open_remote(url: &str, options: &RemoteOptions) -> Result<Self, StoreError> {
+        let object = RemoteObject::open(url, options).map_err(|source| StoreError::Remote {
+            url: url.to_string(),
+            action: "open",
+            source,
+        })?;
+        let len = object.size().map_err(|source| StoreError::Remote {
+            url: url.to_string(),
+            action: "ask for its size",
+            source,
+        })?;
+        Self::open_source(PathBuf::from(url), Source::Remote(object), len)
+    }
+
+    /// Reads and checks the header and the table of the `len` bytes of `source`.
+    fn open_source(path: PathBuf, source: Source, len: u64) -> Result<Self, StoreError> {
         let mut header_bytes = [0u8; LEVEL_HEADER_SIZE];
         let head_len = len.min(LEVEL_HEADER_SIZE as u64) as usize;
-        file.read_exact_at(&mut header_bytes[..head_len], 0)
-            .map_err(io("read header"))?;
+        read_at(
+            &source,
+            &path,
+            &mut header_bytes[..head_len],
+            0,
+            "read header",
+        )?;
         let header = parse_header(&header_bytes[..head_len], len, &path)?;
         // parse_header checked that the table ends before the texels, inside the file.
         let mut table = vec![0u8; (header.stored_count * LEVEL_ENTRY_BYTES) as usize];
-        file.read_exact_at(&mut table, LEVEL_HEADER_SIZE as u64)
-            .map_err(io("read the table"))?;
+        read_at(
+            &source,
+            &path,
+            &mut table,
+            LEVEL_HEADER_SIZE as u64,
+            "read the table",
+        )?;
         let entries = parse_table(&header, &header_bytes, &table, &path)?;
         let grid = header
             .grid()
@@ -63,7 +98,7 @@ impl LevelStore {
         }
         Ok(Self {
             path,
-            file,
+            source,
             header,
             grid,
             entries,
@@ -71,7 +106,7 @@ impl LevelStore {
         })
     }
 
-    /// The file this store was opened from.
+    /// The file (or URL) this store was opened from.
     pub fn path(&self) -> &Path {
         &self.path
     }
@@ -132,13 +167,13 @@ impl LevelStore {
     pub fn read_stored_bytes(&self, level: u32, brick: UVec3) -> Result<Vec<u8>, StoreError> {
         let (index, entry) = self.entry(level, brick)?;
         let mut bytes = vec![0u8; self.header.stored_bytes(level) as usize];
-        self.file
-            .read_exact_at(&mut bytes, entry.offset)
-            .map_err(|source| StoreError::Io {
-                path: self.path.clone(),
-                action: "read a stored brick",
-                source,
-            })?;
+        read_at(
+            &self.source,
+            &self.path,
+            &mut bytes,
+            entry.offset,
+            "read a stored brick",
+        )?;
         let computed = brick_crc(&bytes);
         if computed != entry.crc {
             return Err(StoreError::StoredBrickChecksum {
@@ -218,6 +253,34 @@ pub(crate) fn assemble_grids<E>(
         );
     }
     Ok(grids)
+}
+
+/// Fills `buf` from byte `offset` of `source` (the store at `path`, for messages).
+fn read_at(
+    source: &Source,
+    path: &Path,
+    buf: &mut [u8],
+    offset: u64,
+    action: &'static str,
+) -> Result<(), StoreError> {
+    match source {
+        Source::Local(file) => file
+            .read_exact_at(buf, offset)
+            .map_err(|source| StoreError::Io {
+                path: path.to_path_buf(),
+                action,
+                source,
+            }),
+        Source::Remote(object) => {
+            object
+                .read_exact_at(buf, offset)
+                .map_err(|source| StoreError::Remote {
+                    url: object.url().to_string(),
+                    action,
+                    source,
+                })
+        }
+    }
 }
 
 /// Every point of the box `0..edge` per axis, x fastest.

@@ -89,8 +89,8 @@ pub use nrrd::{load_nrrd, parse_nrrd_header, NrrdHeader};
 pub use sidecar::{load_sidecar, parse_sidecar, Sidecar};
 pub use tiff::{load_tiff, load_tiff_with, parse_ome_xml, TiffOptions, TiffSlabs};
 pub use zarr::{
-    load_zarr, load_zarr_at, load_zarr_level, parse_zarr_root, RemoteOptions, ZarrChunk,
-    ZarrChunks, ZarrLocation, ZarrRoot, ZarrVersion,
+    load_zarr, load_zarr_at, load_zarr_level, parse_zarr_root, RemoteObject, RemoteOptions,
+    ZarrChunk, ZarrChunks, ZarrLocation, ZarrRoot, ZarrVersion,
 };
 
 use super::{ScalarType, Volume, VolumeError};

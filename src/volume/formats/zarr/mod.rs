@@ -77,7 +77,7 @@ mod source;
 pub use chunks::{ZarrChunk, ZarrChunks};
 pub use location::ZarrLocation;
 pub use ome::{parse_zarr_root, OmeAxis, OmeDataset, OmeMultiscale, ZarrRoot, ZarrVersion};
-pub use remote::RemoteOptions;
+pub use remote::{RemoteObject, RemoteOptions};
 pub use slabs::ZarrSlabs;
 
 use super::read::{format_err, io_err, layout, read_prefix, Layout};

@@ -15,7 +15,7 @@ use futures::StreamExt;
 use std::sync::Arc;
 use std::time::Duration;
 use zarrs::filesystem::FilesystemStore;
-use zarrs::storage::byte_range::ByteRangeIterator;
+use zarrs::storage::byte_range::{ByteRange, ByteRangeIterator};
 use zarrs::storage::{
     AsyncReadableStorageTraits, MaybeBytes, MaybeBytesIterator, ReadableStorageTraits,
     StorageError, StoreKey,
@@ -288,4 +288,90 @@ pub(super) fn open_storage(
         store: AsyncObjectStore::new(store),
         runtime,
     }))
+}
+
+/// One object (a file) in a local folder or an object store, read by byte ranges: what a level
+/// store on S3 or behind HTTP is read through (`crate::store::LevelStore::open_remote`), with
+/// the timeouts and retries of [`RemoteOptions`].
+pub struct RemoteObject {
+    storage: Storage,
+    key: StoreKey,
+    url: String,
+}
+
+impl std::fmt::Debug for RemoteObject {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RemoteObject")
+            .field("url", &self.url)
+            .finish()
+    }
+}
+
+impl RemoteObject {
+    /// Opens the object `url` (`s3://BUCKET/PATH/FILE`, `http(s)://HOST/PATH/FILE`): its folder
+    /// as a location, the file name as the key. Errors: a URL that does not parse or has no file
+    /// name, a client that cannot be configured.
+    pub fn open(url: &str, options: &RemoteOptions) -> Result<Self, VolumeError> {
+        let bad = |message: &str| VolumeError::InvalidLocation {
+            location: url.to_string(),
+            message: message.to_string(),
+        };
+        let (folder, name) = url
+            .trim_end_matches('/')
+            .rsplit_once('/')
+            .filter(|(folder, name)| !name.is_empty() && folder.contains("://"))
+            .ok_or_else(|| bad("expected a URL naming a file"))?;
+        let location = ZarrLocation::parse(folder)?;
+        let key = StoreKey::new(name).map_err(|e| bad(&format!("not an object name ({e})")))?;
+        Ok(Self {
+            storage: open_storage(&location, options)?,
+            key,
+            url: url.to_string(),
+        })
+    }
+
+    /// The object's URL.
+    pub fn url(&self) -> &str {
+        &self.url
+    }
+
+    fn error(&self, message: String) -> VolumeError {
+        VolumeError::Remote {
+            url: self.url.clone(),
+            message,
+        }
+    }
+
+    /// The object's size in bytes. Errors: it does not exist, or the request fails.
+    pub fn size(&self) -> Result<u64, VolumeError> {
+        self.storage
+            .size_key(&self.key)
+            .map_err(|e| self.error(e.to_string()))?
+            .ok_or_else(|| self.error("not found".into()))
+    }
+
+    /// Fills `buf` with the object's bytes from `offset` (one range request). Errors: the object
+    /// is missing, the request fails, or fewer bytes come back.
+    pub fn read_exact_at(&self, buf: &mut [u8], offset: u64) -> Result<(), VolumeError> {
+        if buf.is_empty() {
+            return Ok(());
+        }
+        let bytes = self
+            .storage
+            .get_partial(
+                &self.key,
+                ByteRange::FromStart(offset, Some(buf.len() as u64)),
+            )
+            .map_err(|e| self.error(e.to_string()))?
+            .ok_or_else(|| self.error("not found".into()))?;
+        if bytes.len() != buf.len() {
+            return Err(self.error(format!(
+                "asked for {} bytes at {offset}, got {}",
+                buf.len(),
+                bytes.len()
+            )));
+        }
+        buf.copy_from_slice(&bytes);
+        Ok(())
+    }
 }

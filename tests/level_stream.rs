@@ -76,6 +76,7 @@ fn the_streamer_keeps_the_highest_priority_prefix_that_fits_its_budget() {
         store.clone(),
         LevelStreamConfig {
             ram_budget_bytes: budget,
+            ..LevelStreamConfig::default()
         },
     )
     .unwrap();
@@ -169,6 +170,7 @@ fn random_requests_keep_the_budget_and_the_priority_prefix() {
         store.clone(),
         LevelStreamConfig {
             ram_budget_bytes: budget,
+            ..LevelStreamConfig::default()
         },
     )
     .unwrap();

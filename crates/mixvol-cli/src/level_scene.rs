@@ -44,6 +44,7 @@ pub fn level_scene(
         backend.clone(),
         LevelStreamConfig {
             ram_budget_bytes: usize::try_from(stream_ram).unwrap_or(usize::MAX),
+            ..LevelStreamConfig::default()
         },
     )?);
     renderer.set_source(VolumeSource::LevelStream {

@@ -8,14 +8,16 @@
 //!   It only takes a short lock. [`crate::renderer::Renderer::plan_brick_levels`] requests, in
 //!   this order: the bricks of its next step towards the wanted plan, the stored bricks drawn
 //!   now (a change of a coarser neighbour uploads them again), then the rest of the wanted plan.
-//! - **Loading.** One background thread reads the wanted bricks that are not in RAM, strictly in
-//!   priority order ([`LevelBackend::read_stored_bytes`]: one CRC-checked positioned read from a
-//!   level store, the chunks of an OME-Zarr pyramid), without holding the lock during the read.
-//! - **Budget.** The bytes of the cached bricks plus the one being read never exceed
-//!   [`LevelStreamConfig::ram_budget_bytes`]. Before a read the loader makes room by evicting
+//! - **Loading.** [`LevelStreamConfig::loaders`] background threads read the wanted bricks that
+//!   are not in RAM, in priority order, each taking the next one no other loader reads
+//!   ([`LevelBackend::read_stored_bytes`]: one CRC-checked positioned read or range request
+//!   from a level store, the chunks of an OME-Zarr pyramid), without holding the lock during
+//!   the read.
+//! - **Budget.** The bytes of the cached bricks plus the ones being read never exceed
+//!   [`LevelStreamConfig::ram_budget_bytes`]. Before a read a loader makes room by evicting
 //!   first cached bricks that are not wanted, least recently used first, then wanted bricks of
 //!   lower priority than the one to read, lowest first. Wanted bricks of higher priority are
-//!   never evicted for a read: when the next brick cannot fit, the loader stops until the next
+//!   never evicted for a read: when the next brick cannot fit, the loaders stop until the next
 //!   request, so the highest-priority prefix of the wanted set that fits is resident and stays
 //!   so while the request is unchanged.
 //! - **Failures.** A brick whose read fails (an I/O error, a CRC mismatch) is not read again
@@ -23,7 +25,8 @@
 //! - **Blocking reads.** [`LevelStreamer::read_now`] returns a brick from RAM, or reads it on
 //!   the caller's thread when it is not there (attaching a source, a host-set plan, or a brick
 //!   evicted under a tight budget); [`LevelStreamStats::blocking_reads`] counts those.
-//! - **Shutdown.** Dropping the streamer stops the loader after the read in flight and joins it.
+//! - **Shutdown.** Dropping the streamer stops the loaders after their reads in flight and joins
+//!   them.
 
 use super::LevelBackend;
 use crate::error::{Error, Result};
@@ -40,16 +43,20 @@ pub type StoredKey = (u32, usize);
 /// How a [`LevelStreamer`] runs.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub struct LevelStreamConfig {
-    /// Most bytes of stored bricks held in RAM (cached bricks plus the read in flight). About
+    /// Most bytes of stored bricks held in RAM (cached bricks plus the reads in flight). About
     /// the GPU cache's bytes plus one step's uploads keeps every drawn brick in RAM.
     pub ram_budget_bytes: usize,
+    /// Loader threads, each with one read in flight (at least 1): an object store answers a
+    /// request in tens of milliseconds, so several requests in flight keep it busy.
+    pub loaders: usize,
 }
 
 impl Default for LevelStreamConfig {
-    /// 512 MiB.
+    /// 512 MiB, 4 loaders.
     fn default() -> Self {
         Self {
             ram_budget_bytes: 512 << 20,
+            loaders: 4,
         }
     }
 }
@@ -69,11 +76,11 @@ pub struct LevelStreamStats {
     pub wanted_bricks: usize,
     /// Wanted stored bricks that are cached.
     pub wanted_resident: usize,
-    /// Reads completed by the loader.
+    /// Reads completed by the loaders.
     pub loads: u64,
-    /// Bytes the loader read.
+    /// Bytes the loaders read.
     pub bytes_read: u64,
-    /// Time the loader spent reading.
+    /// Time the loaders spent reading (summed over the loaders).
     pub read_time: Duration,
     /// Bricks evicted to make room.
     pub evictions: u64,
@@ -99,12 +106,15 @@ struct State {
     /// Cached unwanted bricks by last use.
     unwanted_lru: BTreeMap<u64, StoredKey>,
     failed: HashMap<StoredKey, Arc<Error>>,
-    /// Bytes of the read in flight.
+    /// Bytes of the reads in flight.
     in_flight: usize,
+    /// The stored bricks being read.
+    reading: HashSet<StoredKey>,
     resident_bytes: usize,
     budget: usize,
     tick: u64,
-    /// The loader found nothing it may read (all done, or the next brick does not fit).
+    /// No read in flight, and nothing the loaders may read (all done, or the next brick does
+    /// not fit).
     idle: bool,
     stop: bool,
     stats: LevelStreamStats,
@@ -158,7 +168,7 @@ impl State {
 
 struct Shared {
     state: Mutex<State>,
-    /// Wakes the loader (a request, a budget change, shutdown) and waiters on idle.
+    /// Wakes the loaders (a request, a budget change, a read done, shutdown) and waiters on idle.
     changed: Condvar,
 }
 
@@ -176,7 +186,7 @@ impl Shared {
 pub struct LevelStreamer {
     backend: Arc<dyn LevelBackend>,
     shared: Arc<Shared>,
-    loader: Option<JoinHandle<()>>,
+    loaders: Vec<JoinHandle<()>>,
 }
 
 impl std::fmt::Debug for LevelStreamer {
@@ -200,19 +210,22 @@ impl LevelStreamer {
             }),
             changed: Condvar::new(),
         });
-        let loader = {
-            let backend = backend.clone();
-            let shared = shared.clone();
-            std::thread::Builder::new()
-                .name("mixvol-level-streamer".into())
-                .spawn(move || load_loop(&*backend, &shared))
-                .map_err(StoreError::Thread)?
-        };
-        Ok(Self {
+        let mut streamer = Self {
             backend,
             shared,
-            loader: Some(loader),
-        })
+            loaders: Vec::new(),
+        };
+        for i in 0..config.loaders.max(1) {
+            let backend = streamer.backend.clone();
+            let shared = streamer.shared.clone();
+            // On failure the streamer drops here and joins the loaders already started.
+            let loader = std::thread::Builder::new()
+                .name(format!("mixvol-level-streamer-{i}"))
+                .spawn(move || load_loop(&*backend, &shared))
+                .map_err(StoreError::Thread)?;
+            streamer.loaders.push(loader);
+        }
+        Ok(streamer)
     }
 
     /// What the stored bricks are read from.
@@ -374,14 +387,15 @@ impl Drop for LevelStreamer {
     fn drop(&mut self) {
         self.shared.lock().stop = true;
         self.shared.changed.notify_all();
-        if let Some(loader) = self.loader.take() {
+        for loader in self.loaders.drain(..) {
             // A loader that panicked has nothing left to clean up.
             let _ = loader.join();
         }
     }
 }
 
-/// The loader thread: reads the wanted bricks in priority order while they fit the budget.
+/// A loader thread: reads the next wanted brick (in priority order, not cached, failed or being
+/// read by another loader) while it fits the budget.
 fn load_loop(backend: &dyn LevelBackend, shared: &Shared) {
     let grid = backend.grid();
     let mut s = shared.lock();
@@ -389,7 +403,7 @@ fn load_loop(backend: &dyn LevelBackend, shared: &Shared) {
         if s.stop {
             return;
         }
-        // The next wanted brick that is neither cached nor failed.
+        // Every wanted brick before the cursor is cached or failed.
         while s.cursor < s.wanted.len() {
             let key = s.wanted[s.cursor];
             if s.cache.contains_key(&key) || s.failed.contains_key(&key) {
@@ -398,27 +412,34 @@ fn load_loop(backend: &dyn LevelBackend, shared: &Shared) {
                 break;
             }
         }
-        let rank = s.cursor;
-        let next = s.wanted.get(rank).copied();
-        let fits = next.is_some_and(|(level, _)| {
-            let bytes = backend.stored_bytes(level);
-            s.make_room(bytes, rank)
+        // The first one after it that no loader reads yet.
+        let rank = (s.cursor..s.wanted.len()).find(|&r| {
+            let key = s.wanted[r];
+            !s.cache.contains_key(&key) && !s.failed.contains_key(&key) && !s.reading.contains(&key)
         });
-        let Some(key) = next.filter(|_| fits) else {
-            s.idle = true;
-            shared.changed.notify_all();
+        let fits = rank.is_some_and(|r| {
+            let bytes = backend.stored_bytes(s.wanted[r].0);
+            s.make_room(bytes, r)
+        });
+        let Some(key) = rank.filter(|_| fits).map(|r| s.wanted[r]) else {
+            if s.reading.is_empty() {
+                s.idle = true;
+                shared.changed.notify_all();
+            }
             s = shared.changed.wait(s).unwrap_or_else(|e| e.into_inner());
             continue;
         };
         let bytes = backend.stored_bytes(key.0);
-        s.in_flight = bytes;
-        s.stats.peak_bytes = s.stats.peak_bytes.max(s.resident_bytes + bytes);
+        s.in_flight += bytes;
+        s.reading.insert(key);
+        s.stats.peak_bytes = s.stats.peak_bytes.max(s.resident_bytes + s.in_flight);
         drop(s);
         let start = Instant::now();
         let read = backend.read_stored_bytes(key.0, grid.brick_coords(key.1));
         let took = start.elapsed();
         s = shared.lock();
-        s.in_flight = 0;
+        s.in_flight -= bytes;
+        s.reading.remove(&key);
         s.stats.read_time += took;
         match read {
             Ok(data) => {
@@ -441,5 +462,7 @@ fn load_loop(backend: &dyn LevelBackend, shared: &Shared) {
                 s.failed.insert(key, Arc::new(e));
             }
         }
+        // Others may wait for this read (the idle waiters, a loader short of room).
+        shared.changed.notify_all();
     }
 }

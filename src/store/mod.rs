@@ -165,7 +165,7 @@ pub enum StoreError {
         /// What was being read.
         action: &'static str,
         /// What the object store said.
-        source: crate::volume::VolumeError,
+        source: Box<crate::volume::VolumeError>,
     },
     /// Reading the input volume failed (truncated or corrupt data, a non-finite value, an OS
     /// error); the error names the file and the field.

@@ -57,12 +57,12 @@ impl LevelStore {
         let object = RemoteObject::open(url, options).map_err(|source| StoreError::Remote {
             url: url.to_string(),
             action: "open",
-            source,
+            source: Box::new(source),
         })?;
         let len = object.size().map_err(|source| StoreError::Remote {
             url: url.to_string(),
             action: "ask for its size",
-            source,
+            source: Box::new(source),
         })?;
         Self::open_source(PathBuf::from(url), Source::Remote(object), len)
     }
@@ -277,7 +277,7 @@ fn read_at(
                 .map_err(|source| StoreError::Remote {
                     url: object.url().to_string(),
                     action,
-                    source,
+                    source: Box::new(source),
                 })
         }
     }

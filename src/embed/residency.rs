@@ -314,6 +314,26 @@ impl VolumePass {
     }
 }
 
+/// [`admit_by_budget`] for a move of `state` from its drawn levels towards `towards`.
+fn admit_towards(
+    state: &LevelState,
+    distance: &[f32],
+    towards: &[Option<u32>],
+    skip: &dyn Fn(usize, u32) -> bool,
+    budget: u64,
+) -> Vec<(usize, u32)> {
+    admit_by_budget(
+        state.bricks.grid().bricks_per_axis(),
+        state.brick_size,
+        state.scalar.size_bytes() as u64,
+        &state.current,
+        towards,
+        distance,
+        skip,
+        budget,
+    )
+}
+
 /// Distance from the eye to every brick's box (0 inside), by linear brick index.
 fn brick_distances(state: &LevelState, view: &LodView) -> Vec<f32> {
     let grid = state.bricks.grid();
@@ -337,18 +357,8 @@ fn stream_request(state: &LevelState, view: &LodView, wanted: &[Option<u32>]) ->
     let bricks = grid.bricks_per_axis();
     let distance = brick_distances(state, view);
     let resident = |first: usize, level: u32| state.residency.holds(first, level);
-    let uploads = |towards: &[Option<u32>]| {
-        admit_by_budget(
-            bricks,
-            state.brick_size,
-            state.scalar.size_bytes() as u64,
-            &state.current,
-            towards,
-            &distance,
-            &resident,
-            u64::MAX,
-        )
-    };
+    let uploads =
+        |towards: &[Option<u32>]| admit_towards(state, &distance, towards, &resident, u64::MAX);
     // The uploads of the next steps, level by level (a streamed source steps on through those
     // in RAM within one call).
     let mut keys: Vec<(u32, usize)> = Vec::new();
@@ -408,16 +418,7 @@ fn budgeted_step(
     let in_ram = |first: usize, level: u32| streamer.is_none_or(|s| s.is_ready((level, first)));
     let not_drawable = |first: usize, level: u32| resident(first, level) || !in_ram(first, level);
     let admit = |towards: &[Option<u32>], budget: u64, skip: &dyn Fn(usize, u32) -> bool| {
-        admit_by_budget(
-            bricks,
-            state.brick_size,
-            state.scalar.size_bytes() as u64,
-            &state.current,
-            towards,
-            &distance,
-            skip,
-            budget,
-        )
+        admit_towards(state, &distance, towards, skip, budget)
     };
     let all_in_ram = |uploads: &[(usize, u32)]| uploads.iter().all(|&(f, l)| in_ram(f, l));
     // The whole way in one step when its uploads fit the budget (and are in RAM).

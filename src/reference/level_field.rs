@@ -365,16 +365,7 @@ impl LevelGrid {
             for y in 0..dims.y as i32 {
                 let ty = taps(y);
                 for tx in &taps_x {
-                    let mut sum = 0.0f64;
-                    for &(kz, wz) in &tz {
-                        for &(ky, wy) in &ty {
-                            for &(kx, wx) in tx {
-                                sum += f64::from(wx * wy * wz)
-                                    * f64::from(self.value(IVec3::new(kx, ky, kz)));
-                            }
-                        }
-                    }
-                    values.push(sum as f32);
+                    values.push(downsample_sum(&tz, &ty, tx, |k| self.value(k)));
                 }
             }
         }
@@ -412,6 +403,27 @@ pub(crate) fn downsample_taps(
         let c = u.floor() as i32;
         vec![(c, 0.5), (c + 1, 0.5)]
     }
+}
+
+/// One sample of the next coarser level from its taps per axis (`downsample_taps`) over the
+/// samples `value` gives (clamped by the caller): the weighted sum in f64, z taps outermost, x
+/// innermost, rounded once to f32. Every builder of coarser levels forms it through here, so
+/// they agree bit for bit.
+pub(crate) fn downsample_sum(
+    tz: &[(i32, f32)],
+    ty: &[(i32, f32)],
+    tx: &[(i32, f32)],
+    value: impl Fn(IVec3) -> f32,
+) -> f32 {
+    let mut sum = 0.0f64;
+    for &(kz, wz) in tz {
+        for &(ky, wy) in ty {
+            for &(kx, wx) in tx {
+                sum += f64::from(wx * wy * wz) * f64::from(value(IVec3::new(kx, ky, kz)));
+            }
+        }
+    }
+    sum as f32
 }
 
 /// A brick grid whose bricks are drawn at different levels, with every level's samples: the

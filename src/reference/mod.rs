@@ -14,7 +14,7 @@ pub use camera::{clip_ray, depth_limit, generate_ray, intersect_box, safe_invers
 pub use level_cache::{
     skeleton_fixup_value, slots_needed, LevelCacheError, LevelPacking, LevelReferenceCache,
 };
-pub(crate) use level_field::downsample_taps;
+pub(crate) use level_field::{downsample_sum, downsample_taps};
 pub use level_field::{level_band, LevelField, LevelFieldError, LevelGrid, SamplePlacement};
 pub use level_plan::LevelPlan;
 pub use mixed::{

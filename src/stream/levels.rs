@@ -34,7 +34,7 @@
 //! the level drawn before).
 
 use super::coarser::Coarser;
-use super::StreamError;
+use super::{reported_range, StreamError};
 use crate::bricks::{quantize_to, BrickGrid, ValueRange};
 use crate::cache::{
     block_origin, min_brick_size_for_levels, pyramid_levels, stored_brick_edge, stored_first_sample,
@@ -132,25 +132,7 @@ impl ZarrLevels {
             ));
         }
         let scalar = base.scalar();
-        let range = match (config.value_range, scalar) {
-            (Some(r), _) => r,
-            (None, ScalarType::U8 | ScalarType::U16) => ValueRange { min: 0.0, max: 1.0 },
-            (None, ScalarType::F32) => {
-                return Err(invalid(
-                    "value_range",
-                    format!(
-                        "{name} holds float values: give their range (it cannot be known \
-                         before every chunk is fetched)"
-                    ),
-                ))
-            }
-        };
-        if !(range.min.is_finite() && range.max.is_finite() && range.min <= range.max) {
-            return Err(invalid(
-                "value_range",
-                format!("{range:?} is not a finite range"),
-            ));
-        }
+        let range = reported_range(config.value_range, scalar, &name)?;
         // The coarsest image level within 2^k of level 0's spacing, per vertex level.
         let s0 = base.spacing();
         let mut factors = vec![1.0f32];

@@ -277,26 +277,7 @@ impl ZarrBricks {
             }
         })?;
         let scalar = chunks.scalar();
-        let range = match (config.value_range, scalar) {
-            (Some(r), _) => r,
-            (None, ScalarType::U8 | ScalarType::U16) => ValueRange { min: 0.0, max: 1.0 },
-            (None, ScalarType::F32) => {
-                return Err(StreamError::InvalidConfig {
-                    field: "value_range",
-                    message: format!(
-                        "{} holds float values: give their range (it cannot be known before \
-                         every chunk is fetched)",
-                        chunks.root().display()
-                    ),
-                })
-            }
-        };
-        if !(range.min.is_finite() && range.max.is_finite() && range.min <= range.max) {
-            return Err(StreamError::InvalidConfig {
-                field: "value_range",
-                message: format!("{range:?} is not a finite range"),
-            });
-        }
+        let range = reported_range(config.value_range, scalar, &chunks.root().display())?;
         Ok(Self {
             cache: ChunkCache::new(config.chunk_cache_bytes, config.concurrency),
             ranges: vec![range; grid.brick_count()],
@@ -638,6 +619,36 @@ impl ZarrBricks {
         }
         Ok(())
     }
+}
+
+/// The value range a streamed image reports before its chunks arrive: `given`, else `[0, 1]`
+/// for 8- and 16-bit images; a float image (`name`, for the message) must be given one, and it
+/// must be finite.
+pub(super) fn reported_range(
+    given: Option<ValueRange>,
+    scalar: ScalarType,
+    name: &dyn std::fmt::Display,
+) -> Result<ValueRange, StreamError> {
+    let range = match (given, scalar) {
+        (Some(r), _) => r,
+        (None, ScalarType::U8 | ScalarType::U16) => ValueRange { min: 0.0, max: 1.0 },
+        (None, ScalarType::F32) => {
+            return Err(StreamError::InvalidConfig {
+                field: "value_range",
+                message: format!(
+                    "{name} holds float values: give their range (it cannot be known before \
+                     every chunk is fetched)"
+                ),
+            })
+        }
+    };
+    if !(range.min.is_finite() && range.max.is_finite() && range.min <= range.max) {
+        return Err(StreamError::InvalidConfig {
+            field: "value_range",
+            message: format!("{range:?} is not a finite range"),
+        });
+    }
+    Ok(range)
 }
 
 /// The coarser level's chunk cache gets this share of [`ZarrStreamConfig::chunk_cache_bytes`]

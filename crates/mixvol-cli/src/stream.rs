@@ -88,6 +88,22 @@ fn concurrency() -> Result<usize> {
     }
 }
 
+/// The value range to report for a streamed image of `scalar` values: `--window` (normalised)
+/// for a float image, which needs one; `None` (the whole range) for 8- and 16-bit images.
+fn float_range(
+    location: &ZarrLocation,
+    scalar: ScalarType,
+    window: Option<(f32, f32)>,
+) -> Result<Option<ValueRange>> {
+    match (scalar, window) {
+        (ScalarType::F32, Some((min, max))) => Ok(Some(ValueRange { min, max })),
+        (ScalarType::F32, None) => Err(Error::InvalidInput(format!(
+            "{location} holds float values: --stream needs their range (--window lo,hi)"
+        ))),
+        _ => Ok(None),
+    }
+}
+
 /// Opens level `level` of the image at `location` as a streaming source bricked as `config`
 /// says, half of `ram` for decoded chunks and half for packed bricks; `window` (normalised) is
 /// the value range of a float image.
@@ -99,15 +115,7 @@ pub fn open_streamed(
     window: Option<(f32, f32)>,
 ) -> Result<Arc<ZarrBrickSource>> {
     let chunks = ZarrChunks::open(location, level, &RemoteOptions::from_env()?)?;
-    let value_range = match (chunks.scalar(), window) {
-        (ScalarType::F32, Some((min, max))) => Some(ValueRange { min, max }),
-        (ScalarType::F32, None) => {
-            return Err(Error::InvalidInput(format!(
-                "{location} holds float values: --stream needs their range (--window lo,hi)"
-            )))
-        }
-        _ => None,
-    };
+    let value_range = float_range(location, chunks.scalar(), window)?;
     let half = usize::try_from(ram / 2).unwrap_or(usize::MAX);
     let bricks = ZarrBricks::new(
         chunks,
@@ -145,15 +153,7 @@ pub fn open_zarr_levels(
 ) -> Result<Arc<ZarrLevels>> {
     let options = RemoteOptions::from_env()?;
     let scalar = ZarrChunks::open(location, 0, &options)?.scalar();
-    let value_range = match (scalar, window) {
-        (ScalarType::F32, Some((min, max))) => Some(ValueRange { min, max }),
-        (ScalarType::F32, None) => {
-            return Err(Error::InvalidInput(format!(
-                "{location} holds float values: --stream needs their range (--window lo,hi)"
-            )))
-        }
-        _ => None,
-    };
+    let value_range = float_range(location, scalar, window)?;
     let half = usize::try_from(ram / 2).unwrap_or(usize::MAX);
     let levels = ZarrLevels::open(
         location,

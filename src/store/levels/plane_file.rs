@@ -4,7 +4,7 @@
 //! read back in order through a sliding window of planes; the file is removed when its
 //! [`PlaneFile`] is dropped.
 
-use crate::reference::{downsample_taps, LevelGrid, SamplePlacement};
+use crate::reference::{downsample_sum, downsample_taps, LevelGrid, SamplePlacement};
 use crate::store::StoreError;
 use glam::{IVec3, UVec3};
 use std::collections::VecDeque;
@@ -146,8 +146,9 @@ impl<'a> PlaneWindow<'a> {
 }
 
 /// The next coarser vertex level of `file`'s (a vertex level covering a volume of `volume`
-/// voxels) into a new temporary file at `path`, plane by plane: the very sums
-/// [`LevelGrid::downsampled`] forms, in its order, so the samples are bit for bit its own.
+/// voxels) into a new temporary file at `path`, plane by plane: each sample through
+/// `downsample_sum`, as [`LevelGrid::downsampled`] forms it, so the samples are bit for bit
+/// its own.
 pub(super) fn downsample_file(
     file: &PlaneFile,
     volume: UVec3,
@@ -172,16 +173,7 @@ pub(super) fn downsample_file(
         for y in 0..dims.y as i32 {
             let ty = taps(y);
             for tx in &taps_x {
-                let mut sum = 0.0f64;
-                for &(kz, wz) in &tz {
-                    for &(ky, wy) in &ty {
-                        for &(kx, wx) in tx {
-                            sum += f64::from(wx * wy * wz)
-                                * f64::from(window.value(IVec3::new(kx, ky, kz)));
-                        }
-                    }
-                }
-                plane.push(sum as f32);
+                plane.push(downsample_sum(&tz, &ty, tx, |k| window.value(k)));
             }
         }
         out.push(&plane)?;

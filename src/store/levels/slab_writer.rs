@@ -19,7 +19,7 @@ use super::plane_file::{downsample_file, PlaneFile, PlaneFileWriter, PlaneWindow
 use super::writer::{assemble_level_store, check_level_desc, LevelWriteSummary, TexelSink};
 use crate::bricks::{BrickGrid, ValueRange};
 use crate::cache::{block_bricks, stored_brick_edge, stored_bricks_per_axis, stored_first_sample};
-use crate::reference::{LevelGrid, SamplePlacement};
+use crate::reference::{downsample_sum, downsample_taps, LevelGrid, SamplePlacement};
 use crate::store::StoreError;
 use crate::volume::{SlabMut, SlabReader, VoxelData};
 use glam::{IVec3, UVec3};
@@ -235,7 +235,16 @@ impl LevelOne {
 
     /// Builds every level-1 plane whose voxel planes have all arrived once plane `p` has.
     fn plane_ready(&mut self, p: u32, planes: &Planes<'_>) -> Result<(), StoreError> {
-        while self.next < self.dims.z && Self::taps(self.next, self.volume.z).1 <= p as i32 {
+        let last = self.volume.z as i32 - 1;
+        while self.next < self.dims.z {
+            let needs = taps(self.next as i32)
+                .iter()
+                .map(|&(k, _)| k)
+                .max()
+                .unwrap_or(0);
+            if needs.min(last) > p as i32 {
+                break;
+            }
             let plane = self.build_plane(self.next, planes);
             self.out.push(&plane)?;
             self.next += 1;
@@ -243,35 +252,16 @@ impl LevelOne {
         Ok(())
     }
 
-    /// The two voxel indices (clamped) whose mean is vertex sample `j` on an axis of `d`
-    /// voxels: `2j - 1` and `2j`.
-    fn taps(j: u32, d: u32) -> (i32, i32) {
-        let last = d as i32 - 1;
-        (
-            (2 * j as i32 - 1).clamp(0, last),
-            (2 * j as i32).clamp(0, last),
-        )
-    }
-
-    /// Level-1 plane `jz`: per sample, the sum `LevelGrid::downsampled` forms (z taps, then y,
-    /// then x; weights 1/2 per axis; in f64).
+    /// Level-1 plane `jz`: per sample the sum [`LevelGrid::downsampled`] forms over the voxels
+    /// (`downsample_sum`, the voxels clamped to the volume).
     fn build_plane(&self, jz: u32, planes: &Planes<'_>) -> Vec<f32> {
-        let (z0, z1) = Self::taps(jz, self.volume.z);
+        let tz = taps(jz as i32);
+        let taps_x: Vec<Vec<(i32, f32)>> = (0..self.dims.x as i32).map(taps).collect();
         let mut plane = Vec::with_capacity(self.dims.x as usize * self.dims.y as usize);
-        for jy in 0..self.dims.y {
-            let (y0, y1) = Self::taps(jy, self.volume.y);
-            for jx in 0..self.dims.x {
-                let (x0, x1) = Self::taps(jx, self.volume.x);
-                let mut sum = 0.0f64;
-                for kz in [z0, z1] {
-                    for ky in [y0, y1] {
-                        for kx in [x0, x1] {
-                            let w = 0.5f32 * 0.5 * 0.5;
-                            sum += f64::from(w) * f64::from(planes.voxel(IVec3::new(kx, ky, kz)));
-                        }
-                    }
-                }
-                plane.push(sum as f32);
+        for jy in 0..self.dims.y as i32 {
+            let ty = taps(jy);
+            for tx in &taps_x {
+                plane.push(downsample_sum(&tz, &ty, tx, |k| planes.voxel(k)));
             }
         }
         plane
@@ -280,6 +270,17 @@ impl LevelOne {
     fn finish(self) -> Result<PlaneFile, StoreError> {
         self.out.finish()
     }
+}
+
+/// The taps along one axis of level-1 sample `j` over the cell-centred voxels: the mean of
+/// voxels `2j - 1` and `2j` (unclamped).
+fn taps(j: i32) -> Vec<(i32, f32)> {
+    downsample_taps(
+        1.0,
+        SamplePlacement::CellCentred,
+        SamplePlacement::Vertex,
+        j,
+    )
 }
 
 /// The temporary file of `level`'s samples while the store at `path` is written.

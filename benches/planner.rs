@@ -26,7 +26,9 @@
 //! `MIXVOL_PLANNER_PATHS` (default `still,orbit,dolly`). Prints a Markdown table: thread CPU
 //! time per frame (median, p95, max) and wall time (median, p95, min), with the machine's load
 //! average, as other processes on the cores inflate the times; compare versions only when run
-//! interleaved in the same minutes.
+//! interleaved in the same minutes. Then one row for the level choice of any number of levels
+//! (`plan::choose_levels_near`, [`level_rows`]), and one line of JSON per case with at least
+//! `"bricks"`, `"levels"` and `"ms_per_frame"` (CPU median).
 //!
 //! Figures (2026-12-02 21:40 UTC, 2-core Intel Xeon VM, load average 1.1-1.2, three rounds of
 //! three runs, median ms per frame): `plan_frame_with_loaded` still 0.065-0.070, orbit and
@@ -40,9 +42,12 @@ mod common;
 use common::env_u32;
 use glam::{Quat, UVec3, Vec3, Vec4};
 use mixvol::bricks::{BrickGrid, Level, LoadedLevels, ValueRange};
-use mixvol::lod::{BrickGeometry, CullParams, LodView, TfCullTable};
+use mixvol::cache::pyramid_levels;
+use mixvol::lod::{cull_bricks, BrickGeometry, CullParams, LodView, TfCullTable};
 use mixvol::optics::{TransferFunction, TF_SIZE};
-use mixvol::plan::{upload_bytes, FrameInput, PlanBudget, PlanOptions, ResidencyPlanner};
+use mixvol::plan::{
+    choose_levels_near, upload_bytes, FrameInput, PlanBudget, PlanOptions, ResidencyPlanner,
+};
 use mixvol::scene::Camera;
 use std::hint::black_box;
 use std::time::Instant;
@@ -246,6 +251,7 @@ fn main() {
     println!("| query | source | camera | frames | CPU median ms | CPU p95 ms | CPU max ms | wall median ms | wall p95 ms | wall min ms | culled | drawn hi | drawn lo | uploads/frame |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
 
+    let mut json_lines = Vec::new();
     let sources = [("all loaded", false), ("only Lo loaded", true)];
     let queries = [Query::PerBrick, Query::Closure];
     for (query, (source, lo_only)) in queries
@@ -309,6 +315,17 @@ fn main() {
             times.sort_by(f64::total_cmp);
             cpu_times.sort_by(f64::total_cmp);
             let r = last.expect("one run");
+            json_lines.push(format!(
+                "{{\"planner\": \"two-level\", \"query\": \"{}\", \"source\": \"{source}\", \
+                 \"camera\": \"{}\", \"bricks\": {bricks}, \"levels\": 2, \"slots\": {}, \
+                 \"frames\": {}, \"ms_per_frame\": {:.4}, \"p95_ms\": {:.4}}}",
+                query.name(),
+                path.key(),
+                budget.slots,
+                times.len(),
+                percentile(&cpu_times, 0.5),
+                percentile(&cpu_times, 0.95),
+            ));
             println!(
                 "| {} | {source} | {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {} | {} | {} | {:.0} |",
                 query.name(),
@@ -327,4 +344,57 @@ fn main() {
             );
         }
     }
+    level_rows(&geometry, &ranges, &cull, &start, &mut json_lines);
+    println!();
+    println!("JSON, one line per case (CPU ms per frame, median and p95):");
+    for line in json_lines {
+        println!("{line}");
+    }
+}
+
+/// The level choice for any number of levels (`plan::choose_levels_near`, what
+/// `VolumePass::plan_brick_levels` runs each view) on the same grid along the orbit, every
+/// level the bricks take (`cache::pyramid_levels`), the slot budget binding (an eighth of the
+/// bricks), hysteresis against the last choice. `MIXVOL_PLANNER_LEVEL_FRAMES` views (default
+/// 12; about 0.7 s each on the 2-core VM at 2d27ea4).
+fn level_rows(
+    geometry: &BrickGeometry,
+    ranges: &[ValueRange],
+    cull: &CullParams,
+    start: &Camera,
+    json_lines: &mut Vec<String>,
+) {
+    let frames = env_u32("MIXVOL_PLANNER_LEVEL_FRAMES", 12).max(1) as usize;
+    let bricks = geometry.grid().brick_count();
+    let levels = pyramid_levels(BRICK_SIZE, BRICKS);
+    let slots = (bricks / 8) as u64;
+    let active = cull_bricks(geometry, ranges, cull).expect("cull");
+    let mut previous: Vec<Option<u32>> = Vec::new();
+    let (mut cpu_times, mut used) = (Vec::new(), Vec::new());
+    for f in 0..frames {
+        let view = LodView::new(&Path::Orbit.camera(start, f), WIDTH, HEIGHT).expect("view");
+        let cpu = thread_cpu_ms();
+        let choice = choose_levels_near(geometry, &view, &active, levels, slots, 1.0, &previous)
+            .expect("choice");
+        cpu_times.push(thread_cpu_ms() - cpu);
+        used.push(choice.slots);
+        previous = black_box(choice).levels;
+    }
+    cpu_times.sort_by(f64::total_cmp);
+    println!();
+    println!(
+        "Level choice (`choose_levels_near`), {bricks} bricks, {levels} levels, {slots} slots, \
+         orbit 1 deg/frame, {frames} views: CPU median {:.1} ms, p95 {:.1} ms, max {:.1} ms; \
+         slots used per view {used:?}",
+        percentile(&cpu_times, 0.5),
+        percentile(&cpu_times, 0.95),
+        cpu_times[cpu_times.len() - 1],
+    );
+    json_lines.push(format!(
+        "{{\"planner\": \"levels\", \"query\": \"choose_levels_near\", \"camera\": \"orbit\", \
+         \"bricks\": {bricks}, \"levels\": {levels}, \"slots\": {slots}, \"frames\": {frames}, \
+         \"ms_per_frame\": {:.4}, \"p95_ms\": {:.4}}}",
+        percentile(&cpu_times, 0.5),
+        percentile(&cpu_times, 0.95),
+    ));
 }

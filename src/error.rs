@@ -27,7 +27,7 @@ pub enum Error {
     },
     /// The device was lost (`VK_ERROR_DEVICE_LOST`: a driver reset, a hung or removed GPU).
     /// Nothing made from the context works any more: drop the renderers and the context, then
-    /// create a new [`crate::gpu::GpuContext`] (and renderers) to go on.
+    /// create a new `gpu::GpuContext` (and renderers) to go on.
     #[error(
         "the GPU device was lost during {call}: drop the renderer and its GPU context and \
          create new ones to continue"
@@ -101,22 +101,20 @@ pub enum Error {
     /// The brick store could not be written, read or streamed.
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),
+    /// A level plan or level grid is unusable: levels out of order or past the grids, adjacent
+    /// bricks more than one level apart, a broken block, too many levels for the bricks.
+    #[error(transparent)]
+    Pyramid(#[from] crate::pyramid::PyramidError),
+    /// A level plan does not fit the cache (more slots than it has, another brick size, a level
+    /// placed otherwise than the cache stores it).
+    #[error(transparent)]
+    Packing(#[from] crate::pyramid::PackingError),
+    /// The camera-driven level choice was given unusable input.
+    #[error(transparent)]
+    LevelChoice(#[from] crate::plan::LevelChoiceError),
     /// Streaming an OME-Zarr image failed (opening it, its configuration).
     #[error(transparent)]
     Stream(#[from] crate::stream::StreamError),
-    /// A stored brick whose background read failed earlier
-    /// ([`crate::store::LevelStreamer`] keeps the error until
-    /// [`crate::store::LevelStreamer::clear_failures`]).
-    #[error("level {level}, stored brick of brick {first}: its read failed earlier: {source}")]
-    EarlierReadFailed {
-        /// The level.
-        level: u32,
-        /// Linear index of the stored brick's first brick.
-        first: usize,
-        /// The error of that read.
-        #[source]
-        source: std::sync::Arc<Error>,
-    },
     /// An image could not be written.
     #[error("cannot write image {path}: {message}")]
     ImageWrite {
@@ -125,6 +123,18 @@ pub enum Error {
         /// What the encoder said.
         message: String,
     },
+}
+
+impl From<crate::optics::OpticsError> for Error {
+    fn from(e: crate::optics::OpticsError) -> Self {
+        Error::InvalidInput(e.0)
+    }
+}
+
+impl From<crate::scene::SceneError> for Error {
+    fn from(e: crate::scene::SceneError) -> Self {
+        Error::InvalidInput(e.0)
+    }
 }
 
 /// Result with the crate's [`Error`].

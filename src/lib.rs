@@ -32,6 +32,7 @@ pub mod lod;
 pub mod optics;
 pub mod output;
 pub mod plan;
+pub mod pyramid;
 pub mod reference;
 pub mod renderer;
 pub mod scene;

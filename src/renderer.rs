@@ -298,7 +298,7 @@ impl Renderer {
 
     /// Places the volume in world space: a rotation about the volume's centre, applied to every
     /// later frame (see [`VolumePass::set_model_transform`] and [`crate::scene::model`]; e.g.
-    /// [`crate::volume::VolumeMeta::model_transform`] for an oblique NIfTI or DICOM volume). The
+    /// [`ModelTransform::of_volume`] for an oblique NIfTI or DICOM volume). The
     /// camera and clip planes stay in world space; [`Renderer::params`] is in the volume frame.
     pub fn set_model_transform(&mut self, model: ModelTransform) {
         self.pass.set_model_transform(model);

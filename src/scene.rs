@@ -15,7 +15,14 @@ pub mod model;
 pub use clip::{ClipPlane, ClipPlaneError, ClipPlanes, MAX_CLIP_PLANES};
 pub use model::{ModelTransform, ModelTransformError};
 
-use crate::error::{Error, Result};
+/// Render settings, a camera or a parameter block that cannot be used (the message names the
+/// field and what was expected). The crate's [`Error`](crate::Error) takes it as
+/// `InvalidInput`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("invalid input: {0}")]
+pub struct SceneError(pub String);
+
+type Result<T, E = SceneError> = std::result::Result<T, E>;
 use crate::optics::SamplingModel;
 use crate::volume::Volume;
 use glam::{Mat4, UVec3, Vec3, Vec4};
@@ -259,7 +266,7 @@ pub struct RenderSettings {
     pub coarse_low_res_steps: bool,
     /// World-space clip planes (up to [`MAX_CLIP_PLANES`]): each ray is cut to the part on the
     /// kept side (`normal . p + offset >= 0`) of every plane, once per ray; no per-sample cost.
-    /// The same planes passed to [`crate::lod::cull_bricks`] also drop clipped bricks.
+    /// The same planes passed to `lod::cull_bricks` also drop clipped bricks.
     pub clip_planes: ClipPlanes,
 }
 
@@ -302,7 +309,7 @@ impl RenderSettings {
 
     /// Checks the mode and optics settings (ranges, finiteness).
     fn validate_optics(&self) -> Result<()> {
-        let bad = |what: String| Err(Error::InvalidInput(what));
+        let bad = |what: String| Err(SceneError(what));
         match self.mode {
             RenderMode::Iso { value, colour } => {
                 if !value.is_finite() {
@@ -369,7 +376,7 @@ impl Default for RenderSettings {
 }
 
 /// The per-frame parameter block, std140-compatible: vec4 fields and one mat4 (368 bytes). Mirrors `RaycastParams`
-/// in `glsl/include/params.glsl`; size and field offsets are checked in [`crate::gpu::shared_defs`].
+/// in `glsl/include/params.glsl`; size and field offsets are checked in `gpu::shared_defs`.
 /// Positions, directions and planes are in the volume frame (the world, rotated by the inverse
 /// of the volume's [`ModelTransform`]; the world itself when there is none).
 #[repr(C)]
@@ -456,20 +463,20 @@ impl RaycastParams {
         height: u32,
     ) -> Result<Self> {
         if width == 0 || height == 0 {
-            return Err(Error::InvalidInput(format!(
+            return Err(SceneError(format!(
                 "viewport {width}x{height} has a zero side"
             )));
         }
         let forward = camera.target - camera.eye;
         if !(forward.is_finite() && forward.length() > 1e-12) {
-            return Err(Error::InvalidInput(
+            return Err(SceneError(
                 "camera eye and target coincide (or are not finite)".into(),
             ));
         }
         let forward = forward.normalize();
         let right = forward.cross(camera.up);
         if right.length() < 1e-6 {
-            return Err(Error::InvalidInput(
+            return Err(SceneError(
                 "camera up vector is parallel to the view direction".into(),
             ));
         }
@@ -479,7 +486,7 @@ impl RaycastParams {
         let (half_h, ortho) = match camera.projection {
             Projection::Perspective { fov_y_degrees } => {
                 if !(fov_y_degrees > 0.0 && fov_y_degrees < 180.0) {
-                    return Err(Error::InvalidInput(format!(
+                    return Err(SceneError(format!(
                         "perspective field of view {fov_y_degrees} must be in (0, 180) degrees"
                     )));
                 }
@@ -487,7 +494,7 @@ impl RaycastParams {
             }
             Projection::Orthographic { height } => {
                 if !(height > 0.0 && height.is_finite()) {
-                    return Err(Error::InvalidInput(format!(
+                    return Err(SceneError(format!(
                         "orthographic height {height} must be positive"
                     )));
                 }
@@ -496,20 +503,20 @@ impl RaycastParams {
         };
         settings.validate_optics()?;
         if settings.early_termination.is_nan() || settings.early_termination <= 0.0 {
-            return Err(Error::InvalidInput(format!(
+            return Err(SceneError(format!(
                 "early termination {} must be above 0 (the opacity at which a ray stops; 1 or \
                  more never stops early)",
                 settings.early_termination
             )));
         }
         if !(settings.samples_per_voxel > 0.0 && settings.samples_per_voxel.is_finite()) {
-            return Err(Error::InvalidInput(format!(
+            return Err(SceneError(format!(
                 "samples per voxel {} must be positive",
                 settings.samples_per_voxel
             )));
         }
         if !(camera.near >= 0.0 && camera.near < camera.far) {
-            return Err(Error::InvalidInput(format!(
+            return Err(SceneError(format!(
                 "near {} and far {} must satisfy 0 <= near < far",
                 camera.near, camera.far
             )));
@@ -532,7 +539,7 @@ impl RaycastParams {
                 && magnitude < 2f32.powi(-110)
                 && magnitude > 0.0)
         {
-            return Err(Error::InvalidInput(format!(
+            return Err(SceneError(format!(
                 "value window [{lo:e}, {hi:e}] (value range [{:e}, {:e}]) cannot be classified \
                  in f32: its width must be between 2^-128 and 2^126 and the data above 2^-110 in \
                  magnitude; pass RenderSettings::value_window or rescale the volume",
@@ -557,7 +564,7 @@ impl RaycastParams {
         // partial first and last steps), so no ray is cut short.
         let needed = (f64::from((box_max - box_min).length()) / f64::from(step)).ceil() + 2.0;
         if !(step > 0.0 && step.is_finite() && needed <= f64::from(MAX_RAY_STEPS)) {
-            return Err(Error::InvalidInput(format!(
+            return Err(SceneError(format!(
                 "a ray through this volume needs {needed:.3e} samples (box diagonal {:.3} over \
                  step {step:.3e} = smallest voxel side {voxel:.3e} / {} samples per voxel); at \
                  most {MAX_RAY_STEPS} are supported: lower the samples per voxel or check the \

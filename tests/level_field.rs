@@ -17,12 +17,11 @@ use common::levels::{
 use common::Rng;
 use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{low_res_level, BrickGrid, DownsampleFilter, Level};
+use mixvol::cache::block_bricks;
 use mixvol::cache::tables::{brick_neighbour_bits, coarser_neighbour_bits};
 use mixvol::cache::{BrickCache, CacheGeometry};
-use mixvol::reference::{
-    block_bricks, sample_mixed, sample_volume, LevelField, LevelFieldError, LevelGrid,
-    ReferenceCache, SamplePlacement,
-};
+use mixvol::pyramid::{LevelGrid, PyramidError, SamplePlacement};
+use mixvol::reference::{sample_mixed, sample_volume, LevelField, LevelSampling, ReferenceCache};
 use mixvol::scene::Transition;
 use mixvol::volume::{ScalarType, Volume, VoxelData};
 
@@ -350,7 +349,7 @@ fn bad_level_inputs_are_refused_with_what_was_expected() {
 
     // Level 0 next to level 2 breaks the rule; 0-1-2 keeps it.
     let err = LevelField::new(&grid, &grids, &row([Some(0), Some(2), Some(2)])).unwrap_err();
-    assert_eq!(err, LevelFieldError::LevelRule);
+    assert_eq!(err, PyramidError::LevelRule);
     assert!(LevelField::new(&grid, &grids, &row([Some(0), Some(1), Some(2)])).is_ok());
     // An undrawn brick between them separates them.
     assert!(LevelField::new(&grid, &grids, &row([Some(1), None, Some(2)])).is_ok());
@@ -360,7 +359,7 @@ fn bad_level_inputs_are_refused_with_what_was_expected() {
     let err = LevelField::new(&grid, &grids, &row([Some(2), Some(3), Some(3)])).unwrap_err();
     assert_eq!(
         err,
-        LevelFieldError::BrokenBlock {
+        PyramidError::BrokenBlock {
             brick: 1,
             level: 3,
             block: 2
@@ -371,14 +370,14 @@ fn bad_level_inputs_are_refused_with_what_was_expected() {
     holey[grid.linear_index(UVec3::new(1, 1, 1))] = None;
     assert!(matches!(
         LevelField::new(&grid, &grids, &holey),
-        Err(LevelFieldError::BrokenBlock { level: 3, .. })
+        Err(PyramidError::BrokenBlock { level: 3, .. })
     ));
 
     let three = row([Some(0), Some(1), Some(2)]);
     let err = LevelField::new(&grid, &grids[..2], &three).unwrap_err();
     assert!(matches!(
         err,
-        LevelFieldError::UnknownLevel {
+        PyramidError::UnknownLevel {
             level: 2,
             levels: 2,
             ..
@@ -387,7 +386,7 @@ fn bad_level_inputs_are_refused_with_what_was_expected() {
     let err = LevelField::new(&grid, &grids, &[Some(0)]).unwrap_err();
     assert_eq!(
         err,
-        LevelFieldError::BrickLevelCount {
+        PyramidError::BrickLevelCount {
             given: 1,
             bricks: grid.brick_count()
         }
@@ -395,10 +394,10 @@ fn bad_level_inputs_are_refused_with_what_was_expected() {
     let none = vec![None; grid.brick_count()];
     assert_eq!(
         LevelField::new(&grid, &[], &none).unwrap_err(),
-        LevelFieldError::NoLevels
+        PyramidError::NoLevels
     );
     let err = LevelField::new(&grid, &grids[1..], &none).unwrap_err();
-    assert_eq!(err, LevelFieldError::LevelOrder { index: 0, level: 1 });
+    assert_eq!(err, PyramidError::LevelOrder { index: 0, level: 1 });
     // Bricks of 4 voxels take three levels, not four (the block levels need 8).
     let small = BrickGrid::new(volume.dims(), 4).unwrap();
     let none = vec![None; small.brick_count()];
@@ -406,7 +405,7 @@ fn bad_level_inputs_are_refused_with_what_was_expected() {
     let err = LevelField::new(&small, &grids[..4], &none).unwrap_err();
     assert_eq!(
         err,
-        LevelFieldError::TooManyLevels {
+        PyramidError::TooManyLevels {
             levels: 4,
             min_brick_size: 8,
             brick_size: 4
@@ -423,7 +422,7 @@ fn bad_level_inputs_are_refused_with_what_was_expected() {
     .unwrap_err();
     assert_eq!(
         err,
-        LevelFieldError::SampleCount {
+        PyramidError::SampleCount {
             level: 1,
             dims: [2, 2, 2],
             values: 7,
@@ -432,6 +431,87 @@ fn bad_level_inputs_are_refused_with_what_was_expected() {
     );
     assert!(matches!(
         LevelGrid::new(0, SamplePlacement::CellCentred, UVec3::new(0, 2, 2), vec![]),
-        Err(LevelFieldError::InvalidGrid { level: 0, .. })
+        Err(PyramidError::InvalidGrid { level: 0, .. })
     ));
+}
+
+/// Levels 2 and up are the tent `1/4, 1/2, 1/4` over the level below, on vertices, clamp-to-edge
+/// (review H4: every level store, the GPU source and the reference build them with one function,
+/// so they cannot catch a wrong filter; a linear ramp cannot either, since point sampling and
+/// any symmetric filter reproduce it).
+///
+/// Two independent checks: (1) a quadratic along x, `v = s x^2` at voxel centres: level 1 (the
+/// mean of two centres) is `s (x^2 + 1/4)` at its vertices `x = 2j`, and each tent over samples
+/// `h` apart adds `h^2 / 2`, so level `k` is `s (x^2 + c_k)` with `c_k = c_{k-1} + 2^(2k-3)`
+/// away from the clamped edges (point sampling keeps `c_1`, a box of three adds `2 h^2 / 3`);
+/// (2) on a random volume every sample of levels 2-4, clamped edges included, equals the tent
+/// over the level below written out here.
+#[test]
+fn levels_two_and_up_are_the_tent_over_the_level_below() {
+    // (1) The quadratic.
+    let dims = UVec3::new(128, 4, 4);
+    let s = 1.0 / 16384.0;
+    let data = (0..dims.element_product())
+        .map(|i| {
+            let x = (i % dims.x) as f32 + 0.5;
+            s * x * x
+        })
+        .collect();
+    let volume = Volume::new(dims, Vec3::ONE, VoxelData::F32(data)).unwrap();
+    let grids = LevelGrid::vertex_pyramid(&volume, 5);
+    let mut c = 0.25f64;
+    for (k, g) in grids.iter().enumerate().skip(1) {
+        if k >= 2 {
+            let h = f64::from(1u32 << (k - 1));
+            c += h * h / 2.0;
+        }
+        let spacing = 1u32 << k;
+        let mut checked = 0;
+        for j in 0..g.dims().x {
+            let x = j * spacing;
+            // The support of a level-k sample reaches about 2^k voxels each way.
+            if x < 2 * spacing || x + 2 * spacing > dims.x {
+                continue;
+            }
+            let expected = s as f64 * (f64::from(x) * f64::from(x) + c);
+            let got = f64::from(g.value(IVec3::new(j as i32, 1, 1)));
+            assert!(
+                (got - expected).abs() < 1e-6,
+                "level {k} at x = {x}: {got} vs {expected} (c_k = {c})"
+            );
+            checked += 1;
+        }
+        assert!(checked >= 3, "level {k}: only {checked} samples checked");
+    }
+
+    // (2) A random volume, every sample, written-out tent with clamp-to-edge.
+    let mut rng = Rng(0x7e47_0000_0000_0004);
+    let volume = textured_volume(&mut rng, UVec3::new(37, 29, 21));
+    let grids = LevelGrid::vertex_pyramid(&volume, 5);
+    for k in 2..grids.len() {
+        let (below, g) = (&grids[k - 1], &grids[k]);
+        let last = below.dims().as_ivec3() - IVec3::ONE;
+        let at = |i: IVec3| f64::from(below.value(i.clamp(IVec3::ZERO, last)));
+        let w = [0.25f64, 0.5, 0.25];
+        for z in 0..g.dims().z as i32 {
+            for y in 0..g.dims().y as i32 {
+                for x in 0..g.dims().x as i32 {
+                    let mut expected = 0.0;
+                    for (dz, wz) in w.iter().enumerate() {
+                        for (dy, wy) in w.iter().enumerate() {
+                            for (dx, wx) in w.iter().enumerate() {
+                                let d = IVec3::new(dx as i32, dy as i32, dz as i32) - IVec3::ONE;
+                                expected += wx * wy * wz * at(2 * IVec3::new(x, y, z) + d);
+                            }
+                        }
+                    }
+                    let got = f64::from(g.value(IVec3::new(x, y, z)));
+                    assert!(
+                        (got - expected).abs() < 1e-6,
+                        "level {k} sample ({x}, {y}, {z}): {got} vs {expected}"
+                    );
+                }
+            }
+        }
+    }
 }

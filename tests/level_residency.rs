@@ -11,9 +11,10 @@ use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
 use mixvol::cache::{block_bricks, block_origin, ThreeLevelGeometry};
 use mixvol::levels::LevelResidency;
-use mixvol::reference::LevelPlan;
+use mixvol::pyramid::{LevelPlan, PackingError};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Transition};
+use mixvol::Error;
 use std::collections::{BTreeMap, BTreeSet};
 
 const N: u32 = 8;
@@ -302,10 +303,18 @@ fn incremental_changes_draw_what_a_fresh_cache_draws() {
                 let levels = scripted
                     .pop()
                     .unwrap_or_else(|| random_plan(&mut rng, bricks, 4));
-                let Ok(report) = moving.set_brick_levels(&levels) else {
+                let report = match moving.set_brick_levels(&levels) {
+                    Ok(report) => report,
                     // More slots than the tight cache has: refused, the drawn plan kept.
-                    assert_eq!(name, "tight");
-                    continue;
+                    Err(Error::Packing(PackingError::OverBudget { needed, slots, .. })) => {
+                        assert_eq!(name, "tight", "change {change}");
+                        assert!(
+                            needed > u64::from(slots),
+                            "{needed} slots, {slots} in the cache"
+                        );
+                        continue;
+                    }
+                    Err(e) => panic!("{name} change {change}: refused for another reason: {e}"),
                 };
                 // The first change finds the source's own upload not yet recorded: it packs
                 // afresh; every later one moves what it must.

@@ -9,7 +9,7 @@ use common::Rng;
 use glam::{UVec3, Vec3};
 use mixvol::bricks::BrickGrid;
 use mixvol::cache::{block_bricks, stored_brick_edge, stored_bricks_per_axis};
-use mixvol::reference::LevelGrid;
+use mixvol::pyramid::LevelGrid;
 use mixvol::store::{write_level_store, LevelStore, StoreError};
 use mixvol::volume::{Volume, VoxelData};
 use std::path::{Path, PathBuf};

@@ -107,9 +107,9 @@ fn the_oblique_nifti_and_dicom_series_get_numpys_rotation() {
             r.oblique_degrees
         );
         assert!(r.describe().contains("residual oblique rotation"), "{what}");
-        assert_is_numpy_rotation(what, &l.meta.model_transform().unwrap(), 1e-5);
+        assert_is_numpy_rotation(what, &ModelTransform::of_volume(&l.meta).unwrap(), 1e-5);
     }
-    let model = aligned.meta.model_transform().unwrap();
+    let model = ModelTransform::of_volume(&aligned.meta).unwrap();
     assert!(model.is_identity(), "aligned.nii: {model:?}");
 }
 
@@ -188,7 +188,7 @@ fn an_oblique_file_renders_as_the_aligned_file_seen_by_the_inversely_rotated_cam
     let nii = load("oblique.nii");
     let dicom = load("oblique_dicom");
     let aligned = load("aligned.nii");
-    let model = nii.meta.model_transform().unwrap();
+    let model = ModelTransform::of_volume(&nii.meta).unwrap();
     let (camera, settings) = scene();
     let (v_camera, v_settings) = numpy_volume_frame(&camera, &settings);
 
@@ -231,7 +231,7 @@ fn an_oblique_file_renders_as_the_aligned_file_seen_by_the_inversely_rotated_cam
         &mut renderer(
             &ctx,
             VolumeSource::Volume(&dicom.volume),
-            dicom.meta.model_transform().unwrap(),
+            ModelTransform::of_volume(&dicom.meta).unwrap(),
         ),
         &camera,
         &settings,

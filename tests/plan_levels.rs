@@ -12,7 +12,8 @@ use mixvol::bricks::BrickGrid;
 use mixvol::cache::{block_bricks, block_origin, slots_for_plan};
 use mixvol::lod::{BrickGeometry, LodView};
 use mixvol::plan::{choose_levels, choose_levels_near, LevelChoiceError};
-use mixvol::reference::{LevelField, LevelGrid};
+use mixvol::pyramid::LevelGrid;
+use mixvol::reference::LevelField;
 use mixvol::scene::Camera;
 
 const N: u32 = 8;
@@ -53,14 +54,8 @@ fn chosen_plans_keep_the_rule_and_the_blocks_and_meet_their_target() {
         let camera = random_camera(&mut rng);
         let view = LodView::new(&camera, 128, 96).unwrap();
         let slots = [2, 8, 64, 100_000][round % 4];
-        let choice = match choose_levels(&geometry, &view, &active, LEVELS, slots, 1.5) {
-            Ok(choice) => choice,
-            Err(LevelChoiceError::CacheTooSmall { needed, slots }) => {
-                assert!(needed > slots);
-                continue;
-            }
-            Err(e) => panic!("{e}"),
-        };
+        let choice = choose_levels(&geometry, &view, &active, LEVELS, slots, 1.5)
+            .unwrap_or_else(|e| panic!("round {round}: {e}"));
         // The rule and the blocks: the level field accepts the plan.
         LevelField::new(&grid, &grids, &choice.levels)
             .unwrap_or_else(|e| panic!("round {round}: {e}"));
@@ -71,8 +66,15 @@ fn chosen_plans_keep_the_rule_and_the_blocks_and_meet_their_target() {
         );
         assert_eq!(choice.slots, slots_for_plan(bricks, &choice.levels));
         assert!(choice.pixels_per_voxel >= 1.5);
+        let undrawn = choice.levels.iter().filter(|l| l.is_none()).count();
+        assert_eq!(
+            undrawn, choice.dropped,
+            "round {round}: only dropped bricks go undrawn"
+        );
         for (i, b) in grid.bricks().enumerate() {
-            let level = choice.levels[i].expect("every active brick is drawn");
+            let Some(level) = choice.levels[i] else {
+                continue;
+            };
             levels_seen[level as usize] = true;
             let (min, max) = geometry.brick_box(b);
             if view.box_outside_frustum(min, max) {
@@ -105,14 +107,22 @@ fn more_slots_give_a_finer_plan_and_enough_slots_meet_the_target() {
         let view = LodView::new(&camera, 200, 200).unwrap();
         let plans: Vec<_> = [4u64, 16, 64, 1_000_000]
             .iter()
-            .filter_map(|&slots| choose_levels(&geometry, &view, &active, LEVELS, slots, 1.0).ok())
+            .map(|&slots| choose_levels(&geometry, &view, &active, LEVELS, slots, 1.0).unwrap())
             .collect();
         assert!(plans.len() >= 2, "the larger budgets fit");
         for pair in plans.windows(2) {
+            assert!(pair[1].dropped <= pair[0].dropped);
             for (coarse, fine) in pair[0].levels.iter().zip(&pair[1].levels) {
-                assert!(fine <= coarse, "a larger budget never coarsens a brick");
+                // A brick dropped in the smaller cache may be drawn at any level in the larger.
+                assert!(
+                    coarse.is_none() || fine.is_some_and(|f| Some(f) <= *coarse),
+                    "a larger budget never coarsens or drops a brick: {coarse:?} -> {fine:?}"
+                );
             }
-            assert!(pair[1].pixels_per_voxel <= pair[0].pixels_per_voxel);
+            // A cache that drops bricks may draw the rest finer: compare targets without drops.
+            if pair[0].dropped == 0 {
+                assert!(pair[1].pixels_per_voxel <= pair[0].pixels_per_voxel);
+            }
         }
         let roomy = plans.last().unwrap();
         assert_eq!(
@@ -180,14 +190,11 @@ fn bad_choices_are_refused() {
             .to_string(),
         "the target voxel size on screen must be a positive number of pixels, not NaN"
     );
-    // 64 bricks at the coarsest of two levels need 8 slots.
-    assert_eq!(
-        choose_levels(&geometry, &view, &active, 2, 7, 1.0).unwrap_err(),
-        LevelChoiceError::CacheTooSmall {
-            needed: 8,
-            slots: 7
-        }
-    );
+    // 64 bricks at the coarsest of two levels need 8 slots (8 level-1 bricks a slot): with 7,
+    // the 8 least important are dropped, not an error (the order is checked below).
+    let choice = choose_levels(&geometry, &view, &active, 2, 7, 1.0).unwrap();
+    assert_eq!((choice.slots, choice.dropped), (7, 8));
+    assert_eq!(choice.levels.iter().filter(|l| l.is_none()).count(), 8);
     let small =
         BrickGeometry::new(BrickGrid::new(UVec3::splat(16), 4).unwrap(), Vec3::ONE).unwrap();
     let active = vec![true; small.grid().brick_count()];
@@ -360,4 +367,74 @@ fn bricks_are_refined_only_where_the_rule_or_a_block_forces_it() {
         }
     }
     assert!(forced > 0, "some bricks are forced finer");
+}
+
+/// A cache too small for the coarsest plan drops whole blocks of the coarsest level, the least
+/// important first, never an error: blocks with no brick in view before any in view, and among
+/// those alike the farthest first (the distance of a block's nearest brick to the eye, computed
+/// here from the brick boxes); the plan fits and keeps the rules.
+#[test]
+fn a_cache_too_small_drops_the_least_important_blocks() {
+    let mut rng = Rng(0x91a4_0003);
+    let bricks = UVec3::new(8, 6, 5);
+    let geometry = geometry(bricks);
+    let grid = *geometry.grid();
+    let volume = textured_volume(&mut rng, bricks * N);
+    let active = vec![true; grid.brick_count()];
+    for (levels, slots) in [(2u32, 3u64), (2, 1), (3, 1), (1, 50), (2, 0)] {
+        let grids = LevelGrid::vertex_pyramid(&volume, levels);
+        for round in 0..6 {
+            let camera = random_camera(&mut rng);
+            let view = LodView::new(&camera, 96, 96).unwrap();
+            let choice = choose_levels(&geometry, &view, &active, levels, slots, 1.0).unwrap();
+            let what = format!("{levels} levels, {slots} slots, round {round}");
+            assert!(choice.slots <= slots, "{what}: {} slots", choice.slots);
+            assert!(choice.dropped > 0, "{what}: the coarsest plan cannot fit");
+            LevelField::new(&grid, &grids, &choice.levels)
+                .unwrap_or_else(|e| panic!("{what}: {e}"));
+            // Per coarsest block: dropped or drawn, whether a brick is in view, its distance.
+            let block = block_bricks(levels - 1);
+            let blocks = (bricks + UVec3::splat(block - 1)) / block;
+            let mut kept = Vec::new();
+            let mut gone = Vec::new();
+            for z in 0..blocks.z {
+                for y in 0..blocks.y {
+                    for x in 0..blocks.x {
+                        let first = UVec3::new(x, y, z) * block;
+                        let end = (first + UVec3::splat(block)).min(bricks);
+                        let (mut in_view, mut distance, mut drawn) = (false, f32::MAX, None);
+                        for bz in first.z..end.z {
+                            for by in first.y..end.y {
+                                for bx in first.x..end.x {
+                                    let b = UVec3::new(bx, by, bz);
+                                    let (min, max) = geometry.brick_box(b);
+                                    in_view |= !view.box_outside_frustum(min, max);
+                                    let d = (min - view.eye()).max(view.eye() - max);
+                                    distance = distance.min(d.max(Vec3::ZERO).length());
+                                    let now = choice.levels[grid.linear_index(b)].is_some();
+                                    assert!(
+                                        drawn.is_none_or(|d| d == now),
+                                        "{what}: a block is dropped whole"
+                                    );
+                                    drawn = Some(now);
+                                }
+                            }
+                        }
+                        let key = (in_view, distance);
+                        if drawn == Some(true) {
+                            kept.push(key)
+                        } else {
+                            gone.push(key)
+                        }
+                    }
+                }
+            }
+            for g in &gone {
+                for k in &kept {
+                    let more_important = g.0 && !k.0 || g.0 == k.0 && g.1 < k.1 - 1e-4;
+                    assert!(!more_important, "{what}: dropped {g:?} before {k:?}");
+                }
+            }
+        }
+    }
 }

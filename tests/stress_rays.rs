@@ -370,7 +370,7 @@ fn near_and_far_planes_cut_the_volume() {
     common::finish(ctx);
 }
 
-/// Zero-size viewports are refused with `Error::InvalidInput` by the parameter block and by the
+/// Zero-size viewports are refused with a `SceneError` by the parameter block and by the
 /// renderer (single and mixed sources), which keeps working afterwards (validation clean).
 #[test]
 fn zero_size_viewport_is_rejected() {
@@ -381,7 +381,7 @@ fn zero_size_viewport_is_rejected() {
         let settings = RenderSettings::default();
         for (w, h) in [(0u32, 16u32), (16, 0), (0, 0)] {
             match RaycastParams::new(&volume, &camera, &settings, w, h) {
-                Err(mixvol::Error::InvalidInput(m)) => assert!(m.contains("viewport"), "{m}"),
+                Err(mixvol::scene::SceneError(m)) => assert!(m.contains("viewport"), "{m}"),
                 other => panic!("params for a {w}x{h} viewport: {other:?}"),
             }
         }

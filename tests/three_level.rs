@@ -14,11 +14,10 @@ use common::levels::{
 use common::Rng;
 use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, Level};
+use mixvol::cache::block_origin;
 use mixvol::cache::{BrickCache, CacheError, CacheGeometry, ThreeLevelGeometry};
-use mixvol::reference::{
-    block_origin, sample_mixed, LevelCacheError, LevelField, LevelGrid, LevelReferenceCache,
-    SamplePlacement,
-};
+use mixvol::pyramid::{LevelGrid, PackingError, SamplePlacement};
+use mixvol::reference::{sample_mixed, LevelField, LevelReferenceCache, LevelSampling};
 use mixvol::scene::Transition;
 
 const N: u32 = 8;
@@ -234,7 +233,7 @@ fn a_volume_too_big_for_two_levels_is_drawn_whole_with_three() {
     let err = LevelReferenceCache::build(&field, &three_level, Transition::Smooth).unwrap_err();
     assert_eq!(
         err,
-        LevelCacheError::OverBudget {
+        PackingError::OverBudget {
             needed: 32,
             per_level: [0, 256, 0],
             slots: 8
@@ -293,7 +292,7 @@ fn block_levels_share_one_stored_brick_and_draw_the_level_field() {
     let err = LevelReferenceCache::build(&field, &geometry, Transition::Smooth).unwrap_err();
     assert_eq!(
         err,
-        LevelCacheError::OverBudget {
+        PackingError::OverBudget {
             needed: 64,
             per_level: [0, 0, 4096],
             slots: 8
@@ -313,7 +312,7 @@ fn fields_the_packing_cannot_hold_are_refused() {
     let field = LevelField::new(&grid, &pyramid, &levels).unwrap();
     assert_eq!(
         LevelReferenceCache::build(&field, &other, Transition::Smooth).unwrap_err(),
-        LevelCacheError::BrickSize {
+        PackingError::BrickSize {
             field: N,
             cache: 2 * N
         }
@@ -326,7 +325,7 @@ fn fields_the_packing_cannot_hold_are_refused() {
     let field = LevelField::new(&grid, &cell_centred, &levels).unwrap();
     assert_eq!(
         LevelReferenceCache::build(&field, &geometry, Transition::Smooth).unwrap_err(),
-        LevelCacheError::Placement {
+        PackingError::Placement {
             level: 1,
             found: SamplePlacement::CellCentred
         }

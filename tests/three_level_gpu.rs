@@ -12,10 +12,12 @@ use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
 use mixvol::cache::{CacheGeometry, ThreeLevelGeometry};
 use mixvol::levels::GpuLevelCache;
 use mixvol::optics::{TfPreset, TransferFunction};
-use mixvol::reference::{self, sample_mixed, LevelField, LevelGrid, LevelReferenceCache};
+use mixvol::pyramid::{LevelGrid, PackingError, PyramidError};
+use mixvol::reference::{self, sample_mixed, LevelField, LevelReferenceCache};
 use mixvol::renderer::{Frame, MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Transition};
 use mixvol::volume::{ScalarType, SyntheticField, Volume};
+use mixvol::Error;
 use std::sync::Arc;
 
 const N: u32 = 8;
@@ -64,7 +66,8 @@ fn check_gpu_cache(
     let dims = field.grids()[0].dims();
     for transition in [Transition::Smooth, Transition::Discontinuous] {
         let cpu = LevelReferenceCache::build(field, geometry, transition).unwrap();
-        let mut gpu = GpuLevelCache::new(ctx, field, geometry, transition).unwrap();
+        let mut gpu =
+            GpuLevelCache::new(ctx, field.plan(), field.grids(), geometry, transition).unwrap();
 
         // The texels of every stored brick after upload and the GPU fixups.
         let texels = gpu.read_back().unwrap();
@@ -408,9 +411,20 @@ fn residency_changes_across_three_levels_stay_clean() {
                 let mut broken = levels.clone();
                 let at = levels.iter().position(|l| *l == Some(2)).unwrap();
                 broken[at] = Some(0);
-                assert!(renderer.set_brick_levels(&broken).is_err());
+                match renderer.set_brick_levels(&broken) {
+                    Err(Error::Pyramid(PyramidError::LevelRule)) => {}
+                    other => panic!("a level-0 brick next to level 2: {other:?}"),
+                }
                 let all_fine = vec![Some(0); grid.brick_count()];
-                assert!(renderer.set_brick_levels(&all_fine).is_err());
+                match renderer.set_brick_levels(&all_fine) {
+                    Err(Error::Packing(PackingError::OverBudget { needed, slots, .. })) => {
+                        assert!(
+                            needed > u64::from(slots),
+                            "{needed} slots, {slots} in the cache"
+                        )
+                    }
+                    other => panic!("every brick at level 0: {other:?}"),
+                }
                 let again = renderer.render(&camera, &settings, w, h).unwrap();
                 assert_eq!(again.pixels, frame.pixels, "a refused plan changes nothing");
             }

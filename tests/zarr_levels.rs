@@ -18,7 +18,8 @@ use mixvol::cache::{
     block_bricks, stored_brick_edge, stored_bricks_per_axis, stored_first_sample,
     ThreeLevelGeometry,
 };
-use mixvol::reference::{self, LevelField, LevelGrid, LevelReferenceCache, SamplePlacement};
+use mixvol::pyramid::{LevelGrid, SamplePlacement};
+use mixvol::reference::{self, LevelField, LevelReferenceCache};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Transition};
 use mixvol::store::{LevelBackend, LevelStreamConfig, LevelStreamer};

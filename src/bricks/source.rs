@@ -1,16 +1,15 @@
 //! Where a renderer gets packed brick bytes from, and how it copes with bricks not loaded yet.
 //!
 //! [`BrickSource`] is the supplier: the store's streamer
-//! ([`BrickStreamer`](crate::store::BrickStreamer), from disk, or over an OME-Zarr image, local
-//! or remote: [`crate::stream::ZarrBrickSource`]) or the in-memory sources here
+//! (`BrickStreamer`, from disk, or over an OME-Zarr image, local
+//! or remote: `stream::ZarrBrickSource`) or the in-memory sources here
 //! ([`VolumeBrickSource`], [`RgbaBrickSource`], packed on demand by the [kernel](super::kernel)).
 //! Its errors are [`SourceError`]s: a brick it does not have, or a load that failed in its
-//! backend (the streamer's [`crate::store::StoreError`] is kept as the source).
+//! backend (the streamer's `store::StoreError` is kept as the source).
 
 use super::build::{available_threads, build_value_ranges};
 use super::kernel::{BrickKernel, VoxelWindow};
 use super::{BrickError, BrickGrid, DownsampleFilter, Level, ValueRange};
-use crate::error::Result;
 use crate::optics::SamplingModel;
 use crate::volume::{RgbaVolume, ScalarType, Volume, VoxelData};
 use glam::Vec3;
@@ -92,14 +91,14 @@ pub enum SourceError {
         message: String,
     },
     /// Loading the brick failed in the source's backend (it is not retried until the backend
-    /// is told to, e.g. [`crate::store::BrickStreamer::clear_failures`]).
+    /// is told to, e.g. `store::BrickStreamer::clear_failures`).
     #[error("brick {brick} ({level:?}) failed to load: {source}")]
     Load {
         /// The brick index.
         brick: u32,
         /// The level.
         level: Level,
-        /// The backend's error (a [`crate::store::StoreError`] for the streamer).
+        /// The backend's error (a `store::StoreError` for the streamer).
         #[source]
         source: Arc<dyn std::error::Error + Send + Sync>,
     },
@@ -138,7 +137,7 @@ pub trait BrickSource: Send + Sync {
     /// can tighten while it streams (a source that cannot read every voxel up front reports
     /// conservative [`BrickSource::value_ranges`] and learns a brick's exact range, as
     /// [`crate::bricks::brick_value_ranges_for_storage`] defines it, once the voxels it reads
-    /// have arrived; see [`crate::stream`]). A host culls with these when given, and culls
+    /// have arrived; see the `stream` module). A host culls with these when given, and culls
     /// again when they change. `None` (the default): [`BrickSource::value_ranges`] are final.
     /// Never blocks on I/O.
     fn learned_value_ranges(&self) -> Option<Arc<[ValueRange]>> {
@@ -181,7 +180,7 @@ pub trait BrickSource: Send + Sync {
     }
 
     /// Tells a streaming source what to load next: `(brick, level, priority)`, higher priority
-    /// first, replacing the previous request (as [`crate::store::BrickStreamer::request`]). The
+    /// first, replacing the previous request (as `store::BrickStreamer::request`). The
     /// camera-driven pass calls it once per frame with the planner's requests, after the frame's
     /// bricks were fetched. Must not block on I/O. The default (for sources that hold every
     /// level in memory) does nothing.
@@ -206,8 +205,8 @@ pub trait BrickSource: Send + Sync {
 /// still needs its bytes here (for re-uploads: compaction moves, border restores): keep the
 /// bricks you draw in the streamer's wanted set so that their bytes stay in RAM.
 ///
-/// With a [`crate::store::BrickStreamer`], every level this function reports drawable stays loaded until
-/// the next [`crate::store::BrickStreamer::request`] (it is pinned), so the uploads that follow in the
+/// With a `store::BrickStreamer`, every level this function reports drawable stays loaded until
+/// the next `store::BrickStreamer::request` (it is pinned), so the uploads that follow in the
 /// same frame always find their bytes.
 pub fn fallback_levels(wanted: &[Level], source: &dyn BrickSource) -> Vec<Level> {
     wanted
@@ -230,7 +229,7 @@ pub fn fallback_levels(wanted: &[Level], source: &dyn BrickSource) -> Vec<Level>
 /// `priority[brick]` (the caller's LOD error, tie-broken by distance; equal priorities keep brick
 /// order). Missing or NaN priorities count as lowest.
 ///
-/// The returned priorities are ranks (`len - position`), so [`crate::store::BrickStreamer::request`]
+/// The returned priorities are ranks (`len - position`), so `store::BrickStreamer::request`
 /// keeps exactly this order.
 pub fn request_plan(wanted: &[Level], priority: &[f32]) -> Vec<(u32, Level, f32)> {
     let p = |i: usize| match priority.get(i) {

@@ -1,5 +1,5 @@
 //! Which sub-slots of a three-level cache hold a stored brick: the allocator that lets a
-//! residency change keep every brick that stays where it is (`crate::levels::LevelResidency`).
+//! residency change keep every brick that stays where it is (`levels::LevelResidency`).
 //!
 //! A slot holds stored bricks of one packing class only (level 0: one brick; level 1: eight;
 //! level 2 and the block levels: sixty-four, `ThreeLevelGeometry::bricks_per_slot`). A sub-slot

@@ -78,7 +78,7 @@ pub fn brick_neighbour_bits(grid: &BrickGrid, brick: UVec3, level: impl Fn(usize
 /// `brick`; zero for a brick that is not drawn. `level_of(i)` is the level number of linear brick
 /// `i` (0 = full resolution), `None` when it is not drawn. With levels `Hi` = 0 and `Lo` = 1 these
 /// are [`brick_neighbour_bits`]: a brick's transition looks only at the next coarser level, since
-/// neighbours differ by at most one level (`crate::reference::LevelField`).
+/// neighbours differ by at most one level (`reference::LevelField`).
 pub fn coarser_neighbour_bits(
     grid: &BrickGrid,
     brick: UVec3,

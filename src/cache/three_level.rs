@@ -3,7 +3,7 @@
 //! level-1 bricks in `(n/2 + 2)^3` sub-slots, or sixty-four level-2 bricks in `(n/4 + 1)^3`
 //! sub-slots. A slot holds bricks of one level only.
 //!
-//! Levels and what a brick stores (`crate::reference::LevelGrid::vertex_pyramid`):
+//! Levels and what a brick stores (`reference::LevelGrid::vertex_pyramid`):
 //! - level 0: hi-res voxels at cell centres; texel `origin + t` (t in `0..n+4`) holds voxel
 //!   `n*b - 2 + t`, clamped to the volume. The ray-caster's band reads the inner border layer
 //!   (slot-local texels 1 and `n + 2`), which the border fixup rewrites exactly as in the
@@ -13,7 +13,7 @@
 //!   has one texel more per axis than its `n/2 + 1` samples; it is left unwritten.
 //! - level `k > 2` (any number of levels): a brick of the level-2 size, `n/4 + 1` samples per
 //!   axis every `2^k` voxels, in a level-2 sub-slot, for a whole aligned block of `2^(k - 2)`
-//!   bricks per axis (`crate::reference::block_bricks`): texel `origin + t` holds level-`k`
+//!   bricks per axis (`reference::block_bricks`): texel `origin + t` holds level-`k`
 //!   sample `n*b0/2^k + t`, `b0` the block's first brick. Every brick of the block has the
 //!   block's layout entry. Level-2 sub-slots hold bricks of any level from 2 up, mixed.
 //!

@@ -5,8 +5,8 @@
 use super::source::{MixedConfig, Source};
 use super::VolumePass;
 use crate::bricks::dequantize;
-use crate::cache::block_origin;
 use crate::cache::ThreeLevelGeometry;
+use crate::cache::{block_origin, stored_brick_edge};
 use crate::error::{Error, Result};
 use crate::gpu::GpuBrickCache;
 use crate::levels::{
@@ -14,7 +14,7 @@ use crate::levels::{
     LevelUpdateReport,
 };
 use crate::lod::BrickGeometry;
-use crate::reference::{LevelField, LevelGrid, LevelPlan};
+use crate::pyramid::{LevelGrid, LevelPlan};
 use crate::scene::Transition;
 use crate::store::{LevelBackend, LevelStore, LevelStreamer};
 use crate::volume::{ScalarType, Volume};
@@ -114,37 +114,21 @@ impl LevelState {
     /// the drawn one as it is; then uploads only what changed ([`LevelResidency`]).
     pub(super) fn stage(&mut self, levels: &[Option<u32>]) -> Result<LevelUpdateReport> {
         let start = Instant::now();
-        let refused =
-            |e: &dyn std::fmt::Display| Error::InvalidInput(format!("three-level source: {e}"));
-        let plan = match &self.data {
-            LevelData::Grids(grids) => LevelField::new(&self.grid, grids, levels)
-                .map_err(|e| refused(&e))?
-                .plan()
-                .clone(),
-            LevelData::Store(_) | LevelData::Streamed(_) => {
-                LevelPlan::new(&self.grid, self.data.level_count(), levels)
-                    .map_err(|e| refused(&e))?
-            }
-        };
+        let plan = LevelPlan::new(&self.grid, self.data.level_count(), levels)?;
         if self.gpu.has_pending() {
             // A change staged but never recorded: the cache does not hold it.
             self.gpu.discard_pending();
             self.residency.invalidate();
         }
-        let update = self
-            .residency
-            .update(&plan, &self.geometry)
-            .map_err(|e| refused(&e))?;
+        let update = self.residency.update(&plan, &self.geometry)?;
         let packed = &update.packing;
         let geometry = &self.geometry;
         let scalar = self.scalar;
         let texel_bytes = scalar.size_bytes();
         let mut uploaded_bytes = 0;
         // The texels of each uploaded stored brick: packed from the grids in RAM, or read.
-        let field = match &self.data {
-            LevelData::Grids(grids) => {
-                Some(LevelField::new(&self.grid, grids, levels).map_err(|e| refused(&e))?)
-            }
+        let grids = match &self.data {
+            LevelData::Grids(grids) => Some(grids.as_slice()),
             _ => None,
         };
         let (data, grid) = (&self.data, self.grid);
@@ -155,8 +139,8 @@ impl LevelState {
             scalar,
             &update.upload,
             &mut |brick| {
-                let texels = match &field {
-                    Some(field) => packed.stored_values(field, geometry, brick),
+                let texels = match grids {
+                    Some(grids) => packed.stored_values(grids, geometry, brick),
                     None => {
                         let level = packed.places[brick].map_or(0, |p| p.level);
                         data.read_stored(
@@ -208,6 +192,32 @@ impl LevelState {
     /// Slots of the cache.
     pub(super) fn slot_count(&self) -> u64 {
         u64::from(self.geometry.slot_count())
+    }
+
+    /// Bytes of one stored brick of `level` in the cache.
+    pub(super) fn stored_bytes(&self, level: u32) -> u64 {
+        u64::from(stored_brick_edge(self.brick_size, level)).pow(3)
+            * self.scalar.size_bytes() as u64
+    }
+
+    /// Bytes that staging `levels` now would upload, exactly as [`LevelState::stage`] would:
+    /// new stored bricks, kept ones whose coarser neighbours change and kept ones moved to make
+    /// room (everything when the cache would be packed afresh); `None` when the plan breaks the
+    /// rules or does not fit the cache's slots.
+    pub(super) fn upload_bytes_for(&self, levels: &[Option<u32>]) -> Option<u64> {
+        let plan = LevelPlan::new(&self.grid, self.data.level_count(), levels).ok()?;
+        let mut residency = self.residency.clone();
+        if self.gpu.has_pending() {
+            residency.invalidate();
+        }
+        let update = residency.update(&plan, &self.geometry).ok()?;
+        Some(
+            update
+                .upload
+                .iter()
+                .map(|&i| self.stored_bytes(update.packing.places[i].map_or(0, |p| p.level)))
+                .sum(),
+        )
     }
 }
 
@@ -285,8 +295,7 @@ impl VolumePass {
         let coarsest = vec![Some(data.level_count() - 1); grid.brick_count()];
         let levels = if levels.is_empty() { &coarsest } else { levels };
         // The plan is checked before the cache is allocated.
-        LevelPlan::new(&grid, data.level_count(), levels)
-            .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
+        LevelPlan::new(&grid, data.level_count(), levels)?;
         let bricks = BrickGeometry::new(grid, facts.spacing)?;
         let n = grid.brick_size();
         let cull_ranges = match &data {

@@ -11,7 +11,7 @@
 //! uploads (volume, brick cache, transfer function), the fixup pass, and the ray-cast, which
 //! renders with dynamic rendering into the caller's colour view and can stop rays at the caller's
 //! depth buffer. It never submits, never waits and never creates an instance or device (wrap the
-//! host's objects with [`GpuContext::from_host`]). The offscreen [`crate::renderer::Renderer`] is
+//! host's objects with [`GpuContext::from_host`]). The offscreen `renderer::Renderer` is
 //! a small host built on it.
 //!
 //! # World space and the model transform
@@ -70,7 +70,7 @@ mod source;
 mod tables;
 
 pub use frames::PassTimings;
-pub use residency::{FrameReport, ResidencyConfig};
+pub use residency::{FrameReport, ResidencyConfig, MIN_STEP_BRICKS};
 pub use source::{MixedConfig, ResidencyReport, VolumeSource};
 
 use crate::error::{Error, Result};

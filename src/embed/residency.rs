@@ -23,7 +23,7 @@ use super::level_source::LevelState;
 use super::source::{ResidencyReport, Source};
 use super::VolumePass;
 use crate::bricks::Level;
-use crate::cache::{block_origin, slots_for_plan, stored_brick_edge};
+use crate::cache::block_origin;
 use crate::error::{Error, Result};
 use crate::lod::{cull_bricks, CullParams, LodView, ValueCulling};
 use crate::plan::{
@@ -40,9 +40,12 @@ use std::time::Instant;
 /// GPU cache budget is the brick cache's own ([`super::MixedConfig::cache_budget_bytes`]).
 #[derive(Copy, Clone, Debug, PartialEq)]
 pub struct ResidencyConfig {
-    /// Bytes of brick level changes uploaded per frame at most (the planner's budget; the
-    /// cache's compaction moves and border restores come on top, see [`crate::plan`]). Should
-    /// hold one hi-res and two low-res bricks, or a still camera may not converge.
+    /// Bytes of brick level changes uploaded per frame at most. Two-level sources: the
+    /// planner's budget (the cache's compaction moves and border restores come on top, see
+    /// [`crate::plan`]); it should hold one hi-res and two low-res bricks, or a still camera may
+    /// not converge. Level sources ([`VolumePass::plan_brick_levels`]): a hard cap on every
+    /// stored brick a step uploads, moves and re-fixed neighbours included; at least
+    /// [`MIN_STEP_BRICKS`] level-0 stored bricks.
     pub upload_bytes_per_frame: u64,
     /// RAM budget of a streaming source: the request list is cut to what fits (`None`: all).
     pub ram_bytes: Option<u64>,
@@ -237,10 +240,11 @@ impl VolumePass {
     /// `width` x `height` pixels, with drawn voxels at most `target_pixels` on screen where the
     /// cache allows ([`crate::plan::choose_levels_near`], with hysteresis against the last
     /// choice), and stages a step towards it (the next
-    /// [`VolumePass::record`] uploads what changed): under
-    /// [`ResidencyConfig::upload_bytes_per_frame`] the step refines at most one level per brick
-    /// and uploads about that many bytes ([`crate::plan::next_target`],
-    /// [`crate::plan::admit_by_budget`], [`crate::plan::step_towards`]); the returned choice
+    /// [`VolumePass::record`] uploads what changed): the step refines at most one level per brick
+    /// and uploads at most [`ResidencyConfig::upload_bytes_per_frame`] bytes, counting every
+    /// stored brick it uploads (new ones, kept ones whose coarser neighbours changed, ones moved
+    /// to make room); a step that does not fit waits ([`crate::plan::next_target`],
+    /// [`crate::plan::admit_by_budget`], [`crate::plan::step_towards`]). The returned choice
     /// counts the bricks still waiting, and calling again (a frame later) goes on. Bricks the
     /// pass's transfer function
     /// (or iso-value, or clip planes) leaves empty are culled by their conservative ranges
@@ -250,8 +254,9 @@ impl VolumePass {
     /// and then requests the next step's bricks, the drawn ones and the rest of the wanted
     /// plan, in that order: the call never reads the disk, except for a drawn brick whose
     /// coarser neighbour changed and that the streamer evicted under a tight RAM budget.
-    /// Errors: another kind of source, a bad view, settings or target, a cache too small for
-    /// the coarsest plan.
+    /// Errors: another kind of source, a bad view, settings or target, an upload budget below
+    /// [`MIN_STEP_BRICKS`] level-0 stored bricks. A cache too small for the coarsest plan is no
+    /// error: the least important bricks are not drawn ([`LevelChoice::dropped`]).
     ///
     /// [`VolumeSource::Levels`]: super::VolumeSource::Levels
     /// [`VolumeSource::LevelStore`]: super::VolumeSource::LevelStore
@@ -277,6 +282,17 @@ impl VolumePass {
                     .into(),
             ));
         };
+        let budget = self.residency.upload_bytes_per_frame;
+        let least = MIN_STEP_BRICKS * state.stored_bytes(0);
+        if budget < least {
+            return Err(Error::InvalidInput(format!(
+                "upload budget of {budget} bytes per frame is below the largest single step, \
+                 {least} bytes ({MIN_STEP_BRICKS} level-0 stored bricks of {} bytes: a brick and \
+                 the neighbours it makes stale); a smaller budget could stop the cache short of \
+                 the camera's levels: raise upload_bytes_per_frame",
+                state.stored_bytes(0)
+            )));
+        }
         let window = settings.classification_window(state.is_float, state.value_range);
         let cull = cull_params(&settings, tf, window)?;
         let active = cull_bricks(&state.bricks, &state.cull_ranges, &cull)?;
@@ -290,14 +306,8 @@ impl VolumePass {
             state.slot_count(),
             target_pixels,
             &state.wanted,
-        )
-        .map_err(|e| Error::InvalidInput(format!("three-level source: {e}")))?;
-        let drawn = budgeted_step(
-            state,
-            &view,
-            &choice.levels,
-            self.residency.upload_bytes_per_frame,
-        );
+        )?;
+        let drawn = budgeted_step(state, &view, &choice.levels, budget);
         choice.waiting = drawn
             .iter()
             .zip(&choice.levels)
@@ -314,9 +324,16 @@ impl VolumePass {
     }
 }
 
-/// [`admit_by_budget`] for a move of `state` from its drawn levels towards `towards`.
+/// The stored bricks of the largest single step of a level source, in level-0 stored bricks: a
+/// brick refined to level 0 (or coarsened from it) and its 26 level-0 neighbours, whose
+/// fixed-up borders go stale and are uploaded again. An upload budget of this many level-0
+/// stored bricks always lets some step move (`VolumePass::plan_brick_levels` refuses less).
+pub const MIN_STEP_BRICKS: u64 = 27;
+
+/// [`admit_by_budget`] for a move from `current` towards `towards`.
 fn admit_towards(
     state: &LevelState,
+    current: &[Option<u32>],
     distance: &[f32],
     towards: &[Option<u32>],
     skip: &dyn Fn(usize, u32) -> bool,
@@ -326,7 +343,7 @@ fn admit_towards(
         state.bricks.grid().bricks_per_axis(),
         state.brick_size,
         state.scalar.size_bytes() as u64,
-        &state.current,
+        current,
         towards,
         distance,
         skip,
@@ -357,8 +374,16 @@ fn stream_request(state: &LevelState, view: &LodView, wanted: &[Option<u32>]) ->
     let bricks = grid.bricks_per_axis();
     let distance = brick_distances(state, view);
     let resident = |first: usize, level: u32| state.residency.holds(first, level);
-    let uploads =
-        |towards: &[Option<u32>]| admit_towards(state, &distance, towards, &resident, u64::MAX);
+    let uploads = |towards: &[Option<u32>]| {
+        admit_towards(
+            state,
+            &state.current,
+            &distance,
+            towards,
+            &resident,
+            u64::MAX,
+        )
+    };
     // The uploads of the next steps, level by level (a streamed source steps on through those
     // in RAM within one call).
     let mut keys: Vec<(u32, usize)> = Vec::new();
@@ -391,15 +416,22 @@ fn stream_request(state: &LevelState, view: &LodView, wanted: &[Option<u32>]) ->
     keys
 }
 
-/// The levels a three-level source draws this step on its way to `wanted`: `wanted` itself when
-/// its uploads fit `budget` bytes, else a step towards [`next_target`] (at most one level finer
-/// than drawn now) with the bricks
-/// [`admit_by_budget`] admits under `budget` bytes, cut (fewest admitted first) until it fits
-/// the cache's slots. A step that would not move at all takes the whole target, over the
-/// budget, so that the source always reaches `wanted`. For a streamed source only stored
-/// bricks in the streamer's RAM are admitted, a step that would not move waits for them
-/// instead, and a step that moves goes on towards the next levels while their bricks are in
-/// RAM and the whole move's uploads fit the budget.
+/// The levels a three-level source draws this step on its way to `wanted`, under a hard cap of
+/// `budget` bytes on everything the step uploads ([`LevelState::upload_bytes_for`]: new stored
+/// bricks, kept ones whose coarser neighbours change, ones moved to make room):
+/// - `wanted` itself when its uploads fit;
+/// - else a step towards [`next_target`] (at most one level finer than drawn now): the target's
+///   missing stored bricks in [`admit_by_budget`]'s order (coarsenings first, then the largest
+///   gaps, nearest first), the longest prefix whose step ([`step_towards`]) fits the budget and
+///   the cache's slots; when no prefix does, the first such brick alone that does (a brick
+///   with fewer finer neighbours to fix up again costs less);
+/// - else the drawn levels: the step waits (a budget below one stored brick and the
+///   neighbours it makes stale never moves; `plan_brick_levels` refuses a budget below
+///   [`MIN_STEP_BRICKS`] level-0 stored bricks).
+///
+/// A streamed source admits only stored bricks in its streamer's RAM, and a step that moves
+/// goes on towards the next levels while their bricks are in RAM and the whole move's uploads
+/// still fit the budget.
 fn budgeted_step(
     state: &LevelState,
     view: &LodView,
@@ -408,83 +440,72 @@ fn budgeted_step(
 ) -> Vec<Option<u32>> {
     let grid = state.bricks.grid();
     let bricks = grid.bricks_per_axis();
-    if state.current.is_empty() {
-        return wanted.to_vec();
-    }
+    // Nothing staged yet counts as nothing drawn.
+    let current = if state.current.is_empty() {
+        vec![None; grid.brick_count()]
+    } else {
+        state.current.clone()
+    };
     let distance = brick_distances(state, view);
     let resident = |first: usize, level: u32| state.residency.holds(first, level);
     // A streamed source draws only stored bricks already in RAM.
     let streamer = state.streamer();
     let in_ram = |first: usize, level: u32| streamer.is_none_or(|s| s.is_ready((level, first)));
     let not_drawable = |first: usize, level: u32| resident(first, level) || !in_ram(first, level);
-    let admit = |towards: &[Option<u32>], budget: u64, skip: &dyn Fn(usize, u32) -> bool| {
-        admit_towards(state, &distance, towards, skip, budget)
+    let affordable = |plan: &[Option<u32>]| {
+        state
+            .upload_bytes_for(plan)
+            .is_some_and(|bytes| bytes <= budget)
     };
-    let all_in_ram = |uploads: &[(usize, u32)]| uploads.iter().all(|&(f, l)| in_ram(f, l));
     // The whole way in one step when its uploads fit the budget (and are in RAM).
-    let needed = admit(wanted, u64::MAX, &resident);
-    if admit(wanted, budget, &resident).len() == needed.len() && all_in_ram(&needed) {
+    let needed = admit_towards(state, &current, &distance, wanted, &resident, u64::MAX);
+    if needed.iter().all(|&(f, l)| in_ram(f, l)) && affordable(wanted) {
         return wanted.to_vec();
     }
-    let target = next_target(bricks, state.level_count(), &state.current, wanted);
-    let admitted = admit(&target, budget, &not_drawable);
-    let step = |count: usize| {
-        let taken: HashSet<(usize, u32)> = admitted[..count].iter().copied().collect();
+    let target = next_target(bricks, state.level_count(), &current, wanted);
+    let order = admit_towards(state, &current, &distance, &target, &not_drawable, u64::MAX);
+    let step_with = |taken: &[(usize, u32)]| {
+        let taken: HashSet<(usize, u32)> = taken.iter().copied().collect();
         let ready =
             |first: usize, level: u32| resident(first, level) || taken.contains(&(first, level));
-        step_towards(bricks, &state.current, &target, &ready)
+        step_towards(bricks, &current, &target, &ready)
     };
-    let fits = |plan: &[Option<u32>]| slots_for_plan(bricks, plan) <= state.slot_count();
-    let mut chosen = step(admitted.len());
-    if !fits(&chosen) {
-        // The largest prefix of the admitted bricks whose step fits (none: the drawn plan).
-        let (mut lo, mut hi) = (0, admitted.len());
-        while hi - lo > 1 {
-            let mid = (lo + hi) / 2;
-            if fits(&step(mid)) {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
+    // The longest affordable prefix (a prefix's bytes grow with its length but for the odd
+    // compaction, so a bisection; only an affordable step is ever taken).
+    let mut chosen = current.clone();
+    let (mut fit, mut over) = (0, order.len() + 1);
+    while over - fit > 1 {
+        let mid = (fit + over) / 2;
+        let step = step_with(&order[..mid]);
+        if affordable(&step) {
+            (fit, chosen) = (mid, step);
+        } else {
+            over = mid;
         }
-        chosen = step(lo);
     }
-    if streamer.is_some() && chosen != state.current {
+    if fit == 0 {
+        // No prefix fits: the first single brick whose step does.
+        if let Some(step) = order
+            .iter()
+            .take(64)
+            .map(|&one| step_with(&[one]))
+            .find(|step| *step != current && affordable(step))
+        {
+            chosen = step;
+        }
+    }
+    if streamer.is_some() && chosen != current {
         // A streamed source steps on, a level at a time, while the next level's bricks are in
         // RAM and the uploads of the whole move still fit the budget.
         let ready = |first: usize, level: u32| resident(first, level) || in_ram(first, level);
-        let upload_bytes = |plan: &[Option<u32>]| -> u64 {
-            admit(plan, u64::MAX, &resident)
-                .iter()
-                .map(|&(_, level)| {
-                    u64::from(stored_brick_edge(state.brick_size, level)).pow(3)
-                        * state.scalar.size_bytes() as u64
-                })
-                .sum()
-        };
         for _ in 0..state.level_count() {
             let next_goal = next_target(bricks, state.level_count(), &chosen, wanted);
             let next = step_towards(bricks, &chosen, &next_goal, &ready);
-            if next == chosen || !fits(&next) || upload_bytes(&next) > budget {
+            if next == chosen || !affordable(&next) {
                 break;
             }
             chosen = next;
         }
-        return chosen;
-    }
-    if chosen == state.current && target != state.current {
-        // No step under the budget moves (the bricks it admits all fall back): take the target
-        // whole, or the wanted plan where the target does not fit the slots. A streamed source
-        // waits instead while their bricks are not in RAM.
-        let whole = if fits(&target) { &target[..] } else { wanted };
-        if !all_in_ram(&admit(whole, u64::MAX, &resident)) {
-            return chosen;
-        }
-        chosen = if fits(&target) {
-            target
-        } else {
-            wanted.to_vec()
-        };
     }
     chosen
 }

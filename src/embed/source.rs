@@ -26,7 +26,7 @@ use glam::UVec3;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// What a [`VolumePass`] (or [`crate::renderer::Renderer`]) draws, given to
+/// What a [`VolumePass`] (or `renderer::Renderer`) draws, given to
 /// [`VolumePass::set_source`].
 pub enum VolumeSource<'a> {
     /// `volume` as one plain 3D texture (its texels are copied now and uploaded by the next
@@ -57,12 +57,12 @@ pub enum VolumeSource<'a> {
     /// A volume drawn through the paper's three-level brick cache (`(n+4)^3` slots holding one
     /// level-0, eight level-1 or sixty-four level-2 bricks; `crate::cache::ThreeLevelGeometry`)
     /// at the levels the host gives, one per brick: `Some(0)` full resolution, `Some(k)` the
-    /// vertex level `k` of `crate::reference::LevelGrid::vertex_pyramid`, `None` not drawn (an
+    /// vertex level `k` of [`crate::pyramid::LevelGrid::vertex_pyramid`], `None` not drawn (an
     /// empty slice: every brick at the coarsest level, a start for
     /// `VolumePass::plan_brick_levels`). Face-, edge- and corner-adjacent drawn bricks must
     /// differ by at most one level; past
     /// level 2 (bricks of at least 8 voxels) the bricks of a level come in aligned blocks of
-    /// `crate::reference::block_bricks(k)` per axis, each stored as one level-2-sized brick, up to
+    /// [`crate::cache::block_bricks`]`(k)` per axis, each stored as one level-2-sized brick, up to
     /// the level whose block covers the grid's longest axis.
     /// The cache holds texels of the volume's scalar type (u8 / u16 UNORM: transitions between
     /// vertex levels then jump by at most half a step, `docs/cache-layout.md`; f32: C0
@@ -224,7 +224,7 @@ pub struct ResidencyReport {
     /// CPU time spent packing (or fetching) bricks, in milliseconds.
     pub pack_ms: f64,
     /// Wall time of the update's submission in milliseconds: filled by the offscreen
-    /// [`crate::renderer::Renderer`], which submits and waits; 0 when only staged.
+    /// `renderer::Renderer`, which submits and waits; 0 when only staged.
     pub update_ms: f64,
 }
 
@@ -759,7 +759,7 @@ impl VolumePass {
             Source::None => Err(Error::InvalidInput(
                 "render called before set_source".into(),
             )),
-            Source::Single(v) => RaycastParams::for_dims(
+            Source::Single(v) => Ok(RaycastParams::for_dims(
                 v.dims,
                 v.spacing,
                 v.value_range,
@@ -768,7 +768,7 @@ impl VolumePass {
                 settings,
                 width,
                 height,
-            ),
+            )?),
             Source::Mixed(m) => Ok(RaycastParams::for_dims(
                 m.source.grid().dims(),
                 m.source.spacing(),

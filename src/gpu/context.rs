@@ -318,8 +318,8 @@ pub struct HostDevice {
     pub device: ash::Device,
     /// A graphics + compute queue family of `device`.
     pub queue_family: u32,
-    /// A queue of `queue_family`; only the offscreen [`crate::renderer::Renderer`] submits to it,
-    /// the embedding path ([`crate::embed::VolumePass`]) never does.
+    /// A queue of `queue_family`; only the offscreen `renderer::Renderer` submits to it,
+    /// the embedding path (`embed::VolumePass`) never does.
     pub queue: vk::Queue,
     /// The host's gpu-allocator allocator, if it wants ours to share it; otherwise the context
     /// creates its own for `device`.
@@ -852,7 +852,7 @@ impl GpuContext {
     }
 
     /// The queue the context uses. A host that submits to it itself must not do so while a
-    /// [`crate::renderer::Renderer`] on the same context submits from another thread (the
+    /// `renderer::Renderer` on the same context submits from another thread (the
     /// queue needs external synchronisation).
     pub fn queue(&self) -> vk::Queue {
         self.shared.queue

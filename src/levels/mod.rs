@@ -1,17 +1,17 @@
-//! The three-level brick cache on the GPU (issue 19, item 1), filled from the levels of a
-//! [`LevelField`]: every drawn brick packed into its slot or sub-slot of a
+//! The three-level brick cache on the GPU (issue 19, item 1), filled from a level plan
+//! ([`crate::pyramid::LevelPlan`]) and its levels' samples: every drawn brick packed into its slot or sub-slot of a
 //! [`ThreeLevelGeometry`] cache and uploaded with one `vkCmdCopyBufferToImage` (one region per
 //! brick), the border fixup (level 0 towards level 1, `fixup.comp` on the inner box of a
 //! `(n+4)^3` slot) and the skeleton fixup (`skeleton_fixup.comp`, level 1 towards level 2) as
 //! compute dispatches, and the field read with the ray-caster's own functions (`probe.comp`
 //! includes `mixed.glsl`, unchanged: a level-0 brick blends, a coarser one is a plain fetch).
 //!
-//! The levels come from the host ([`crate::renderer::Renderer::set_brick_levels`]) or from the
-//! camera ([`crate::renderer::Renderer::plan_brick_levels`], [`crate::plan::choose_levels`]), for a
+//! The levels come from the host (`renderer::Renderer::set_brick_levels`) or from the
+//! camera (`renderer::Renderer::plan_brick_levels`, [`crate::plan::choose_levels`]), for a
 //! volume in RAM, a level store, or stored bricks streamed in the background
 //! ([`crate::store::LevelStreamer`]: a level store, an OME-Zarr pyramid);
 //! [`GpuLevelCache`] fills a cache once to read the field and the cache back (the tests check
-//! the GPU cache, its fixups and its sampling against [`crate::reference::LevelReferenceCache`]).
+//! the GPU cache, its fixups and its sampling against the CPU reference's `LevelReferenceCache`).
 
 mod ranges;
 mod residency;
@@ -25,7 +25,7 @@ use crate::gpu::{
     CacheRegion, CacheTables, DeviceShared, FieldProbe, GpuBrickCache, GpuContext, SlotPacking,
     StagingUpload, Submitter,
 };
-use crate::reference::{LevelField, LevelPacking};
+use crate::pyramid::{LevelGrid, LevelPacking, LevelPlan};
 use crate::scene::Transition;
 use crate::volume::ScalarType;
 use glam::{UVec3, Vec3};
@@ -43,7 +43,7 @@ pub struct GpuLevelCache {
 }
 
 /// What one residency change of a three-level source moved
-/// ([`crate::renderer::Renderer::set_brick_levels`]).
+/// (`renderer::Renderer::set_brick_levels`).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct LevelUpdateReport {
     /// Stored bricks the new plan draws (one per brick up to level 2, one per block past it).
@@ -95,23 +95,23 @@ pub(crate) fn new_three_level_cache(
     )
 }
 
-/// Stages the drawn bricks of `field` into `gpu` (a cache of `geometry`), packed afresh from
-/// the field's grids: [`stage_three_level`] with every stored brick and
+/// Stages the drawn bricks of `plan` into `gpu` (a cache of `geometry`), packed afresh from
+/// the level grids `grids`: [`stage_three_level`] with every stored brick and
 /// [`LevelPacking::stored_values`].
-pub(crate) fn stage_field(
+fn stage_grids(
     gpu: &mut GpuBrickCache,
-    field: &LevelField,
+    plan: &LevelPlan,
+    grids: &[LevelGrid],
     geometry: &ThreeLevelGeometry,
 ) -> Result<LevelPlanFacts> {
-    let packed =
-        LevelPacking::for_field(field, geometry).map_err(|e| Error::InvalidInput(e.to_string()))?;
+    let packed = LevelPacking::for_grids(plan, grids, geometry)?;
     stage_three_level(
         gpu,
         &packed,
         geometry,
         ScalarType::F32,
         &packed.stored,
-        &mut |brick| Ok(packed.stored_values(field, geometry, brick)),
+        &mut |brick| Ok(packed.stored_values(grids, geometry, brick)),
     )
 }
 
@@ -199,25 +199,37 @@ pub(crate) fn stage_three_level(
 }
 
 impl GpuLevelCache {
-    /// Packs the drawn bricks of `field` into a cache of `geometry`, uploads them and, for
+    /// Packs the drawn bricks of `plan` (with the samples of the level grids `grids`, levels
+    /// 0, 1, ... in order) into a cache of `geometry`, uploads them and, for
     /// [`Transition::Smooth`], runs the border and skeleton fixups on the GPU; waits for the
     /// GPU. The volume's extent is level 0's.
     ///
-    /// Errors: what [`LevelPacking::for_field`] refuses (more than three levels, other sample
+    /// Errors: what [`LevelPacking::for_grids`] refuses (more than three levels, other sample
     /// placements, another brick size, more slots than the cache has), a cache image the device
     /// cannot create, or a failed submission.
     pub fn new(
         ctx: &GpuContext,
-        field: &LevelField,
+        plan: &LevelPlan,
+        grids: &[LevelGrid],
         geometry: &ThreeLevelGeometry,
         transition: Transition,
     ) -> Result<Self> {
         let shared = &ctx.shared;
         let smooth = transition == Transition::Smooth;
-        let brick_count = field.bricks_per_axis().element_product() as usize;
+        let dims = match grids.first() {
+            Some(level0) if grids.len() == plan.level_count() as usize => level0.dims(),
+            _ => {
+                return Err(Error::InvalidInput(format!(
+                    "{} level grids for a plan of {} levels",
+                    grids.len(),
+                    plan.level_count()
+                )))
+            }
+        };
+        let brick_count = plan.bricks_per_axis().element_product() as usize;
         let mut gpu =
             new_three_level_cache(shared, geometry, ScalarType::F32, brick_count, smooth, 1)?;
-        stage_field(&mut gpu, field, geometry)?;
+        stage_grids(&mut gpu, plan, grids, geometry)?;
         let mut submitter = Submitter::new(shared)?;
         let mut staging = StagingUpload::new(shared, "three-level bricks");
         submitter.run(|_, cmd| gpu.record(cmd, 0, &mut staging, None).map(|_| ()))?;
@@ -227,8 +239,8 @@ impl GpuLevelCache {
             probe,
             submitter,
             _staging: staging,
-            dims: field.grids()[0].dims(),
-            brick_size: field.brick_size(),
+            dims,
+            brick_size: plan.brick_size(),
         })
     }
 

@@ -5,7 +5,7 @@
 //! A stored brick's texels in the cache are its own samples with, where it has a coarser
 //! neighbour, the fixups' values: the border fixup rewrites a level-0 brick's inner border from
 //! its level-1 neighbours, the skeleton fixup a coarser brick's boundary samples from the next
-//! level (`crate::reference::LevelField::fixed_up_sample`). Those values depend only on which
+//! level (the CPU reference's `LevelField::fixed_up_sample`). Those values depend only on which
 //! neighbours are one level coarser (the coarser bits of the block's bricks) and on those
 //! neighbours' samples, which are the same wherever they sit. So a change uploads:
 //! - every stored brick that is new (not drawn before at that level), into a free sub-slot;
@@ -20,7 +20,7 @@
 //! after a change that was staged but never recorded is everything packed afresh.
 
 use crate::cache::{block_bricks, LevelSlot, LevelSlots, ThreeLevelGeometry};
-use crate::reference::{LevelCacheError, LevelPacking, LevelPlan};
+use crate::pyramid::{LevelPacking, LevelPlan, PackingError};
 use glam::UVec3;
 
 /// What one residency change stages.
@@ -86,7 +86,7 @@ impl LevelResidency {
         &mut self,
         plan: &LevelPlan,
         geometry: &ThreeLevelGeometry,
-    ) -> Result<LevelUpdate, LevelCacheError> {
+    ) -> Result<LevelUpdate, PackingError> {
         let wanted = LevelPacking::stored_levels(plan, geometry)?;
         let count = wanted.len();
         if !self.valid || self.stored.len() != count {
@@ -181,7 +181,7 @@ impl LevelResidency {
         &mut self,
         plan: &LevelPlan,
         geometry: &ThreeLevelGeometry,
-    ) -> Result<LevelUpdate, LevelCacheError> {
+    ) -> Result<LevelUpdate, PackingError> {
         let packing = LevelPacking::new(plan, geometry)?;
         let mut slots = LevelSlots::new(geometry.slot_count());
         let mut stored = vec![None; packing.places.len()];

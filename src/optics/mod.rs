@@ -3,7 +3,14 @@
 
 pub mod preintegration;
 
-use crate::error::{Error, Result};
+/// A transfer function or a pre-integration table that cannot be built from what was given
+/// (the message says which value and what was expected). The crate's [`Error`](crate::Error)
+/// takes it as `InvalidInput`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("invalid input: {0}")]
+pub struct OpticsError(pub String);
+
+type Result<T, E = OpticsError> = std::result::Result<T, E>;
 use glam::{Vec3, Vec4};
 
 /// Entries in a transfer-function table (and in the GPU 1D texture). Passed to GLSL as `TF_SIZE`.
@@ -56,7 +63,7 @@ impl TransferFunction {
     /// Builds a table from exactly [`TF_SIZE`] entries; components must lie in [0, 1].
     pub fn from_entries(entries: Vec<Vec4>) -> Result<Self> {
         if entries.len() != TF_SIZE {
-            return Err(Error::InvalidInput(format!(
+            return Err(OpticsError(format!(
                 "transfer function needs {TF_SIZE} entries, got {}",
                 entries.len()
             )));
@@ -65,7 +72,7 @@ impl TransferFunction {
             .iter()
             .position(|e| !(e.is_finite() && e.min_element() >= 0.0 && e.max_element() <= 1.0))
         {
-            return Err(Error::InvalidInput(format!(
+            return Err(OpticsError(format!(
                 "transfer function entry {i} = {:?} is outside [0, 1]",
                 entries[i]
             )));
@@ -77,7 +84,7 @@ impl TransferFunction {
     /// [0, 1]; constant beyond the first and last point.
     pub fn from_control_points(points: &[(f32, Vec4)]) -> Result<Self> {
         if points.is_empty() {
-            return Err(Error::InvalidInput(
+            return Err(OpticsError(
                 "transfer function without control points".into(),
             ));
         }
@@ -85,7 +92,7 @@ impl TransferFunction {
             .windows(2)
             .any(|w| w[0].0.partial_cmp(&w[1].0).is_none_or(|o| o.is_gt()))
         {
-            return Err(Error::InvalidInput(
+            return Err(OpticsError(
                 "transfer function control points must be in ascending order".into(),
             ));
         }

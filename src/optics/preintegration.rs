@@ -51,8 +51,10 @@
 //! `-expm1(-D)`, so tiny opacities keep their relative accuracy. Accumulation is in `f64`;
 //! diagonals are spread over the available cores.
 
+use super::OpticsError;
 use super::{ClassificationTable, SamplingModel, TF_SIZE};
-use crate::error::{Error, Result};
+
+type Result<T, E = OpticsError> = std::result::Result<T, E>;
 use glam::{DVec3, Vec4};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -119,7 +121,7 @@ impl PreintegrationTable {
 
     fn build_with(table: &ClassificationTable, ratio: f32, accuracy: &Accuracy) -> Result<Self> {
         if !(ratio.is_finite() && ratio > 0.0) {
-            return Err(Error::InvalidInput(format!(
+            return Err(OpticsError(format!(
                 "pre-integration needs a finite, positive step ratio, got {ratio}"
             )));
         }

@@ -166,8 +166,9 @@ pub fn next_target(
 /// What a budgeted step may upload: the stored bricks (first brick, level) of `wanted` that
 /// `resident` says are not in the cache, admitted while their bytes (texels of
 /// `bytes_per_texel`, bricks of `brick_size`) stay within `budget` (module docs for the order;
-/// `distance[i]` ranks brick `i`, nearer first). The first candidate is always admitted, so
-/// every step makes progress.
+/// `distance[i]` ranks brick `i`, nearer first). The first candidate is always admitted. With
+/// `budget = u64::MAX` it lists every missing stored brick in that order; the real cost of a
+/// step (re-fixed and moved bricks too) is the pass's to check.
 #[allow(clippy::too_many_arguments)]
 pub fn admit_by_budget(
     bricks: UVec3,

@@ -3,6 +3,10 @@
 //!
 //! [`choose_levels`] runs these steps:
 //!
+//! 0. **A cache too small** for the coarsest plan (every brick at the coarsest level) drops
+//!    whole blocks of the coarsest level, the least important first (no active brick in view,
+//!    then the farthest), until that plan fits; the dropped bricks are never drawn
+//!    ([`LevelChoice::dropped`] counts them). Never an error.
 //! 1. **Wanted level** per brick: the coarsest level `k` whose voxel (`2^k` hi-res voxels)
 //!    projects to at most `target_pixels` at the brick's nearest point, `floor(log2(target /
 //!    p0))` with `p0` the projected size of a hi-res voxel there, clamped to the levels. A
@@ -30,7 +34,7 @@
 //!    a smaller bias, and with the same one it refines at least as many.
 //!
 //! [`choose_levels_near`] adds hysteresis against the last choice. The host calls it per view
-//! through [`crate::embed::VolumePass::plan_brick_levels`], which moves the cache towards its
+//! through `embed::VolumePass::plan_brick_levels`, which moves the cache towards its
 //! choice under the per-frame upload budget ([`super::step_towards`]) and, for a streamed
 //! source, onto the stored bricks its [`crate::store::LevelStreamer`] holds in RAM.
 
@@ -63,14 +67,6 @@ pub enum LevelChoiceError {
     /// The target is not a positive finite number of pixels.
     #[error("the target voxel size on screen must be a positive number of pixels, not {0}")]
     Target(f32),
-    /// Even every brick at the coarsest level does not fit.
-    #[error("the plan needs {needed} slots with every brick at its coarsest level; the cache has {slots}")]
-    CacheTooSmall {
-        /// Slots the coarsest plan needs.
-        needed: u64,
-        /// Slots of the cache.
-        slots: u64,
-    },
 }
 
 /// What [`choose_levels`] chose.
@@ -86,6 +82,10 @@ pub struct LevelChoice {
     /// Bricks whose chosen level is not drawn yet because its stored brick waits for a later
     /// step's upload budget (`VolumePass::plan_brick_levels`; 0 from [`choose_levels`]).
     pub waiting: usize,
+    /// Bricks not drawn because the cache cannot hold even the coarsest plan: the least
+    /// important blocks of the coarsest level (out of view first, then the farthest) are
+    /// dropped until it fits (module docs, step 0). 0 when the cache holds the coarsest plan.
+    pub dropped: usize,
 }
 
 /// Chooses the level of every brick of `geometry` for `view` among `levels` levels (module
@@ -93,8 +93,8 @@ pub struct LevelChoice {
 /// largest on-screen size of a drawn voxel wanted.
 ///
 /// Errors: a culling result of another length, 0 levels (or more than 31, or more than 3 with
-/// bricks below 8 voxels), a target that is not a positive number, or a cache too small for the
-/// coarsest plan.
+/// bricks below 8 voxels), or a target that is not a positive number. A cache too small for
+/// the coarsest plan is no error: the least important bricks are dropped (module docs, step 0).
 pub fn choose_levels(
     geometry: &BrickGeometry,
     view: &LodView,
@@ -155,7 +155,7 @@ pub fn choose_levels_near(
     // Per brick: log2 of the target over the projected hi-res voxel, or None for a brick that
     // wants the coarsest level whatever the target.
     let voxel = geometry.voxel_size().max_element();
-    let headroom: Vec<Option<f32>> = grid
+    let mut headroom: Vec<Option<f32>> = grid
         .bricks()
         .enumerate()
         .map(|(i, b)| {
@@ -171,14 +171,21 @@ pub fn choose_levels_near(
             Some((target_pixels / pixels).log2())
         })
         .collect();
+    let mut active = active.to_vec();
+    let dropped = drop_to_fit(
+        geometry,
+        view,
+        &mut active,
+        &mut headroom,
+        previous,
+        levels,
+        slots,
+    );
+    let active = &active[..];
     let plan_each =
         |bias: &dyn Fn(usize) -> f32| plan_for(geometry, active, &headroom, previous, levels, bias);
     let plan = |bias: f32| plan_each(&|_| bias);
     let coarsest = plan(levels as f32);
-    let needed = slots_for_plan(grid.bricks_per_axis(), &coarsest);
-    if needed > slots {
-        return Err(LevelChoiceError::CacheTooSmall { needed, slots });
-    }
     let finest = plan(0.0);
     let (bias, chosen) = if slots_for_plan(grid.bricks_per_axis(), &finest) <= slots {
         (0.0, finest)
@@ -231,7 +238,94 @@ pub fn choose_levels_near(
         levels: chosen,
         pixels_per_voxel: target_pixels * bias.exp2(),
         waiting: 0,
+        dropped,
     })
+}
+
+/// Step 0 of the module docs: when even the coarsest plan needs more slots than the cache has,
+/// drops whole blocks of the coarsest level (a block's bricks share one stored brick), the
+/// least important first: those with no active brick in view, then the farthest from the eye
+/// (the distance of the block's nearest brick), until the coarsest plan fits. A dropped brick
+/// is inactive with no headroom: never drawn, at any bias. Returns the active bricks dropped.
+fn drop_to_fit(
+    geometry: &BrickGeometry,
+    view: &LodView,
+    active: &mut [bool],
+    headroom: &mut [Option<f32>],
+    previous: &[Option<u32>],
+    levels: u32,
+    slots: u64,
+) -> usize {
+    let grid = geometry.grid();
+    let bricks = grid.bricks_per_axis();
+    let coarsest_slots = |active: &[bool], headroom: &[Option<f32>]| {
+        let plan = plan_for(geometry, active, headroom, previous, levels, &|_| {
+            levels as f32
+        });
+        slots_for_plan(bricks, &plan)
+    };
+    if coarsest_slots(active, headroom) <= slots {
+        return 0;
+    }
+    let block = block_bricks(levels - 1);
+    let blocks = (bricks + UVec3::splat(block - 1)) / block;
+    let bricks_of = |k: UVec3| {
+        let first = k * block;
+        let end = (first + UVec3::splat(block)).min(bricks);
+        (first.z..end.z).flat_map(move |z| {
+            (first.y..end.y).flat_map(move |y| (first.x..end.x).map(move |x| UVec3::new(x, y, z)))
+        })
+    };
+    // (in view, distance of the nearest brick, block) per block; least important first.
+    let mut order: Vec<(bool, f32, UVec3)> = (0..blocks.z)
+        .flat_map(|z| {
+            (0..blocks.y).flat_map(move |y| (0..blocks.x).map(move |x| UVec3::new(x, y, z)))
+        })
+        .map(|k| {
+            let mut in_view = false;
+            let mut distance = f32::MAX;
+            for b in bricks_of(k) {
+                in_view |= headroom[grid.linear_index(b)].is_some();
+                let (min, max) = geometry.brick_box(b);
+                let d = (min - view.eye())
+                    .max(view.eye() - max)
+                    .max(Vec3::ZERO)
+                    .length();
+                distance = distance.min(d);
+            }
+            (in_view, distance, k)
+        })
+        .collect();
+    order.sort_by(|a, b| {
+        a.0.cmp(&b.0)
+            .then(b.1.total_cmp(&a.1))
+            .then((a.2.z, a.2.y, a.2.x).cmp(&(b.2.z, b.2.y, b.2.x)))
+    });
+    let drop_first = |count: usize, active: &mut [bool], headroom: &mut [Option<f32>]| {
+        let mut dropped = 0;
+        for &(_, _, k) in &order[..count] {
+            for b in bricks_of(k) {
+                let i = grid.linear_index(b);
+                dropped += usize::from(active[i]);
+                active[i] = false;
+                headroom[i] = None;
+            }
+        }
+        dropped
+    };
+    // The fewest blocks whose dropping fits (dropping every block always does: no slot).
+    let (mut over, mut fit) = (0, order.len());
+    while fit - over > 1 {
+        let mid = (over + fit) / 2;
+        let (mut a, mut h) = (active.to_vec(), headroom.to_vec());
+        drop_first(mid, &mut a, &mut h);
+        if coarsest_slots(&a, &h) <= slots {
+            fit = mid;
+        } else {
+            over = mid;
+        }
+    }
+    drop_first(fit, active, headroom)
 }
 
 /// The level a brick wants at `raw` (log2 of the target, grown by the bias, over its projected

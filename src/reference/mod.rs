@@ -4,19 +4,13 @@
 mod camera;
 mod level_cache;
 mod level_field;
-mod level_plan;
 mod mixed;
 mod modes;
 mod sampling;
 
-pub use crate::cache::{block_bricks, block_origin};
 pub use camera::{clip_ray, depth_limit, generate_ray, intersect_box, safe_inverse, Ray};
-pub use level_cache::{
-    skeleton_fixup_value, slots_needed, LevelCacheError, LevelPacking, LevelReferenceCache,
-};
-pub(crate) use level_field::{downsample_sum, downsample_taps};
-pub use level_field::{level_band, LevelField, LevelFieldError, LevelGrid, SamplePlacement};
-pub use level_plan::LevelPlan;
+pub use level_cache::{skeleton_fixup_value, slots_needed, LevelReferenceCache};
+pub use level_field::{level_band, LevelField, LevelSampling};
 pub use mixed::{
     active_axes, band, band_bounds, brick_of, feature_touches_low_res, fixup_brick, fixup_value,
     low_res_border_coord, neighbour_bit, sample_hi_res_transition, sample_in_brick, sample_mixed,

@@ -1,6 +1,6 @@
 //! World-space clip planes: part of what a scene asks for. The ray-caster cuts each ray's
-//! interval to the kept side once ([`crate::reference::clip_ray`] and `glsl/include/camera.glsl`),
-//! and brick culling ([`crate::lod::cull_bricks`]) removes bricks entirely on the clipped side.
+//! interval to the kept side once (`reference::clip_ray` and `glsl/include/camera.glsl`),
+//! and brick culling (`lod::cull_bricks`) removes bricks entirely on the clipped side.
 
 use glam::Vec3;
 

@@ -24,12 +24,13 @@
 //! [`ModelTransform::clip_from_volume`] for a host depth buffer's `clip_from_world`). A rotation
 //! preserves distances, so ray parameters, step lengths, near / far and opacities are those of
 //! the world-space rays; shading uses a headlight (light along the ray), which is
-//! camera-relative and needs no change. [`crate::embed::VolumePass::set_model_transform`] (and
-//! [`crate::renderer::Renderer::set_model_transform`]) does all of this; the parameter block a
-//! frame reports ([`crate::embed::RecordedFrame::params`]) is in the volume frame, which is what
+//! camera-relative and needs no change. `embed::VolumePass::set_model_transform` (and
+//! `renderer::Renderer::set_model_transform`) does all of this; the parameter block a
+//! frame reports (`embed::RecordedFrame::params`) is in the volume frame, which is what
 //! the CPU reference takes.
 
 use super::{Camera, ClipPlanes, RenderSettings};
+use crate::volume::VolumeMeta;
 use glam::{DMat3, DVec3, Mat3, Mat4, Vec3};
 
 /// Why direction vectors cannot be a model rotation.
@@ -73,6 +74,23 @@ impl Default for ModelTransform {
 const MIN_DETERMINANT: f64 = 1e-3;
 
 impl ModelTransform {
+    /// The rotation that places a loaded volume in its world frame when rendered
+    /// (`renderer::Renderer::set_model_transform`; module docs for the convention): for
+    /// NIfTI and DICOM, whose voxels were reordered to RAS+ ([`VolumeMeta::reorientation`]), the
+    /// residual rotation in [`VolumeMeta::directions`] (identity for an axis-aligned file), so
+    /// the volume renders in RAS+ patient space about its centre; identity for the other
+    /// formats, which keep file order (their directions may hold mirrors, which a rotation
+    /// cannot apply).
+    ///
+    /// Errors: residual directions that are degenerate or left-handed (a pathological affine):
+    /// render axis-aligned then.
+    pub fn of_volume(meta: &VolumeMeta) -> Result<Self, ModelTransformError> {
+        if meta.reorientation.is_none() {
+            return Ok(Self::IDENTITY);
+        }
+        Self::from_directions(meta.directions)
+    }
+
     /// No rotation: the volume axes are the world axes (what every render did before model
     /// transforms, and what a volume without orientation gets).
     pub const IDENTITY: Self = Self {

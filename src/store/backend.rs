@@ -3,11 +3,10 @@
 //! The streamer's policy (wanted set, priorities, RAM budget, pins, failures) does not depend on
 //! where the bytes come from: a [`BrickStore`] file (one positioned read per level) or an
 //! OME-Zarr image packed from its chunks while streaming
-//! ([`crate::stream::ZarrBricks`]). Both implement this trait.
+//! (`stream::ZarrBricks`). Both implement this trait.
 
 use super::{BrickStore, StoreError};
 use crate::bricks::{BrickGrid, DownsampleFilter, Level, ValueRange};
-use crate::error::Result;
 use crate::volume::ScalarType;
 use glam::Vec3;
 use std::sync::Arc;

@@ -24,7 +24,6 @@ use crate::bricks::{
     hi_res_brick_extent, low_res_brick_extent, BrickGrid, DownsampleFilter, ValueRange,
     MAX_BRICK_SIZE,
 };
-use crate::error::Result;
 use crate::volume::ScalarType;
 use glam::{UVec3, Vec3};
 use std::path::Path;

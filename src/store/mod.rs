@@ -20,7 +20,7 @@
 //! - [`BrickStreamer`] loads the bricks a renderer asks for on a background thread, in priority
 //!   order, into an LRU RAM cache bounded by a byte budget; it never blocks the caller on disk.
 //!   It reads through a [`BrickBackend`]: a [`BrickStore`], or an OME-Zarr image packed from its
-//!   chunks ([`crate::stream::ZarrBricks`]).
+//!   chunks (`stream::ZarrBricks`).
 //! - The streamer is a [`BrickSource`](crate::bricks::BrickSource), what a renderer packs bricks
 //!   from (the in-memory sources live beside the bricks, in [`crate::bricks::source`]);
 //!   [`fallback_levels`](crate::bricks::fallback_levels) turns the levels the LOD selector wants
@@ -184,4 +184,26 @@ pub enum StoreError {
     /// The streamer's loader thread could not be started.
     #[error("cannot start the brick loader thread: {0}")]
     Thread(#[source] std::io::Error),
+    /// A level backend other than a store file (an OME-Zarr pyramid) could not deliver a stored
+    /// brick, or its stored bricks do not make up its levels.
+    #[error("{backend}: {source}")]
+    Backend {
+        /// What was read ([`LevelBackend::name`]: a path or URL).
+        backend: String,
+        /// The backend's own error.
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// A stored brick whose background read failed earlier ([`LevelStreamer`] keeps the error
+    /// until [`LevelStreamer::clear_failures`]).
+    #[error("level {level}, stored brick of brick {first}: its read failed earlier: {source}")]
+    EarlierReadFailed {
+        /// The level.
+        level: u32,
+        /// Linear index of the stored brick's first brick.
+        first: usize,
+        /// The error of that read.
+        #[source]
+        source: std::sync::Arc<StoreError>,
+    },
 }

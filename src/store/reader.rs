@@ -6,7 +6,6 @@ use super::format::{
 };
 use super::StoreError;
 use crate::bricks::{BrickGrid, DownsampleFilter, Level, ValueRange};
-use crate::error::Result;
 use crate::volume::ScalarType;
 use glam::Vec3;
 use std::fs::File;

@@ -22,7 +22,6 @@ use crate::bricks::{
     hi_res_brick_extent, low_res_brick_extent, BrickBox, BrickGrid, BrickKernel, ValueRange,
     VoxelWindow,
 };
-use crate::error::Result;
 use crate::volume::{ScalarType, SlabMut, SlabReader, VoxelData};
 use glam::UVec3;
 use std::ops::Range;

@@ -1,5 +1,5 @@
 //! Background streaming of brick levels from a [`BrickStore`] (or any [`BrickBackend`], e.g. an
-//! OME-Zarr image: [`crate::stream::ZarrBricks`]) into a RAM cache with a byte budget.
+//! OME-Zarr image: `stream::ZarrBricks`) into a RAM cache with a byte budget.
 //!
 //! # Policy
 //!
@@ -47,7 +47,6 @@ use super::{BrickBackend, BrickStore, StoreError};
 use crate::bricks::{
     BrickGrid, BrickSource, DownsampleFilter, Level, LoadedLevels, SourceError, ValueRange,
 };
-use crate::error::Result;
 use crate::volume::ScalarType;
 use glam::Vec3;
 use std::collections::{BTreeMap, BTreeSet, HashMap};

@@ -29,7 +29,6 @@ use crate::bricks::{
     BrickBox, BrickError, BrickGrid, BrickKernel, DownsampleFilter, PackOutputs, TexelsMut,
     ValueRange, VoxelWindow,
 };
-use crate::error::Result;
 use crate::volume::{ScalarType, Volume, VoxelData};
 use glam::{IVec3, UVec3, Vec3};
 use std::fs::{File, OpenOptions};

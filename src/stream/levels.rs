@@ -39,9 +39,8 @@ use crate::bricks::{quantize_to, BrickGrid, ValueRange};
 use crate::cache::{
     block_origin, min_brick_size_for_levels, pyramid_levels, stored_brick_edge, stored_first_sample,
 };
-use crate::error::Result;
-use crate::reference::{LevelGrid, SamplePlacement};
-use crate::store::LevelBackend;
+use crate::pyramid::{LevelGrid, SamplePlacement};
+use crate::store::{LevelBackend, StoreError};
 use crate::volume::formats::{RemoteOptions, ZarrChunks, ZarrLocation};
 use crate::volume::ScalarType;
 use glam::{IVec3, UVec3, Vec3};
@@ -249,19 +248,23 @@ impl LevelBackend for ZarrLevels {
             * self.scalar.size_bytes()
     }
 
-    fn read_stored_bytes(&self, level: u32, brick: UVec3) -> Result<Vec<u8>> {
+    fn read_stored_bytes(&self, level: u32, brick: UVec3) -> Result<Vec<u8>, StoreError> {
         let sampler = self.sampler_of.get(level as usize);
         let Some(&sampler) = sampler.filter(|_| brick.cmplt(self.grid.bricks_per_axis()).all())
         else {
-            return Err(crate::store::StoreError::LevelOutOfRange {
+            return Err(StoreError::LevelOutOfRange {
                 level,
                 brick: brick.to_array(),
                 levels: self.levels,
                 bricks: self.grid.bricks_per_axis().to_array(),
-            }
-            .into());
+            });
         };
-        let values = self.samplers[sampler].sample(&self.sample_points(level, brick))?;
+        let values = self.samplers[sampler]
+            .sample(&self.sample_points(level, brick))
+            .map_err(|e| StoreError::Backend {
+                backend: self.name(),
+                source: Box::new(e),
+            })?;
         Ok(quantize_to(&values, self.scalar))
     }
 }

@@ -85,7 +85,7 @@
 //! in its window (even one resampled from the coarser level) teaches nothing: that brick keeps its
 //! conservative range. [`BrickBackend::learned_value_ranges`] hands the ranges out (a shared
 //! snapshot, copied once per change, so [`BrickBackend::value_ranges`] keeps its plain borrow of
-//! ranges that never change). The pass ([`crate::embed::VolumePass::update`]) culls with them:
+//! ranges that never change). The pass (`embed::VolumePass::update`) culls with them:
 //! a brick its culling rejects under its learned range is given the planner with that range,
 //! every other brick keeps its conservative one (the planner also ranks bricks by range width,
 //! and exact widths for streamed bricks against conservative ones for the others would rank
@@ -108,7 +108,6 @@ use crate::bricks::{
     hi_res_brick_extent, low_res_brick_extent, max_low_res_index, quantize_to, BrickError,
     BrickGrid, DownsampleFilter, Level, ValueRange,
 };
-use crate::error::Result;
 use crate::store::{BrickBackend, BrickStreamer, StoreError, StreamerConfig};
 use crate::volume::formats::{RemoteOptions, ZarrChunk, ZarrChunks, ZarrLocation};
 use crate::volume::{ScalarType, VolumeError, VoxelData};

@@ -286,7 +286,7 @@ pub fn model_transform(args: &RenderArgs, meta: Option<&VolumeMeta>) -> (ModelTr
             "NOT applied (--axis-aligned: rendered axis-aligned)".into(),
         );
     }
-    match meta.model_transform() {
+    match ModelTransform::of_volume(meta) {
         Ok(model) => (
             model,
             "applied (rendered in RAS+ patient space, rotated about the volume centre)".into(),

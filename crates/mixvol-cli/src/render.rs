@@ -23,9 +23,8 @@ use mixvol::cache::ThreeLevelGeometry;
 use mixvol::gpu::{ContextDesc, GpuContext, MessageLog};
 use mixvol::optics::TransferFunction;
 use mixvol::plan::PlanOptions;
-use mixvol::reference::{
-    self, slots_needed, LevelField, LevelGrid, LevelReferenceCache, ReferenceCache,
-};
+use mixvol::pyramid::LevelGrid;
+use mixvol::reference::{self, slots_needed, LevelField, LevelReferenceCache, ReferenceCache};
 use mixvol::renderer::{
     Frame, FrameReport, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource,
 };
@@ -577,6 +576,14 @@ fn render_view(
             "levels from the camera: {per_level:?} bricks at levels 0..={deepest}, {} slots, drawn voxels at most {:.2} px; choice, upload and fixups {plan_ms:.1} ms",
             choice.slots, choice.pixels_per_voxel
         );
+        if choice.dropped > 0 {
+            println!(
+                "the cache cannot hold every brick even at the coarsest level: {} bricks not \
+                 drawn (the least important: out of view first, then the farthest); raise \
+                 --cache-mb",
+                choice.dropped
+            );
+        }
         if steps > 1 {
             println!(
                 "level steps: {steps} under the upload budget ({:.1} MB in all), {} bricks still waiting",

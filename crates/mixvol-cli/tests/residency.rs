@@ -314,7 +314,8 @@ fn a_level_store_renders_at_camera_levels_and_matches_the_cpu_reference() {
     assert_eq!(number_after(stream, "ms),"), 1.0, "{text}");
     assert!(stream.contains(" 0 failed"), "{text}");
     // A small upload budget reaches the same choice in steps, and draws what the reference draws.
-    let text = compare("steps", &["--cache-mb", "1", "--upload-mb", "0.02"]);
+    // 0.05 MiB: just above the smallest budget, 27 level-0 stored bricks of 12^3 u8.
+    let text = compare("steps", &["--cache-mb", "1", "--upload-mb", "0.05"]);
     assert!(number_after(&text, "level steps:") > 2.0, "{text}");
     assert!(text.contains("0 bricks still waiting"), "{text}");
     let text = compare("staircase", &["--levels", "staircase"]);

@@ -12,7 +12,7 @@
 //!   `(n/4+1)^3` level-2 bricks. Its slot and sub-slot extents are read from the library too.
 //! - [`Scheme::Blocks`], the three-level packing with the block levels past 2 that `mixvol`
 //!   builds as well: a level-`k` brick of the level-2 size stands for an aligned block of
-//!   `2^(k - 2)` bricks per axis ([`mixvol::reference::block_bricks`]). Shown up to level
+//!   `2^(k - 2)` bricks per axis ([`mixvol::cache::block_bricks`]). Shown up to level
 //!   [`BLOCK_LEVELS`]` - 1`; there is no limit but the volume's.
 //!
 //! The cache is an image with a power of two texels on every axis, at most `max_dim_3d`
@@ -22,8 +22,8 @@
 //! slot).
 
 use mixvol::bricks::{hi_res_brick_extent, low_res_brick_extent, SUB_SLOTS_PER_SLOT};
+use mixvol::cache::block_bricks;
 use mixvol::cache::{ThreeLevelGeometry, THREE_LEVELS};
-use mixvol::reference::block_bricks;
 
 /// Levels of [`Scheme::Blocks`] in the report (0-5: blocks of up to 8^3 bricks).
 pub const BLOCK_LEVELS: u32 = 6;

@@ -3,7 +3,7 @@
 //!
 //! Everything that bricks a volume calls it: the in-memory brick source
 //! ([`VolumeBrickSource`](super::VolumeBrickSource), one brick at a time), the brick-store writer
-//! ([`crate::store::write_store`], runs of bricks along x from a window it evaluates) and the
+//! (`store::write_store`, runs of bricks along x from a window it evaluates) and the
 //! parallel whole-volume build ([`super::build_bricks`], rows of bricks straight from the volume).
 //! The reference functions are its oracle, bit for bit:
 //!

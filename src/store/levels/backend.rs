@@ -1,12 +1,12 @@
 //! [`LevelBackend`]: where a [`super::LevelStreamer`] reads the stored bricks of every level
 //! from: a level store file ([`LevelStore`], one positioned read each) or an OME-Zarr pyramid
-//! resampled from its chunks while streaming ([`crate::stream::ZarrLevels`]).
+//! resampled from its chunks while streaming (`stream::ZarrLevels`).
 
 use super::reader::assemble_grids;
 use super::LevelStore;
 use crate::bricks::{dequantize, BrickGrid, ValueRange};
-use crate::error::{Error, Result};
-use crate::reference::LevelGrid;
+use crate::pyramid::LevelGrid;
+use crate::store::StoreError;
 use crate::volume::ScalarType;
 use glam::{UVec3, Vec3};
 
@@ -44,18 +44,21 @@ pub trait LevelBackend: Send + Sync + 'static {
 
     /// The stored brick of `level` that holds brick `brick` (any brick of its block): texels
     /// of [`LevelBackend::scalar`], native-endian, x fastest. May block.
-    fn read_stored_bytes(&self, level: u32, brick: UVec3) -> Result<Vec<u8>>;
+    fn read_stored_bytes(&self, level: u32, brick: UVec3) -> Result<Vec<u8>, StoreError>;
 
     /// Every level's samples put back together from the stored bricks (normalised; level 0
     /// cell-centred, the others on vertices): for the CPU reference and checks. Reads every
     /// stored brick.
-    fn read_grids(&self) -> Result<Vec<LevelGrid>> {
+    fn read_grids(&self) -> Result<Vec<LevelGrid>, StoreError> {
         let scalar = self.scalar();
         assemble_grids(
             &self.grid(),
             self.level_count(),
             |level, first| Ok(dequantize(&self.read_stored_bytes(level, first)?, scalar)),
-            |message| Error::InvalidInput(format!("{}: {message}", self.name())),
+            |message| StoreError::Backend {
+                backend: self.name(),
+                source: message.into(),
+            },
         )
     }
 }
@@ -93,11 +96,11 @@ impl LevelBackend for LevelStore {
         self.header().stored_bytes(level) as usize
     }
 
-    fn read_stored_bytes(&self, level: u32, brick: UVec3) -> Result<Vec<u8>> {
-        Ok(LevelStore::read_stored_bytes(self, level, brick)?)
+    fn read_stored_bytes(&self, level: u32, brick: UVec3) -> Result<Vec<u8>, StoreError> {
+        LevelStore::read_stored_bytes(self, level, brick)
     }
 
-    fn read_grids(&self) -> Result<Vec<LevelGrid>> {
-        Ok(LevelStore::read_grids(self)?)
+    fn read_grids(&self) -> Result<Vec<LevelGrid>, StoreError> {
+        LevelStore::read_grids(self)
     }
 }

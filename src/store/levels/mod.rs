@@ -3,7 +3,7 @@
 //! hi-res and a low-res brick per brick, a level store holds, per level `k`, one stored brick
 //! per brick up to level 2 and one per aligned block of `block_bricks(k)^3` bricks past it
 //! (`crate::cache::three_level`), so a volume is drawn at any mix of levels without the
-//! volume in RAM: [`crate::renderer::VolumeSource::LevelStore`] packs each drawn brick straight
+//! volume in RAM: `renderer::VolumeSource::LevelStore` packs each drawn brick straight
 //! from the file.
 //!
 //! - [`write_level_store`] writes one from an in-memory volume (level by level, two levels in

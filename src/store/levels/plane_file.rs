@@ -4,7 +4,7 @@
 //! read back in order through a sliding window of planes; the file is removed when its
 //! [`PlaneFile`] is dropped.
 
-use crate::reference::{downsample_sum, downsample_taps, LevelGrid, SamplePlacement};
+use crate::pyramid::{downsample_sum, downsample_taps, LevelGrid, SamplePlacement};
 use crate::store::StoreError;
 use glam::{IVec3, UVec3};
 use std::collections::VecDeque;

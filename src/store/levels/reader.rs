@@ -6,7 +6,7 @@ use super::format::{
 };
 use crate::bricks::{dequantize, BrickGrid, ValueRange};
 use crate::cache::{block_bricks, block_origin, stored_brick_edge, stored_bricks_per_axis};
-use crate::reference::{LevelGrid, SamplePlacement};
+use crate::pyramid::{LevelGrid, SamplePlacement};
 use crate::store::format::{brick_crc, format_error};
 use crate::store::reader::open_regular_file;
 use crate::store::StoreError;

@@ -19,7 +19,7 @@ use super::plane_file::{downsample_file, PlaneFile, PlaneFileWriter, PlaneWindow
 use super::writer::{assemble_level_store, check_level_desc, LevelWriteSummary, TexelSink};
 use crate::bricks::{BrickGrid, ValueRange};
 use crate::cache::{block_bricks, stored_brick_edge, stored_bricks_per_axis, stored_first_sample};
-use crate::reference::{downsample_sum, downsample_taps, LevelGrid, SamplePlacement};
+use crate::pyramid::{downsample_sum, downsample_taps, LevelGrid, SamplePlacement};
 use crate::store::StoreError;
 use crate::volume::{SlabMut, SlabReader, VoxelData};
 use glam::{IVec3, UVec3};

@@ -5,7 +5,7 @@
 //!
 //! - **Wanted set.** [`LevelStreamer::request`] replaces the wanted set with a list of stored
 //!   bricks `(level, first brick)`, highest priority first (duplicates keep their first place).
-//!   It only takes a short lock. [`crate::renderer::Renderer::plan_brick_levels`] requests, in
+//!   It only takes a short lock. `renderer::Renderer::plan_brick_levels` requests, in
 //!   this order: the bricks of its next step towards the wanted plan, the stored bricks drawn
 //!   now (a change of a coarser neighbour uploads them again), then the rest of the wanted plan.
 //! - **Loading.** [`LevelStreamConfig::loaders`] background threads read the wanted bricks that
@@ -29,7 +29,6 @@
 //!   them.
 
 use super::LevelBackend;
-use crate::error::{Error, Result};
 use crate::store::StoreError;
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
@@ -37,7 +36,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 /// A stored brick: `(level, linear index of its first brick)`, as
-/// [`crate::plan::step_towards`] names it.
+/// `plan::step_towards` names it.
 pub type StoredKey = (u32, usize);
 
 /// How a [`LevelStreamer`] runs.
@@ -105,7 +104,7 @@ struct State {
     wanted_cached: BTreeSet<usize>,
     /// Cached unwanted bricks by last use.
     unwanted_lru: BTreeMap<u64, StoredKey>,
-    failed: HashMap<StoredKey, Arc<Error>>,
+    failed: HashMap<StoredKey, Arc<StoreError>>,
     /// Bytes of the reads in flight.
     in_flight: usize,
     /// The stored bricks being read.
@@ -182,7 +181,7 @@ impl Shared {
 
 /// Reads a [`LevelBackend`]'s stored bricks (a [`super::LevelStore`] file, an OME-Zarr pyramid)
 /// on a background thread into a RAM cache with a byte budget (module docs for the policy).
-/// Used by [`VolumeSource::LevelStream`](crate::renderer::VolumeSource::LevelStream).
+/// Used by `VolumeSource::LevelStream`.
 pub struct LevelStreamer {
     backend: Arc<dyn LevelBackend>,
     shared: Arc<Shared>,
@@ -201,7 +200,10 @@ impl std::fmt::Debug for LevelStreamer {
 impl LevelStreamer {
     /// Starts a loader thread over `backend`. Errors: the thread cannot be spawned
     /// ([`StoreError::Thread`]).
-    pub fn new(backend: Arc<dyn LevelBackend>, config: LevelStreamConfig) -> Result<Self> {
+    pub fn new(
+        backend: Arc<dyn LevelBackend>,
+        config: LevelStreamConfig,
+    ) -> Result<Self, StoreError> {
         let shared = Arc::new(Shared {
             state: Mutex::new(State {
                 budget: config.ram_budget_bytes,
@@ -277,7 +279,7 @@ impl LevelStreamer {
     /// The bytes of a cached stored brick (texels of the backend's scalar type, as
     /// [`LevelBackend::read_stored_bytes`] returns them), `Some(Err)` if its read failed,
     /// `None` if it is not in RAM. Never blocks on the disk.
-    pub fn get(&self, key: StoredKey) -> Option<std::result::Result<Arc<[u8]>, Arc<Error>>> {
+    pub fn get(&self, key: StoredKey) -> Option<Result<Arc<[u8]>, Arc<StoreError>>> {
         let mut s = self.shared.lock();
         if let Some(e) = s.failed.get(&key) {
             return Some(Err(e.clone()));
@@ -295,11 +297,11 @@ impl LevelStreamer {
     /// The stored brick's bytes from RAM, else read now on this thread (counted in
     /// [`LevelStreamStats::blocking_reads`]; not cached). A brick whose background read failed
     /// returns that error.
-    pub fn read_now(&self, key: StoredKey) -> Result<Arc<[u8]>> {
+    pub fn read_now(&self, key: StoredKey) -> Result<Arc<[u8]>, StoreError> {
         match self.get(key) {
             Some(Ok(bytes)) => return Ok(bytes),
             Some(Err(source)) => {
-                return Err(Error::EarlierReadFailed {
+                return Err(StoreError::EarlierReadFailed {
                     level: key.0,
                     first: key.1,
                     source,
@@ -369,7 +371,7 @@ impl LevelStreamer {
     }
 
     /// The first failed read's error, if any (for messages).
-    pub fn first_failure(&self) -> Option<Arc<Error>> {
+    pub fn first_failure(&self) -> Option<Arc<StoreError>> {
         self.shared.lock().failed.values().next().cloned()
     }
 

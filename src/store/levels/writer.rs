@@ -11,7 +11,7 @@ use crate::bricks::{dequantize, quantize_to, BrickGrid, ValueRange};
 use crate::cache::{
     block_bricks, min_brick_size_for_levels, pyramid_levels, stored_bricks_per_axis,
 };
-use crate::reference::{LevelGrid, SamplePlacement};
+use crate::pyramid::{LevelGrid, SamplePlacement};
 use crate::store::format::brick_crc;
 use crate::store::writer::{commit_partial, partial_path};
 use crate::store::StoreError;

@@ -52,9 +52,9 @@
 //! [`VolumeMeta::reorientation`]). DICOM series are reordered the same way from their LPS patient
 //! geometry (see [`dicom`]). The voxels are never resampled: an oblique residual rotation is left
 //! in [`VolumeMeta::directions`] and rendered as the volume's model transform
-//! ([`VolumeMeta::model_transform`]: a rotation about the volume's centre into RAS+ patient space,
+//! (`scene::ModelTransform::of_volume`: a rotation about the volume's centre into RAS+ patient space,
 //! the ray-caster staying in the volume's own axis-aligned frame and the camera mapped into it;
-//! see [`crate::scene::model`]). `mixvol render` applies it by default and `--axis-aligned`
+//! see `scene::model`). `mixvol render` applies it by default and `--axis-aligned`
 //! renders without it. Other formats keep
 //! voxels in file order (first axis fastest), never resampled or flipped. Spacing is the
 //! size of a voxel step along each index axis: NIfTI `|pixdim[1..=3]|`, NRRD the norms of the
@@ -94,7 +94,6 @@ pub use zarr::{
 };
 
 use super::{ScalarType, Volume, VolumeError};
-use crate::scene::{ModelTransform, ModelTransformError};
 use read::format_err;
 use std::path::{Path, PathBuf};
 
@@ -294,7 +293,7 @@ pub struct VolumeMeta {
     /// index axis `i`), in the file's world frame (NIfTI, DICOM: RAS+; NRRD: its `space`).
     /// Identity when the file has no orientation. NIfTI and DICOM voxels are reordered to RAS+ (see
     /// [`VolumeMeta::reorientation`]), so these are the residual rotation, near identity (rendered
-    /// through [`VolumeMeta::model_transform`]); other formats keep file order and report the
+    /// through `scene::ModelTransform::of_volume`); other formats keep file order and report the
     /// file's directions.
     pub directions: [[f64; 3]; 3],
     /// World position of voxel (0, 0, 0)'s centre; zero when the file has none.
@@ -360,21 +359,6 @@ impl VolumeMeta {
             ScalarType::U16 => n * 65535.0 - offset,
             ScalarType::F32 => n - offset,
         }
-    }
-
-    /// The rotation that places the volume in its world frame when rendered
-    /// ([`crate::renderer::Renderer::set_model_transform`]; see [`crate::scene::model`] for the
-    /// convention): for NIfTI and DICOM, whose voxels were reordered to RAS+, the residual
-    /// rotation in [`VolumeMeta::directions`] (identity for an axis-aligned file), so the
-    /// volume renders in RAS+ patient space about its centre; identity for the other formats,
-    /// which keep file order (their directions may hold mirrors, which a rotation cannot apply).
-    /// An error when the residual directions are degenerate or left-handed (a pathological
-    /// affine): render axis-aligned then.
-    pub fn model_transform(&self) -> Result<ModelTransform, ModelTransformError> {
-        if self.reorientation.is_none() {
-            return Ok(ModelTransform::IDENTITY);
-        }
-        ModelTransform::from_directions(self.directions)
     }
 
     /// True for each index axis whose direction has a negative component along its own world

@@ -43,7 +43,7 @@
 //! [`crate::volume::formats::load_nifti`]): the volume's x, y, z are right, anterior, superior,
 //! [`VolumeMeta::reorientation`] says what was done (source [`TransformSource::Dicom`]),
 //! [`VolumeMeta::directions`] holds the residual (oblique) rotation, rendered as the volume's
-//! model transform as for NIfTI ([`VolumeMeta::model_transform`]), and
+//! model transform as for NIfTI (`scene::ModelTransform::of_volume`), and
 //! [`VolumeMeta::origin`] the RAS+ position of voxel (0, 0, 0). So a series written from a
 //! NIfTI volume, in any axis-aligned orientation, loads to the same volume as the NIfTI file.
 //! Without ImageOrientationPatient / ImagePositionPatient the file order is kept.

@@ -14,8 +14,8 @@
 //! [`VolumeMeta::directions`] holds the residual rotation (identity for an axis-aligned file) and
 //! [`VolumeMeta::origin`] the world position of the reordered voxel (0, 0, 0). The voxels are not
 //! resampled for an oblique residual rotation: it becomes the volume's model transform
-//! ([`VolumeMeta::model_transform`], a rotation about the volume's centre applied by the renderer,
-//! see [`crate::scene::model`]), so an oblique file renders in RAS+ patient space; without it
+//! (`scene::ModelTransform::of_volume`, a rotation about the volume's centre applied by the renderer,
+//! see `scene::model`), so an oblique file renders in RAS+ patient space; without it
 //! (`mixvol render --axis-aligned`) it renders axis-aligned in its nearest RAS orientation, and the
 //! reorientation says by how many degrees it is oblique.
 //!

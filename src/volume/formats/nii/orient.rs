@@ -50,7 +50,7 @@ pub struct Reorientation {
     /// The largest angle, in degrees, between a volume axis and its world axis after the
     /// reordering: the residual oblique rotation (0 for an axis-aligned file). The voxels are
     /// not resampled for it: the renderer applies it as the volume's model transform
-    /// ([`crate::volume::VolumeMeta::model_transform`], [`crate::scene::model`]) when asked to.
+    /// (`scene::ModelTransform::of_volume`, `scene::model`) when asked to.
     pub oblique_degrees: f64,
 }
 

@@ -291,7 +291,7 @@ pub(super) fn open_storage(
 }
 
 /// One object (a file) in a local folder or an object store, read by byte ranges: what a level
-/// store on S3 or behind HTTP is read through (`crate::store::LevelStore::open_remote`), with
+/// store on S3 or behind HTTP is read through (`store::LevelStore::open_remote`), with
 /// the timeouts and retries of [`RemoteOptions`].
 pub struct RemoteObject {
     storage: Storage,

@@ -1,11 +1,10 @@
 //! A checked choice of level per brick (issue 19): which level every brick of a grid is drawn
 //! at, with the rules the cache's continuity needs (adjacent drawn bricks at most one level
 //! apart, blocks of a block level whole and aligned, no more levels than the bricks take) and
-//! each brick's coarser-neighbour bits. A plan holds no samples: [`super::LevelField`] pairs one
-//! with the level grids in memory, and a [`crate::store::LevelStore`] supplies the stored bricks
-//! of one from disk.
+//! each brick's coarser-neighbour bits. A plan holds no samples: the level grids
+//! ([`super::LevelGrid`]) or a level store supply them.
 
-use super::level_field::LevelFieldError;
+use super::PyramidError;
 use crate::bricks::BrickGrid;
 use crate::cache::tables::coarser_neighbour_bits;
 use crate::cache::{block_bricks, block_origin, min_brick_size_for_levels};
@@ -34,21 +33,21 @@ impl LevelPlan {
         grid: &BrickGrid,
         levels: u32,
         brick_levels: &[Option<u32>],
-    ) -> Result<Self, LevelFieldError> {
+    ) -> Result<Self, PyramidError> {
         if levels == 0 {
-            return Err(LevelFieldError::NoLevels);
+            return Err(PyramidError::NoLevels);
         }
         let n = grid.brick_size();
         let min_brick_size = min_brick_size_for_levels(levels);
         if levels > 31 || n < min_brick_size {
-            return Err(LevelFieldError::TooManyLevels {
+            return Err(PyramidError::TooManyLevels {
                 levels: levels as usize,
                 min_brick_size,
                 brick_size: n,
             });
         }
         if brick_levels.len() != grid.brick_count() {
-            return Err(LevelFieldError::BrickLevelCount {
+            return Err(PyramidError::BrickLevelCount {
                 given: brick_levels.len(),
                 bricks: grid.brick_count(),
             });
@@ -58,14 +57,14 @@ impl LevelPlan {
             .enumerate()
             .find_map(|(i, l)| l.filter(|&l| l >= levels).map(|l| (i, l)))
         {
-            return Err(LevelFieldError::UnknownLevel {
+            return Err(PyramidError::UnknownLevel {
                 brick,
                 level,
                 levels: levels as usize,
             });
         }
         if !check_level_rule_with(grid, |i| brick_levels[i]) {
-            return Err(LevelFieldError::LevelRule);
+            return Err(PyramidError::LevelRule);
         }
         check_blocks(grid, brick_levels)?;
         let coarser_bits = grid
@@ -114,7 +113,7 @@ impl LevelPlan {
 
 /// Checks that every drawn brick of a block level lies in an aligned block (clipped to the grid)
 /// whose bricks are all drawn at that level.
-fn check_blocks(grid: &BrickGrid, brick_levels: &[Option<u32>]) -> Result<(), LevelFieldError> {
+fn check_blocks(grid: &BrickGrid, brick_levels: &[Option<u32>]) -> Result<(), PyramidError> {
     for (brick, b) in grid.bricks().enumerate() {
         let Some(level) = brick_levels[brick] else {
             continue;
@@ -129,7 +128,7 @@ fn check_blocks(grid: &BrickGrid, brick_levels: &[Option<u32>]) -> Result<(), Le
             for y in first.y..last.y {
                 for x in first.x..last.x {
                     if brick_levels[grid.linear_index(UVec3::new(x, y, z))] != Some(level) {
-                        return Err(LevelFieldError::BrokenBlock {
+                        return Err(PyramidError::BrokenBlock {
                             brick,
                             level,
                             block,

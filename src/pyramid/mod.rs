@@ -1,0 +1,13 @@
+//! The levels themselves, in production code: each level's samples on the global grid
+//! ([`LevelGrid`], built level by level with one downsampling sum), a checked level per brick
+//! ([`LevelPlan`]: the one-level rule, whole blocks, coarser bits) and where a plan's drawn
+//! bricks go in the cache ([`LevelPacking`]). The stores, the streamers and the GPU staging
+//! build on these; the CPU reference (`reference`) consumes them and is never imported here.
+
+mod grid;
+mod packing;
+mod plan;
+
+pub use grid::{downsample_sum, downsample_taps, LevelGrid, PyramidError, SamplePlacement};
+pub use packing::{LevelPacking, PackingError};
+pub use plan::LevelPlan;

@@ -424,3 +424,50 @@ fn a_streamed_level_store_steps_onto_bricks_in_ram_and_reaches_the_camera_plan()
     }
     common::finish(ctx);
 }
+
+/// `ResidencyConfig::ram_bytes` cuts a level source's request list (the planner's RAM budget,
+/// issue 36): the background reader then reads at most that many bytes of stored bricks, while
+/// without the cut the same view asks for more.
+#[test]
+fn the_ram_budget_cuts_the_request_list() {
+    let ctx = common::validated_context();
+    {
+        let path = temp_path("ram_cut");
+        let store = write_store(&path, UVec3::new(6 * N, 5 * N, 6 * N), 0x5713_0004);
+        let mut read = Vec::new();
+        for ram_bytes in [None, Some(40_000u64)] {
+            let streamer =
+                Arc::new(LevelStreamer::new(store.clone(), LevelStreamConfig::default()).unwrap());
+            let mut renderer = renderer_for(
+                &ctx,
+                VolumeSource::LevelStream {
+                    streamer: streamer.clone(),
+                    levels: &[],
+                    config: config(),
+                },
+            );
+            renderer.set_residency_config(ResidencyConfig {
+                ram_bytes,
+                ..ResidencyConfig::default()
+            });
+            let before = streamer.stats().bytes_read;
+            renderer
+                .plan_brick_levels(&camera(), &settings(), W, W, 1.5)
+                .unwrap();
+            assert!(streamer.wait_idle(WAIT));
+            let stats = streamer.stats();
+            assert!(stats.wanted_bricks > 0, "{ram_bytes:?}: {stats:?}");
+            read.push(stats.bytes_read - before);
+        }
+        assert!(
+            read[0] > 40_000,
+            "without the cut the view asks for more: {read:?}"
+        );
+        assert!(
+            read[1] <= 40_000 && read[1] > 0,
+            "with the cut the reader reads at most the budget: {read:?}"
+        );
+        let _ = std::fs::remove_file(&path);
+    }
+    common::finish(ctx);
+}

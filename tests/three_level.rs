@@ -71,7 +71,7 @@ fn address_translation_reads_each_level_on_its_own_grid() {
         let cache =
             LevelReferenceCache::build(&field, &geometry, Transition::Discontinuous).unwrap();
         for (i, brick) in grid.bricks().enumerate() {
-            let entry = cache.layout[i];
+            let entry = cache.packing.layout[i];
             if one_level[i].is_none() {
                 assert_eq!(entry, [0.0; 4], "an undrawn brick is skipped");
                 continue;
@@ -213,7 +213,7 @@ fn a_volume_too_big_for_two_levels_is_drawn_whole_with_three() {
     let field = LevelField::new(&grid, &grids, &levels).unwrap();
     let cache = LevelReferenceCache::build(&field, &three_level, Transition::Smooth).unwrap();
     assert!(
-        cache.places.iter().all(Option::is_some),
+        cache.packing.places.iter().all(Option::is_some),
         "every brick is resident"
     );
     let view = cache.view();
@@ -259,14 +259,20 @@ fn block_levels_share_one_stored_brick_and_draw_the_level_field() {
     for transition in [Transition::Smooth, Transition::Discontinuous] {
         let cache = LevelReferenceCache::build(&field, &geometry, transition).unwrap();
         // 1 level-0 brick, 7 level-1 bricks, 56 + 56 + 56 of the level-2 size (levels 2, 3, 4).
-        let slots_used = cache.places.iter().flatten().map(|p| p.slot).max();
+        let slots_used = cache.packing.places.iter().flatten().map(|p| p.slot).max();
         assert_eq!(slots_used, Some(4));
         for (i, brick) in grid.bricks().enumerate() {
             let level = levels[i].unwrap();
             let first = grid.linear_index(block_origin(brick, level));
-            assert_eq!(cache.places[i], cache.places[first], "brick {brick}");
-            assert_eq!(cache.layout[i], cache.layout[first], "brick {brick}");
-            assert_eq!(cache.places[i].unwrap().level, level);
+            assert_eq!(
+                cache.packing.places[i], cache.packing.places[first],
+                "brick {brick}"
+            );
+            assert_eq!(
+                cache.packing.layout[i], cache.packing.layout[first],
+                "brick {brick}"
+            );
+            assert_eq!(cache.packing.places[i].unwrap().level, level);
         }
         let view = cache.view();
         for &p in &points {

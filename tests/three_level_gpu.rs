@@ -73,7 +73,7 @@ fn check_gpu_cache(
         let texels = gpu.read_back().unwrap();
         let e = geometry.extent();
         let mut compared = 0;
-        for place in cpu.places.iter().flatten() {
+        for place in cpu.packing.places.iter().flatten() {
             let origin = geometry.origin(*place).unwrap();
             let edge = geometry.stored_edge(place.level);
             for z in origin.z..origin.z + edge {

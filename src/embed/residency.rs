@@ -47,7 +47,9 @@ pub struct ResidencyConfig {
     /// stored brick a step uploads, moves and re-fixed neighbours included; at least
     /// [`MIN_STEP_BRICKS`] level-0 stored bricks.
     pub upload_bytes_per_frame: u64,
-    /// RAM budget of a streaming source: the request list is cut to what fits (`None`: all).
+    /// RAM budget of a streaming source: the request list is cut to what fits (`None`: all);
+    /// for a level source, the longest prefix of its request (next steps, drawn bricks, the
+    /// rest of the wanted plan) whose stored bricks fit.
     pub ram_bytes: Option<u64>,
     /// Planner tuning (error threshold, hysteresis).
     pub options: PlanOptions,
@@ -318,7 +320,11 @@ impl VolumePass {
             state.stage(&drawn)?;
         }
         if let Some(streamer) = state.streamer() {
-            streamer.request(&stream_request(state, &view, &choice.levels));
+            let mut keys = stream_request(state, &view, &choice.levels);
+            if let Some(ram) = self.residency.ram_bytes {
+                cut_to_ram(&mut keys, ram, &|level| state.stored_bytes(level));
+            }
+            streamer.request(&keys);
         }
         Ok(choice)
     }
@@ -363,6 +369,24 @@ fn brick_distances(state: &LevelState, view: &LodView) -> Vec<f32> {
                 .length()
         })
         .collect()
+}
+
+/// Cuts the request `keys` (stored bricks `(level, first brick)`, highest priority first) to
+/// its longest prefix whose distinct stored bricks take at most `ram` bytes (`bytes(level)` a
+/// stored brick of `level`): [`ResidencyConfig::ram_bytes`] for a level source.
+fn cut_to_ram(keys: &mut Vec<(u32, usize)>, ram: u64, bytes: &dyn Fn(u32) -> u64) {
+    let mut seen = HashSet::new();
+    let mut total = 0u64;
+    let keep = keys
+        .iter()
+        .position(|&key| {
+            if seen.insert(key) {
+                total += bytes(key.0);
+            }
+            total > ram
+        })
+        .unwrap_or(keys.len());
+    keys.truncate(keep);
 }
 
 /// The stored bricks a streamed source asks its streamer for, highest priority first: the

@@ -25,7 +25,7 @@
 use super::level_field::LevelField;
 use super::mixed::{first_marked_neighbour, fixup_value, touching, CacheImage, MixedVolume};
 use crate::bricks::{dequantize, quantize_to};
-use crate::cache::{block_bricks, slots_for_plan, LevelSlot, ThreeLevelGeometry};
+use crate::cache::{block_bricks, slots_for_plan, ThreeLevelGeometry};
 use crate::pyramid::{LevelPacking, PackingError};
 use crate::scene::Transition;
 use crate::volume::ScalarType;
@@ -36,19 +36,9 @@ use glam::{IVec3, UVec3};
 pub struct LevelReferenceCache {
     /// The cache image.
     pub image: CacheImage,
-    /// Layout entry per brick ([`ThreeLevelGeometry::layout_entry`]).
-    pub layout: Vec<[f32; 4]>,
-    /// Coarser bits per brick ([`LevelField::coarser_bits`]): for a level-0 brick the 26
-    /// neighbour bits of the two-level cache.
-    pub neighbours: Vec<u32>,
-    /// Where each brick lives, `None` when not drawn (the bricks of a block share a place).
-    pub places: Vec<Option<LevelSlot>>,
-    /// The bricks that hold a stored brick, in brick order ([`LevelPacking::stored`]).
-    pub stored: Vec<usize>,
-    /// Bricks per axis.
-    pub bricks: UVec3,
-    /// Brick size.
-    pub brick_size: u32,
+    /// Where every drawn brick lives and the tables the ray-caster reads (layout entries,
+    /// coarser bits), as the GPU staging packs them.
+    pub packing: LevelPacking,
 }
 
 impl LevelReferenceCache {
@@ -95,9 +85,10 @@ impl LevelReferenceCache {
             stored,
             bricks,
             brick_size: n,
-        } = packing;
+        } = &packing;
+        let (bricks, n) = (*bricks, *n);
         if transition == Transition::Smooth {
-            for &i in &stored {
+            for &i in stored {
                 let Some(place) = places[i] else {
                     continue;
                 };
@@ -112,7 +103,7 @@ impl LevelReferenceCache {
                     let inner = origin + UVec3::ONE;
                     for t in boundary_texels(n + 2, |t| t == 0 || t == n + 1) {
                         if let Some(v) =
-                            fixup_value(&image, &layout, bits, bricks, n, brick.as_ivec3(), t)
+                            fixup_value(&image, layout, bits, bricks, n, brick.as_ivec3(), t)
                         {
                             image.set_texel((inner + t).as_ivec3(), round(&[v])[0]);
                         }
@@ -122,8 +113,8 @@ impl LevelReferenceCache {
                     for t in boundary_texels(last + 1, |t| t == 0 || t == last) {
                         if let Some(v) = skeleton_fixup_value(
                             &image,
-                            &layout,
-                            &neighbours,
+                            layout,
+                            neighbours,
                             bricks,
                             n,
                             brick.as_ivec3(),
@@ -136,25 +127,17 @@ impl LevelReferenceCache {
                 }
             }
         }
-        Ok(Self {
-            image,
-            layout,
-            neighbours,
-            places,
-            stored,
-            bricks,
-            brick_size: n,
-        })
+        Ok(Self { image, packing })
     }
 
     /// The view [`sample_mixed`](super::sample_mixed) takes.
     pub fn view(&self) -> MixedVolume<'_> {
         MixedVolume {
             cache: &self.image,
-            layout: &self.layout,
-            neighbours: &self.neighbours,
-            bricks: self.bricks,
-            brick_size: self.brick_size,
+            layout: &self.packing.layout,
+            neighbours: &self.packing.neighbours,
+            bricks: self.packing.bricks,
+            brick_size: self.packing.brick_size,
         }
     }
 }

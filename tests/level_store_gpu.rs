@@ -11,6 +11,7 @@ use common::Rng;
 use glam::{UVec3, Vec3, Vec4};
 use mixvol::bricks::DownsampleFilter;
 use mixvol::cache::ThreeLevelGeometry;
+use mixvol::pyramid::LevelGrid;
 use mixvol::reference::{self, LevelField, LevelReferenceCache};
 use mixvol::renderer::{Frame, MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Transition};
@@ -227,6 +228,81 @@ fn a_u8_level_store_matches_the_reference_of_its_levels() {
             .unwrap_err();
         assert!(err.to_string().contains("bricks of 8"), "{err}");
         drop(renderer);
+        let _ = std::fs::remove_file(&path);
+    }
+    common::finish(ctx);
+}
+
+/// A stored brick that cannot be read (a CRC mismatch) never aborts a view (issue 36): the
+/// camera planner reads it once, counts it (`LevelChoice::failed_reads`), keeps it out of every
+/// later step, and its region keeps drawing a coarser level; the frame equals the CPU reference
+/// of the levels drawn, over the volume's own levels.
+#[test]
+fn an_unreadable_stored_brick_falls_back_and_is_counted() {
+    let ctx = common::validated_context();
+    {
+        let mut rng = Rng(0x1e7e_1570_6900_0009);
+        let volume = textured_volume(&mut rng, UVec3::new(4 * N, 4 * N, 3 * N));
+        let path = temp_path("damaged");
+        write_level_store(&path, &volume, N, None, &mut |_, _| {}).unwrap();
+        let data_offset = LevelStore::open(&path).unwrap().header().data_offset as usize;
+        // A texel of the first stored brick: level 0, brick 0.
+        let mut bytes = std::fs::read(&path).unwrap();
+        bytes[data_offset + 5] ^= 0x40;
+        std::fs::write(&path, &bytes).unwrap();
+        let store = Arc::new(LevelStore::open(&path).unwrap());
+        assert!(
+            store.read_stored(0, UVec3::ZERO).is_err(),
+            "brick 0 is damaged"
+        );
+        assert!(store.read_stored(0, UVec3::new(1, 0, 0)).is_ok());
+        let mut renderer = renderer_for(
+            &ctx,
+            VolumeSource::LevelStore {
+                store: store.clone(),
+                levels: &[],
+                config: config(96 * 96 * 48 * 4),
+            },
+        );
+        // Near brick 0's corner, fine voxels: brick 0 is wanted at level 0.
+        let camera = Camera::perspective(Vec3::new(-1.0, -0.8, -1.2), Vec3::ZERO, 40.0);
+        let (mut failed, mut last) = (0, Vec::new());
+        let mut settled = None;
+        for step in 0..12 {
+            let choice = renderer
+                .plan_brick_levels(&camera, &settings(), W, W, 0.5)
+                .unwrap_or_else(|e| panic!("step {step}: a failed read aborted the view: {e}"));
+            failed += choice.failed_reads;
+            let now = renderer.brick_levels().unwrap().to_vec();
+            assert_ne!(now[0], Some(0), "step {step}: brick 0 drawn at level 0");
+            if now == last {
+                settled = Some(choice);
+                break;
+            }
+            last = now;
+        }
+        let choice = settled.expect("the steps settle");
+        assert_eq!(
+            choice.levels[0],
+            Some(0),
+            "the camera wants brick 0 at level 0"
+        );
+        assert_eq!(failed, 1, "the damaged brick is read once, then kept out");
+        assert!(choice.waiting >= 1, "brick 0 waits: {choice:?}");
+        let drawn = renderer.brick_levels().unwrap().to_vec();
+        assert!(drawn[0].is_some(), "brick 0 draws a coarser level");
+        let level0 = drawn.iter().filter(|l| **l == Some(0)).count();
+        assert!(level0 >= 4, "the rest refines: {level0} bricks at level 0");
+
+        let frame = renderer.render(&camera, &settings(), W, W).unwrap();
+        let grids = LevelGrid::vertex_pyramid(&volume, store.level_count());
+        let field = LevelField::new(&store.grid(), &grids, &drawn).unwrap();
+        let geometry = ThreeLevelGeometry::new(N, UVec3::splat(128)).unwrap();
+        let cpu = LevelReferenceCache::build(&field, &geometry, Transition::Smooth).unwrap();
+        let params = renderer.params(&camera, &settings(), W, W).unwrap();
+        let tf = mixvol::optics::TransferFunction::preset(mixvol::optics::TfPreset::Bands);
+        let expected = reference::render_mixed(&cpu.view(), Transition::Smooth, &tf, &params);
+        assert_matches("around the damaged brick", &frame, &expected);
         let _ = std::fs::remove_file(&path);
     }
     common::finish(ctx);

@@ -19,6 +19,7 @@ use crate::scene::Transition;
 use crate::store::{LevelBackend, LevelStore, LevelStreamer};
 use crate::volume::{ScalarType, Volume};
 use glam::UVec3;
+use std::collections::HashSet;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -51,6 +52,11 @@ pub(crate) struct LevelState {
     pub(super) last_update: Option<LevelUpdateReport>,
     /// Per brick, the range culling tests (`crate::levels::conservative_ranges`).
     pub(super) cull_ranges: Vec<crate::bricks::ValueRange>,
+    /// Stored bricks `(level, first brick)` whose read failed: kept out of every later step
+    /// (their region keeps the level it draws) for as long as the source is attached.
+    pub(super) failed: HashSet<(u32, usize)>,
+    /// The stored brick whose read made the last [`LevelState::stage`] fail, if one did.
+    pub(super) last_failed_read: Option<(u32, usize)>,
 }
 
 /// What a three-level source needs to know of its volume besides the stored bricks.
@@ -112,14 +118,20 @@ impl LevelData {
 impl LevelState {
     /// Stages `levels`: checks the plan (rule, levels, slots) first, so a refused plan leaves
     /// the drawn one as it is; then uploads only what changed ([`LevelResidency`]).
+    ///
+    /// A stored brick that cannot be read fails the call with its error, changes nothing
+    /// (the cache and its residency still hold the drawn plan) and is named in
+    /// `last_failed_read`.
     pub(super) fn stage(&mut self, levels: &[Option<u32>]) -> Result<LevelUpdateReport> {
         let start = Instant::now();
+        self.last_failed_read = None;
         let plan = LevelPlan::new(&self.grid, self.data.level_count(), levels)?;
         if self.gpu.has_pending() {
             // A change staged but never recorded: the cache does not hold it.
             self.gpu.discard_pending();
             self.residency.invalidate();
         }
+        let before = self.residency.clone();
         let update = self.residency.update(&plan, &self.geometry)?;
         let packed = &update.packing;
         let geometry = &self.geometry;
@@ -132,6 +144,7 @@ impl LevelState {
             _ => None,
         };
         let (data, grid) = (&self.data, self.grid);
+        let mut failed_read = None;
         let staged = stage_three_level(
             &mut self.gpu,
             packed,
@@ -143,11 +156,10 @@ impl LevelState {
                     Some(grids) => packed.stored_values(grids, geometry, brick),
                     None => {
                         let level = packed.places[brick].map_or(0, |p| p.level);
-                        data.read_stored(
-                            level,
-                            grid.linear_index(block_origin(grid.brick_coords(brick), level)),
-                            grid.brick_coords(brick),
-                        )?
+                        let first =
+                            grid.linear_index(block_origin(grid.brick_coords(brick), level));
+                        data.read_stored(level, first, grid.brick_coords(brick))
+                            .inspect_err(|_| failed_read = Some((level, first)))?
                     }
                 };
                 uploaded_bytes += texel_bytes * texels.len();
@@ -156,6 +168,12 @@ impl LevelState {
         );
         match staged {
             Ok(facts) => self.facts = facts,
+            Err(e) if failed_read.is_some() => {
+                // Nothing was staged: the cache and the residency before hold the drawn plan.
+                self.residency = before;
+                self.last_failed_read = failed_read;
+                return Err(e);
+            }
             Err(e) => {
                 // The cache still holds the drawn plan, but not what the residency now says.
                 self.residency.invalidate();
@@ -203,7 +221,7 @@ impl LevelState {
     /// Bytes that staging `levels` now would upload, exactly as [`LevelState::stage`] would:
     /// new stored bricks, kept ones whose coarser neighbours change and kept ones moved to make
     /// room (everything when the cache would be packed afresh); `None` when the plan breaks the
-    /// rules or does not fit the cache's slots.
+    /// rules, does not fit the cache's slots or would upload a stored brick whose read failed.
     pub(super) fn upload_bytes_for(&self, levels: &[Option<u32>]) -> Option<u64> {
         let plan = LevelPlan::new(&self.grid, self.data.level_count(), levels).ok()?;
         let mut residency = self.residency.clone();
@@ -211,6 +229,17 @@ impl LevelState {
             residency.invalidate();
         }
         let update = residency.update(&plan, &self.geometry).ok()?;
+        let grid = self.grid;
+        let unreadable = update.upload.iter().any(|&i| {
+            let level = update.packing.places[i].map_or(0, |p| p.level);
+            self.failed.contains(&(
+                level,
+                grid.linear_index(block_origin(grid.brick_coords(i), level)),
+            ))
+        });
+        if unreadable {
+            return None;
+        }
         Some(
             update
                 .upload
@@ -348,6 +377,8 @@ impl VolumePass {
             wanted: Vec::new(),
             last_update: None,
             cull_ranges,
+            failed: HashSet::new(),
+            last_failed_read: None,
         };
         state.stage(levels)?;
         self.source = Source::Levels(Box::new(state));

@@ -309,16 +309,35 @@ impl VolumePass {
             target_pixels,
             &state.wanted,
         )?;
-        let drawn = budgeted_step(state, &view, &choice.levels, budget);
+        // A stored brick whose read fails is kept out and the step planned again without it
+        // (its region keeps the level it draws), at most a few times a call.
+        let mut drawn = budgeted_step(state, &view, &choice.levels, budget);
+        for _ in 0..MAX_FAILED_READS_PER_CALL {
+            if drawn == state.current {
+                break;
+            }
+            match state.stage(&drawn) {
+                Ok(_) => break,
+                Err(e) => {
+                    let Some(key) = state.last_failed_read.take() else {
+                        return Err(e);
+                    };
+                    log::warn!("level {}, stored brick of brick {}: {e}", key.0, key.1);
+                    state.failed.insert(key);
+                    choice.failed_reads += 1;
+                    drawn = budgeted_step(state, &view, &choice.levels, budget);
+                }
+            }
+        }
+        // What the cache draws now: the last step when it staged; when every retry failed, the
+        // levels drawn before (the next call goes on).
+        let drawn = state.current.clone();
         choice.waiting = drawn
             .iter()
             .zip(&choice.levels)
             .filter(|(d, w)| d != w)
             .count();
         state.wanted = choice.levels.clone();
-        if drawn != state.current {
-            state.stage(&drawn)?;
-        }
         if let Some(streamer) = state.streamer() {
             let mut keys = stream_request(state, &view, &choice.levels);
             if let Some(ram) = self.residency.ram_bytes {
@@ -335,6 +354,10 @@ impl VolumePass {
 /// fixed-up borders go stale and are uploaded again. An upload budget of this many level-0
 /// stored bricks always lets some step move (`VolumePass::plan_brick_levels` refuses less).
 pub const MIN_STEP_BRICKS: u64 = 27;
+
+/// Failed stored-brick reads `VolumePass::plan_brick_levels` plans around within one call
+/// (each read once); past them the call keeps the drawn levels and goes on at the next.
+const MAX_FAILED_READS_PER_CALL: usize = 8;
 
 /// [`admit_by_budget`] for a move from `current` towards `towards`.
 fn admit_towards(
@@ -472,9 +495,12 @@ fn budgeted_step(
     };
     let distance = brick_distances(state, view);
     let resident = |first: usize, level: u32| state.residency.holds(first, level);
-    // A streamed source draws only stored bricks already in RAM.
     let streamer = state.streamer();
-    let in_ram = |first: usize, level: u32| streamer.is_none_or(|s| s.is_ready((level, first)));
+    // A streamed source draws only stored bricks already in RAM; none draws one that failed.
+    let in_ram = |first: usize, level: u32| {
+        !state.failed.contains(&(level, first))
+            && streamer.is_none_or(|s| s.is_ready((level, first)))
+    };
     let not_drawable = |first: usize, level: u32| resident(first, level) || !in_ram(first, level);
     let affordable = |plan: &[Option<u32>]| {
         state

@@ -86,6 +86,11 @@ pub struct LevelChoice {
     /// important blocks of the coarsest level (out of view first, then the farthest) are
     /// dropped until it fits (module docs, step 0). 0 when the cache holds the coarsest plan.
     pub dropped: usize,
+    /// Stored bricks whose read failed while this view was staged
+    /// (`VolumePass::plan_brick_levels`; 0 from [`choose_levels`]): each is kept out of every
+    /// later step, so its region keeps the level it draws (a coarser one), and the step is
+    /// planned again without it.
+    pub failed_reads: usize,
 }
 
 /// Chooses the level of every brick of `geometry` for `view` among `levels` levels (module
@@ -239,6 +244,7 @@ pub fn choose_levels_near(
         pixels_per_voxel: target_pixels * bias.exp2(),
         waiting: 0,
         dropped,
+        failed_reads: 0,
     })
 }
 

@@ -104,13 +104,14 @@ fn http_faults_are_typed_errors_naming_the_object_and_never_hang() {
         2
     );
 
-    // A stalled body (headers sent, then 60 s of nothing): each try times out after 300 ms.
+    // A stalled body (headers sent, then 60 s of nothing): each try times out after 2 s (not
+    // 300 ms: healthy answers of the loaded test machine must not time out, review M11).
     let url = format!("{base}/stall/v3.zarr");
     // object_store retries a request that failed before its body; a body that stalls after the
     // headers is not retried (1 or 2 tries, never more).
     let start = Instant::now();
     let message = expect_remote(
-        load_zarr_at(&at(&url), 0, &quick(1, 300)),
+        load_zarr_at(&at(&url), 0, &quick(1, 2000)),
         &format!("{url}/{first_chunk}"),
     );
     let waited = start.elapsed();

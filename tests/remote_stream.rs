@@ -397,7 +397,7 @@ fn chunk_faults_are_typed_errors_naming_the_chunk_and_the_frame_still_renders() 
                 open_zarr_source(
                     &at(&url),
                     0,
-                    &quick(1, 300),
+                    &quick(1, 2000),
                     stream_config(4),
                     StreamerConfig {
                         ram_budget_bytes: 4 << 20,
@@ -554,7 +554,7 @@ fn a_failed_chunk_falls_back_to_pyramid_level_1() {
     for mode in ["corrupt", "500"] {
         let prefix = format!("{mode}@{}", key.replace('/', "~"));
         let url = format!("{}/{prefix}/pyr.zarr", server.base());
-        let zarr = ZarrBricks::open(&at(&url), 0, &quick(1, 300), config).unwrap();
+        let zarr = ZarrBricks::open(&at(&url), 0, &quick(1, 2000), config).unwrap();
         let mut replaced = 0;
         for brick in grid.bricks() {
             let b = grid.linear_index(brick) as u32;
@@ -692,7 +692,7 @@ fn a_failed_chunk_falls_back_to_pyramid_level_1() {
             open_zarr_source(
                 &at(&url),
                 0,
-                &quick(1, 300),
+                &quick(1, 2000),
                 config,
                 StreamerConfig::default(),
             )

@@ -135,10 +135,14 @@ fn check_gpu_cache(
         }
         eprintln!("{name} {transition:?}: max jump {max_jump:?} at eps {eps_values:?}");
         match transition {
+            // Measured on lavapipe (2026-12-06) over these volumes and plans: smooth spreads
+            // 0.73-0.99 eps at eps 1e-2 and 1e-3 (the texture's slope), discontinuous ones
+            // 0.106-0.233 whatever eps (review M2: the bounds come from these, with a 3x
+            // margin, and the baseline must jump well past the smooth bound).
             Transition::Smooth => {
                 for k in 0..2 {
                     assert!(
-                        max_jump[k] < 14.0 * 3.5 * eps_values[k] + 0.01,
+                        max_jump[k] < 3.0 * eps_values[k],
                         "{name}: the smooth GPU field jumps: {max_jump:?}"
                     );
                 }
@@ -148,7 +152,7 @@ fn check_gpu_cache(
                 );
             }
             Transition::Discontinuous => assert!(
-                max_jump[1] > 0.02 && max_jump[1] > 0.5 * max_jump[0],
+                max_jump[1] > 0.05 && max_jump[1] > 0.5 * max_jump[0],
                 "{name}: the discontinuous GPU field should jump: {max_jump:?}"
             ),
         }

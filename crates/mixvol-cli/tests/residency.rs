@@ -735,6 +735,14 @@ fn a_damaged_level_store_renders_what_it_can_read_and_names_the_failure() {
         "{text}"
     );
     assert!(text.contains("validation: 0 warnings/errors"), "{text}");
+    // It stops once nothing can move (review M4): a step per level at most, not the 200-frame
+    // limit; and the image shows what it could read.
+    let steps = number_after(&text, "level steps:");
+    assert!(steps <= 10.0, "{steps} steps: it kept stepping\n{text}");
+    assert!(
+        covered(&pixels(&dir.join("r.png")), BACKGROUND) > 0.2,
+        "the image is mostly background\n{text}"
+    );
     assert!(
         start.elapsed() < std::time::Duration::from_secs(60),
         "stopped stepping once nothing could move"

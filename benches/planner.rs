@@ -46,7 +46,8 @@ use mixvol::cache::pyramid_levels;
 use mixvol::lod::{cull_bricks, BrickGeometry, CullParams, LodView, TfCullTable};
 use mixvol::optics::{TransferFunction, TF_SIZE};
 use mixvol::plan::{
-    choose_levels_near, upload_bytes, FrameInput, PlanBudget, PlanOptions, ResidencyPlanner,
+    choose_levels_near, level_margin, upload_bytes, FrameInput, PlanBudget, PlanOptions,
+    ResidencyPlanner,
 };
 use mixvol::scene::Camera;
 use std::hint::black_box;
@@ -374,8 +375,11 @@ fn level_rows(
     for f in 0..frames {
         let view = LodView::new(&Path::Orbit.camera(start, f), WIDTH, HEIGHT).expect("view");
         let cpu = thread_cpu_ms();
-        let choice = choose_levels_near(geometry, &view, &active, levels, slots, 1.0, &previous)
-            .expect("choice");
+        let margin = level_margin(PlanOptions::default().hysteresis);
+        let choice = choose_levels_near(
+            geometry, &view, &active, levels, slots, 1.0, &previous, margin,
+        )
+        .expect("choice");
         cpu_times.push(thread_cpu_ms() - cpu);
         used.push(choice.slots);
         previous = black_box(choice).levels;

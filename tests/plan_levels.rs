@@ -11,7 +11,9 @@ use glam::{UVec3, Vec3};
 use mixvol::bricks::BrickGrid;
 use mixvol::cache::{block_bricks, block_origin, slots_for_plan};
 use mixvol::lod::{BrickGeometry, LodView};
-use mixvol::plan::{choose_levels, choose_levels_near, LevelChoiceError};
+use mixvol::plan::{
+    choose_levels, choose_levels_near, level_margin, LevelChoiceError, PlanOptions,
+};
 use mixvol::pyramid::LevelGrid;
 use mixvol::reference::LevelField;
 use mixvol::scene::Camera;
@@ -216,11 +218,18 @@ fn hysteresis_keeps_a_plan_while_the_camera_hovers_at_a_boundary() {
     let bricks = UVec3::new(12, 12, 12);
     let geometry = geometry(bricks);
     let active = vec![true; geometry.grid().brick_count()];
-    let choose = |distance: f32, previous: &[Option<u32>]| {
+    let choose_with = |distance: f32, previous: &[Option<u32>], margin: f32| {
         let camera = Camera::perspective(Vec3::new(0.0, 0.2, distance), Vec3::ZERO, 70.0);
         let view = LodView::new(&camera, 160, 160).unwrap();
-        choose_levels_near(&geometry, &view, &active, LEVELS, 1_000_000, 1.0, previous).unwrap()
+        choose_levels_near(
+            &geometry, &view, &active, LEVELS, 1_000_000, 1.0, previous, margin,
+        )
+        .unwrap()
     };
+    // The default margin: the two-level planner's 10 %, 0.1375 levels.
+    let margin = level_margin(PlanOptions::default().hysteresis);
+    assert!((margin - 0.1375).abs() < 1e-3, "{margin}");
+    let choose = |distance: f32, previous: &[Option<u32>]| choose_with(distance, previous, margin);
     let base = choose(2.5, &[]);
     let camera = Camera::perspective(Vec3::new(0.0, 0.2, 2.5), Vec3::ZERO, 70.0);
     let view = LodView::new(&camera, 160, 160).unwrap();
@@ -258,6 +267,16 @@ fn hysteresis_keeps_a_plan_while_the_camera_hovers_at_a_boundary() {
         choose(1.25, &[]).levels,
         "far from any boundary, no difference"
     );
+    // The margin is the caller's: none keeps nothing, and a bad one is refused.
+    assert_eq!(choose_with(flip, &base.levels, 0.0).levels, moved.levels);
+    let camera = Camera::perspective(Vec3::new(0.0, 0.2, 2.5), Vec3::ZERO, 70.0);
+    let view = LodView::new(&camera, 160, 160).unwrap();
+    for bad in [-0.1, f32::NAN, f32::INFINITY] {
+        assert!(matches!(
+            choose_levels_near(&geometry, &view, &active, LEVELS, 100, 1.0, &[], bad),
+            Err(LevelChoiceError::Hysteresis(_))
+        ));
+    }
 }
 
 /// An orthographic view of the whole volume: every brick's voxels project to the same size, so

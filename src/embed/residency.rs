@@ -27,8 +27,8 @@ use crate::cache::block_origin;
 use crate::error::{Error, Result};
 use crate::lod::{cull_bricks, CullParams, LodView, ValueCulling};
 use crate::plan::{
-    admit_by_budget, choose_levels_near, cull_params, next_target, step_towards, FrameInput,
-    FramePlan, LevelChoice, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
+    admit_by_budget, choose_levels_near, cull_params, level_margin, next_target, step_towards,
+    FrameInput, FramePlan, LevelChoice, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
 };
 use crate::scene::{Camera, RenderSettings};
 use crate::volume::ScalarType;
@@ -308,6 +308,7 @@ impl VolumePass {
             state.slot_count(),
             target_pixels,
             &state.wanted,
+            level_margin(self.residency.options.hysteresis),
         )?;
         // A stored brick whose read fails is kept out and the step planned again without it
         // (its region keeps the level it draws), at most a few times a call.

@@ -64,6 +64,9 @@ pub enum LevelChoiceError {
         /// Brick size of the grid.
         brick_size: u32,
     },
+    /// The hysteresis margin is not a finite number of levels >= 0.
+    #[error("the hysteresis margin must be a finite number of levels >= 0, not {0}")]
+    Hysteresis(f32),
     /// The target is not a positive finite number of pixels.
     #[error("the target voxel size on screen must be a positive number of pixels, not {0}")]
     Target(f32),
@@ -108,23 +111,37 @@ pub fn choose_levels(
     slots: u64,
     target_pixels: f32,
 ) -> Result<LevelChoice, LevelChoiceError> {
-    choose_levels_near(geometry, view, active, levels, slots, target_pixels, &[])
+    choose_levels_near(
+        geometry,
+        view,
+        active,
+        levels,
+        slots,
+        target_pixels,
+        &[],
+        0.0,
+    )
 }
 
-/// How far past a level boundary (in levels, on the log2 scale of the on-screen voxel size) a
-/// brick keeps its previous level in [`choose_levels_near`]: a drawn voxel may then project to
-/// up to `2^0.25` (1.19) times the target before the brick refines, and a brick coarsens only
-/// once its voxels are `2^0.25` times below the target.
-pub const LEVEL_HYSTERESIS: f32 = 0.25;
+/// The hysteresis margin in levels (the log2 scale of the on-screen voxel size) of a relative
+/// margin `m` ([`super::PlanOptions::hysteresis`], the two-level planner's): a brick keeps its
+/// level while its drawn voxel is within a factor `1 + m` of a level boundary, so
+/// `log2(1 + m)` levels (0.1375 for the default 10 %).
+pub fn level_margin(relative: f32) -> f32 {
+    (1.0 + relative.max(0.0)).log2()
+}
 
 /// [`choose_levels`] with hysteresis: a brick whose wanted level (before the rule, the blocks
-/// and the budget) lies within [`LEVEL_HYSTERESIS`] of a boundary of its level in `previous`
-/// (one entry per brick, the last choice; empty for none) keeps that level, so a camera that
-/// hovers at a boundary does not move bricks back and forth. The rule, the blocks and the
-/// budget apply as in [`choose_levels`].
+/// and the budget) lies within `margin` levels of a boundary of its level in `previous` (one
+/// entry per brick, the last choice; empty for none) keeps that level, so a camera that hovers
+/// at a boundary does not move bricks back and forth: a drawn voxel may project to up to
+/// `2^margin` times the target before the brick refines, and a brick coarsens only once its
+/// voxels are `2^margin` times below the target ([`level_margin`] of the two-level planner's
+/// relative margin). The rule, the blocks and the budget apply as in [`choose_levels`].
 ///
-/// Errors: those of [`choose_levels`], and a `previous` of another length than the bricks
-/// (reported as [`LevelChoiceError::ActiveCount`]).
+/// Errors: those of [`choose_levels`], a `previous` of another length than the bricks
+/// (reported as [`LevelChoiceError::ActiveCount`]), a margin that is not finite and >= 0.
+#[allow(clippy::too_many_arguments)] // reason: the view's inputs; folded into one planner input by the one residency system (issue 36).
 pub fn choose_levels_near(
     geometry: &BrickGeometry,
     view: &LodView,
@@ -133,6 +150,7 @@ pub fn choose_levels_near(
     slots: u64,
     target_pixels: f32,
     previous: &[Option<u32>],
+    margin: f32,
 ) -> Result<LevelChoice, LevelChoiceError> {
     let grid = geometry.grid();
     if !previous.is_empty() && previous.len() != grid.brick_count() {
@@ -157,6 +175,13 @@ pub fn choose_levels_near(
     if !(target_pixels.is_finite() && target_pixels > 0.0) {
         return Err(LevelChoiceError::Target(target_pixels));
     }
+    if !(margin.is_finite() && margin >= 0.0) {
+        return Err(LevelChoiceError::Hysteresis(margin));
+    }
+    let previous = Previous {
+        levels: previous,
+        margin,
+    };
     // Per brick: log2 of the target over the projected hi-res voxel, or None for a brick that
     // wants the coarsest level whatever the target.
     let voxel = geometry.voxel_size().max_element();
@@ -208,7 +233,7 @@ pub fn choose_levels_near(
         }
         // Fill the slots left: the bricks `lo` would refine, neediest first, as many as fit.
         let wanted_at = |i: usize, bias: f32| {
-            headroom[i].map(|h| wanted_level(h + bias, previous.get(i).copied().flatten(), levels))
+            headroom[i].map(|h| wanted_level(h + bias, previous.at(i), levels))
         };
         let mut candidates: Vec<usize> = (0..headroom.len())
             .filter(|&i| wanted_at(i, lo) < wanted_at(i, hi))
@@ -258,7 +283,7 @@ fn drop_to_fit(
     view: &LodView,
     active: &mut [bool],
     headroom: &mut [Option<f32>],
-    previous: &[Option<u32>],
+    previous: Previous<'_>,
     levels: u32,
     slots: u64,
 ) -> usize {
@@ -334,27 +359,46 @@ fn drop_to_fit(
     drop_first(fit, active, headroom)
 }
 
+/// The last choice and the hysteresis margin against it ([`choose_levels_near`]).
+#[derive(Copy, Clone)]
+struct Previous<'a> {
+    /// One level per brick, or empty for none.
+    levels: &'a [Option<u32>],
+    /// Levels past a boundary a brick keeps its last level.
+    margin: f32,
+}
+
+impl Previous<'_> {
+    /// Brick `i`'s last level and the margin, when it had one.
+    fn at(&self, i: usize) -> Option<(u32, f32)> {
+        self.levels
+            .get(i)
+            .copied()
+            .flatten()
+            .map(|level| (level, self.margin))
+    }
+}
+
 /// The level a brick wants at `raw` (log2 of the target, grown by the bias, over its projected
-/// hi-res voxel): `floor(raw)`, or its `previous` level while `raw` lies within
-/// [`LEVEL_HYSTERESIS`] of that level's boundaries; clamped to the levels. A non-decreasing
-/// function of `raw`.
-fn wanted_level(raw: f32, previous: Option<u32>, levels: u32) -> u32 {
-    let wanted = match previous.map(|p| p as f32) {
-        Some(p) if raw >= p - LEVEL_HYSTERESIS && raw < p + 1.0 + LEVEL_HYSTERESIS => p,
+/// hi-res voxel): `floor(raw)`, or its `previous` level while `raw` lies within the margin of
+/// that level's boundaries; clamped to the levels. A non-decreasing function of `raw`.
+fn wanted_level(raw: f32, previous: Option<(u32, f32)>, levels: u32) -> u32 {
+    let wanted = match previous.map(|(p, m)| (p as f32, m)) {
+        Some((p, m)) if raw >= p - m && raw < p + 1.0 + m => p,
         _ => raw.floor(),
     };
     wanted.clamp(0.0, (levels - 1) as f32) as u32
 }
 
 /// Steps 1-3 of the module docs with brick `i`'s target grown by `2^bias(i)`, each wanted
-/// level kept at `previous` (when given) within [`LEVEL_HYSTERESIS`] of its boundaries. The
+/// level kept at `previous` (when given) within its margin of its boundaries. The
 /// wanted level stays a non-decreasing function of every brick's bias, so the slots still
 /// never grow with it.
 fn plan_for(
     geometry: &BrickGeometry,
     active: &[bool],
     headroom: &[Option<f32>],
-    previous: &[Option<u32>],
+    previous: Previous<'_>,
     levels: u32,
     bias: &dyn Fn(usize) -> f32,
 ) -> Vec<Option<u32>> {
@@ -364,7 +408,7 @@ fn plan_for(
         .iter()
         .enumerate()
         .map(|(i, h)| match h {
-            Some(h) => wanted_level(h + bias(i), previous.get(i).copied().flatten(), levels),
+            Some(h) => wanted_level(h + bias(i), previous.at(i), levels),
             None => coarsest,
         })
         .collect();

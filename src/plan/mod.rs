@@ -132,9 +132,7 @@ pub use frame::{
     cull_params, upload_bytes, FrameInput, FramePlan, PlanBudget, PlanOptions, PlanReport,
 };
 pub use level_steps::{admit_by_budget, next_target, step_towards};
-pub use levels::{
-    choose_levels, choose_levels_near, LevelChoice, LevelChoiceError, LEVEL_HYSTERESIS,
-};
+pub use levels::{choose_levels, choose_levels_near, level_margin, LevelChoice, LevelChoiceError};
 
 mod frame;
 mod level_steps;

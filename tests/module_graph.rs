@@ -67,6 +67,14 @@ fn production_text(path: &Path) -> String {
     }
 }
 
+/// `file`'s path below `src`, with `/` between its parts.
+fn relative(src: &Path, file: &Path) -> String {
+    file.strip_prefix(src)
+        .unwrap()
+        .to_string_lossy()
+        .replace('\\', "/")
+}
+
 fn is_ident(c: char) -> bool {
     c.is_ascii_alphanumeric() || c == '_'
 }
@@ -123,11 +131,7 @@ fn graph() -> Graph {
     let mut files = Vec::new();
     production_files(&src, &mut files);
     for file in files {
-        let rel = file
-            .strip_prefix(&src)
-            .unwrap()
-            .to_string_lossy()
-            .replace('\\', "/");
+        let rel = relative(&src, &file);
         let first = rel.split('/').next().unwrap();
         let module = first.strip_suffix(".rs").unwrap_or(first).to_string();
         if !mods.contains(&module) {
@@ -245,12 +249,7 @@ fn module_list(graph: &Graph, order: &[String]) -> String {
             production_files(&src.join(m), &mut files);
         }
         for file in files {
-            let rel = file
-                .strip_prefix(&src)
-                .unwrap()
-                .to_string_lossy()
-                .replace('\\', "/");
-            let line = format!("src/{rel}");
+            let line = format!("src/{}", relative(&src, &file));
             let doc = summary(&file);
             if doc.is_empty() {
                 out.push_str(&format!("{line}\n"));

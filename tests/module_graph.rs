@@ -1,6 +1,7 @@
 //! The library's module graph, derived from the `crate::` paths in `src/` (code and doc comments
 //! alike, test modules excluded): dependencies point one way (no cycle between the top-level
-//! modules), the test oracle `reference` is imported by no other module, and the module list in
+//! modules), the test oracle `reference` is imported by no other module (and the command line
+//! reaches it only through `mixvol_experiments::oracle`), and the module list in
 //! `docs/architecture.md` is generated from the same data, so it cannot drift.
 //!
 //! After adding, removing or re-documenting a module, regenerate the list with
@@ -320,6 +321,23 @@ fn only_tests_use_the_reference() {
     assert!(
         users.is_empty(),
         "production modules name the test oracle `reference`: {users:?}"
+    );
+}
+
+#[test]
+fn the_command_line_reaches_the_oracle_only_through_the_experiments() {
+    let cli = Path::new(env!("CARGO_MANIFEST_DIR")).join("crates/mixvol-cli/src");
+    let mut files = Vec::new();
+    production_files(&cli, &mut files);
+    assert!(files.len() > 5, "found only {files:?}");
+    let users: Vec<String> = files
+        .iter()
+        .filter(|f| production_text(f).contains("mixvol::reference"))
+        .map(|f| relative(&cli, f))
+        .collect();
+    assert!(
+        users.is_empty(),
+        "the CLI names the oracle `mixvol::reference` (use mixvol_experiments::oracle): {users:?}"
     );
 }
 

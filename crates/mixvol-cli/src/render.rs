@@ -19,12 +19,10 @@ use crate::levels::{level_pattern, per_level_counts};
 use crate::stats::{peak_rss_bytes, Summary};
 pub use crate::stream::Streaming;
 use mixvol::bricks::BrickGrid;
-use mixvol::cache::ThreeLevelGeometry;
 use mixvol::gpu::{ContextDesc, GpuContext, MessageLog};
 use mixvol::optics::TransferFunction;
 use mixvol::plan::PlanOptions;
 use mixvol::pyramid::LevelGrid;
-use mixvol::reference::{self, slots_needed, LevelField, LevelReferenceCache, ReferenceCache};
 use mixvol::renderer::{
     Frame, FrameReport, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource,
 };
@@ -32,6 +30,7 @@ use mixvol::scene::{Camera, RenderSettings, Transition};
 use mixvol::store::{BrickStore, BrickStreamer, LevelStreamer, StreamerConfig};
 use mixvol::volume::Volume;
 use mixvol::{Error, Result};
+use mixvol_experiments::oracle::{reference_frame, Drawn};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -745,15 +744,15 @@ fn compare(
     frame: &Frame,
 ) -> Result<()> {
     let params = renderer.params(camera, settings, args.width, args.height)?;
-    let reference = match (
+    // The levels' samples of a level source: the volume's own pyramid, or read back.
+    let mut level_grids = None;
+    let drawn = match (
         renderer.brick_cache(),
         &scene.config,
         renderer.brick_levels(),
     ) {
-        (None, Some(config), Some(plan)) => {
-            // The three-level cache's CPU mirror (the slots' places do not change the field),
-            // over the levels of the volume or those read back from the level store.
-            let deepest = plan.iter().flatten().max().copied().unwrap_or(0);
+        (None, Some(config), Some(levels)) => {
+            let deepest = levels.iter().flatten().max().copied().unwrap_or(0);
             let backend = scene.level_streamer.as_ref().map(|s| s.backend().clone());
             let (grid, grids, scalar) = match (backend, &scene.volume) {
                 (Some(backend), _) => {
@@ -768,33 +767,24 @@ fn compare(
                 ),
                 (None, None) => return Err(no_volume()),
             };
-            let field = LevelField::new(&grid, &grids, plan)
-                .map_err(|e| Error::InvalidInput(e.to_string()))?;
-            let slots = u32::try_from(slots_needed(&field)).unwrap_or(u32::MAX);
-            let geometry =
-                ThreeLevelGeometry::choose(config.brick_size, 4, u64::MAX, 16384, slots)?;
-            // The cache holds the source's scalar type: the mirror rounds its texels alike.
-            let cache =
-                LevelReferenceCache::build_stored_as(&field, &geometry, config.transition, scalar)
-                    .map_err(|e| Error::InvalidInput(e.to_string()))?;
-            reference::render_mixed_scene(&cache.view(), config.transition, tf, settings, &params)?
+            let grids = level_grids.insert(grids);
+            Drawn::Levels {
+                grid,
+                grids,
+                levels,
+                scalar,
+                transition: config.transition,
+            }
         }
-        (Some(cache), Some(config), _) => {
-            let volume = scene.volume.as_ref().ok_or_else(no_volume)?;
-            let cache = ReferenceCache::build(
-                volume,
-                config.filter,
-                cache,
-                volume.scalar_type(),
-                config.transition,
-            )?;
-            reference::render_mixed_scene(&cache.view(), config.transition, tf, settings, &params)?
-        }
-        _ => {
-            let volume = scene.volume.as_ref().ok_or_else(no_volume)?;
-            reference::render_scene(volume, tf, settings, &params)?
-        }
+        (Some(cache), Some(config), _) => Drawn::BrickCache {
+            volume: scene.volume.as_ref().ok_or_else(no_volume)?,
+            filter: config.filter,
+            cache,
+            transition: config.transition,
+        },
+        _ => Drawn::Volume(scene.volume.as_ref().ok_or_else(no_volume)?),
     };
+    let reference = reference_frame(drawn, tf, settings, &params)?;
     let d = Difference::between(&reference, &frame.pixels);
     println!(
         "cpu reference: max per-channel difference {:.4} ({:.1}/255), mean {:.2e}, {:.3} % of channels above 1/255",

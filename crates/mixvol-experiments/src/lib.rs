@@ -14,6 +14,7 @@
 //! - [`capacity`]: how large a volume each level scheme can draw in a given cache (texels per
 //!   voxel per level, the largest volume at the coarsest level), `docs/report/capacity.md`.
 //! - [`plot`]: the charts of both reports (plotters, PNG and SVG).
+//! - [`oracle`]: the CPU reference image of what a renderer drew (`mixvol render --compare`).
 #![warn(missing_docs)]
 
 pub mod accuracy;
@@ -21,5 +22,6 @@ pub mod capacity;
 pub mod junction;
 pub mod kraus;
 pub mod metrics;
+pub mod oracle;
 pub mod plot;
 pub mod scenes;

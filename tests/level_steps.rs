@@ -236,7 +236,13 @@ fn a_budgeted_source_reaches_the_wanted_levels_in_steps() {
                 let params = renderer.params(&camera, &settings, 40, 40).unwrap();
                 let expected =
                     reference::render_mixed(&cpu.view(), Transition::Smooth, &tf, &params);
-                common::assert_frame_matches(&format!("step {steps}"), &frame, &expected);
+                // Measured: 76 % of the pixels show the volume at every step.
+                common::assert_frame_matches_visible(
+                    &format!("step {steps}"),
+                    &frame,
+                    &expected,
+                    0.5,
+                );
             }
             steps += 1;
             if choice.waiting == 0 {

@@ -45,7 +45,7 @@ pub fn finish(ctx: GpuContext) {
 }
 
 /// Per-pixel comparison statistics.
-#[derive(Debug)]
+#[derive(Clone, Copy, Debug)]
 pub struct Diff {
     pub max: f32,
     pub mean: f32,
@@ -64,20 +64,38 @@ pub const FRAME_LARGE_FRACTION_TOLERANCE: f32 = 0.005;
 pub const FRAME_MAX_TOLERANCE: f32 = 6.0 / 255.0;
 
 /// Checks `frame` against `expected` (the CPU reference for the frame's residency) with the
-/// `FRAME_*` tolerances; writes both images and panics on failure.
+/// `FRAME_*` tolerances over the covered pixels (alpha above 1/255 in either image, review M1:
+/// the background no longer dilutes the statistics); writes both images and panics on failure.
+/// Returns the covered pixels' differences. No floor on what is visible: a streamed source's
+/// first frame may rightly be empty ([`assert_frame_matches_visible`] adds one).
 pub fn assert_frame_matches(
     name: &str,
     frame: &mixvol::renderer::Frame,
     expected: &[Vec4],
 ) -> Diff {
-    let d = diff(&frame.pixels, expected, FRAME_LARGE);
+    assert_frame_matches_visible(name, frame, expected, 0.0)
+}
+
+/// [`assert_frame_matches`], and both images show the volume over at least `floor` of the
+/// pixels (so a regression that blanks both cannot pass).
+pub fn assert_frame_matches_visible(
+    name: &str,
+    frame: &mixvol::renderer::Frame,
+    expected: &[Vec4],
+    floor: f32,
+) -> Diff {
+    let c = coverage(&frame.pixels, expected, 1.0 / 255.0, FRAME_LARGE);
+    let d = c.diff;
     let ok = d.mean <= FRAME_MEAN_TOLERANCE
         && d.large_fraction <= FRAME_LARGE_FRACTION_TOLERANCE
-        && d.max <= FRAME_MAX_TOLERANCE;
+        && d.max <= FRAME_MAX_TOLERANCE
+        && c.actual_visible >= floor
+        && c.expected_visible >= floor;
     if !ok {
         let dir = write_failure_images(name, frame.width, frame.height, &frame.pixels, expected);
         panic!(
-            "{name}: GPU differs from the CPU reference for this residency: {d:?} (images in {})",
+            "{name}: GPU differs from the CPU reference for this residency (or shows less than \
+             {floor} of the pixels): {c:?} (images in {})",
             dir.display()
         );
     }

@@ -457,3 +457,28 @@ fn a_cache_too_small_drops_the_least_important_blocks() {
         }
     }
 }
+
+/// A view that wants far finer voxels than any level gives (a tiny target) still gets the
+/// coarsest plan when that is all the cache holds: the bias search reaches every brick's
+/// coarsest level, however large its hi-res voxels are on screen (it used to stop `levels`
+/// levels up and call such a cache too small).
+#[test]
+fn a_cache_that_holds_the_coarsest_plan_draws_it_whatever_the_target() {
+    let bricks = UVec3::new(8, 6, 5);
+    let geometry = geometry(bricks);
+    let grid = *geometry.grid();
+    let active = vec![true; grid.brick_count()];
+    let camera = Camera::perspective(Vec3::new(0.9, 0.7, 1.1), Vec3::ZERO, 50.0);
+    let view = LodView::new(&camera, 256, 256).unwrap();
+    let coarsest = vec![Some(LEVELS - 1); grid.brick_count()];
+    let slots = slots_for_plan(bricks, &coarsest);
+    for target in [1.0, 1e-3, 1e-6] {
+        let choice = choose_levels(&geometry, &view, &active, LEVELS, slots, target).unwrap();
+        assert_eq!(choice.dropped, 0, "target {target}: {choice:?}");
+        assert!(choice.slots <= slots, "target {target}");
+        assert!(
+            choice.levels.iter().all(Option::is_some),
+            "target {target}: every brick drawn"
+        );
+    }
+}

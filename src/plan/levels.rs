@@ -24,7 +24,8 @@
 //!    them anyway; drawing them costs nothing).
 //! 4. **The budget**: when the plan needs more slots than the cache has
 //!    ([`crate::cache::slots_for_plan`]), the target grows by `2^b`, with the smallest `b` in
-//!    `[0, levels]` that fits found by bisection (slots never grow with `b`).
+//!    `[0, top]` that fits found by bisection (slots never grow with `b`; at `top` every brick
+//!    wants the coarsest level, however large its hi-res voxels are on screen).
 //! 5. **Filling the slots left**: many bricks can cross a level boundary at the same bias (a
 //!    distant view of the whole volume moves them all at once), so the plan at `b` may use a
 //!    small part of the cache. The bricks that the bias just below `b` would refine are then
@@ -201,6 +202,17 @@ pub fn choose_levels_near(
             Some((target_pixels / pixels).log2())
         })
         .collect();
+    // The bias at which every brick wants the coarsest level (even the nearest, whose hi-res
+    // voxels may be many times the target): the top of the bias search.
+    let least = headroom
+        .iter()
+        .flatten()
+        .fold(f32::INFINITY, |a, &h| a.min(h));
+    let top = if least.is_finite() {
+        (levels as f32 + margin + 1.0 - least).max(levels as f32)
+    } else {
+        levels as f32
+    };
     let mut active = active.to_vec();
     let dropped = drop_to_fit(
         geometry,
@@ -209,19 +221,20 @@ pub fn choose_levels_near(
         &mut headroom,
         previous,
         levels,
+        top,
         slots,
     );
     let active = &active[..];
     let plan_each =
         |bias: &dyn Fn(usize) -> f32| plan_for(geometry, active, &headroom, previous, levels, bias);
     let plan = |bias: f32| plan_each(&|_| bias);
-    let coarsest = plan(levels as f32);
+    let coarsest = plan(top);
     let finest = plan(0.0);
     let (bias, chosen) = if slots_for_plan(grid.bricks_per_axis(), &finest) <= slots {
         (0.0, finest)
     } else {
         // The smallest bias that fits: `hi` always fits, `lo` never does.
-        let (mut lo, mut hi, mut best) = (0.0f32, levels as f32, coarsest);
+        let (mut lo, mut hi, mut best) = (0.0f32, top, coarsest);
         for _ in 0..16 {
             let mid = 0.5 * (lo + hi);
             let candidate = plan(mid);
@@ -278,6 +291,7 @@ pub fn choose_levels_near(
 /// least important first: those with no active brick in view, then the farthest from the eye
 /// (the distance of the block's nearest brick), until the coarsest plan fits. A dropped brick
 /// is inactive with no headroom: never drawn, at any bias. Returns the active bricks dropped.
+#[allow(clippy::too_many_arguments)] // reason: the chooser's state, threaded through one step.
 fn drop_to_fit(
     geometry: &BrickGeometry,
     view: &LodView,
@@ -285,14 +299,13 @@ fn drop_to_fit(
     headroom: &mut [Option<f32>],
     previous: Previous<'_>,
     levels: u32,
+    top: f32,
     slots: u64,
 ) -> usize {
     let grid = geometry.grid();
     let bricks = grid.bricks_per_axis();
     let coarsest_slots = |active: &[bool], headroom: &[Option<f32>]| {
-        let plan = plan_for(geometry, active, headroom, previous, levels, &|_| {
-            levels as f32
-        });
+        let plan = plan_for(geometry, active, headroom, previous, levels, &|_| top);
         slots_for_plan(bricks, &plan)
     };
     if coarsest_slots(active, headroom) <= slots {

@@ -120,10 +120,10 @@ pub struct MixedArgs {
     /// Transition reconstruction between resolution levels.
     #[arg(long, value_enum, default_value_t = TransitionArg::Smooth)]
     pub transition: TransitionArg,
-    /// Cache image budget in MiB (for --levels patterns; --gpu-budget-mb sizes the cache of
-    /// camera-driven residency).
-    #[arg(long, default_value_t = 256)]
-    pub cache_mb: u64,
+    /// Cache image budget in MiB, fractions allowed (for --levels patterns and level sources;
+    /// --gpu-budget-mb sizes the cache of camera-driven two-level residency).
+    #[arg(long, default_value_t = 256.0)]
+    pub cache_mb: f64,
     /// With --levels camera (and level stores): the largest on-screen size, in pixels, of a
     /// drawn voxel; larger values draw coarser levels and take fewer slots.
     #[arg(long, default_value_t = 1.0)]
@@ -487,9 +487,18 @@ impl TransitionArg {
 impl MixedArgs {
     /// The brick-cache configuration of `--brick-size`, `--cache-mb` and `--transition`.
     pub fn config(&self) -> Result<MixedConfig> {
-        let cache_budget_bytes = self.cache_mb.checked_mul(1 << 20).ok_or_else(|| {
-            Error::InvalidInput(format!("--cache-mb {} is too large", self.cache_mb))
-        })?;
+        let mb = self.cache_mb;
+        if mb > 1.0e9 {
+            return Err(Error::InvalidInput(format!(
+                "--cache-mb {mb} is too large: at most 1e9 MiB"
+            )));
+        }
+        if !(mb.is_finite() && mb > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "--cache-mb {mb}: expected a positive number of MiB"
+            )));
+        }
+        let cache_budget_bytes = (mb * (1u64 << 20) as f64) as u64;
         Ok(MixedConfig {
             brick_size: self.brick_size,
             cache_budget_bytes,

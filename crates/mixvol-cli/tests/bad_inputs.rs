@@ -58,6 +58,8 @@ const CASES: &[Case] = &[
     // Item 9: messages that named the wrong cause.
     Case { name: "huge --header-bytes", args: &["render", "--volume", "{d}/small.raw", "--dims", "4,4,4", "--header-bytes", "18446744073709551615"], env: NO_ENV, code: 1, fragments: &["small.raw", "18446744073709551615 header bytes"], absent: &["dimensions"] },
     Case { name: "--cache-mb past u64 bytes", args: &["render", "--volume", "ml", "--dims", "16,16,16", "--levels", "checker", "--cache-mb", "17592186044416"], env: NO_ENV, code: 1, fragments: &["--cache-mb 17592186044416 is too large"], absent: &[] },
+    Case { name: "--cache-mb zero", args: &["render", "--volume", "ml", "--dims", "16,16,16", "--levels", "checker", "--cache-mb", "0"], env: NO_ENV, code: 1, fragments: &["--cache-mb 0: expected a positive number of MiB"], absent: &[] },
+    Case { name: "--cache-mb takes fractions", args: &["render", "--volume", "ml", "--dims", "16,16,16", "--levels", "checker", "--brick-size", "8", "--cache-mb", "0.25", "--width", "16", "--height", "16", "-o", "{d}/fraction.png"], env: NO_ENV, code: 0, fragments: &["brick cache: 4 hi + 4 lo bricks"], absent: &[] },
     Case { name: "corrupt gzip NRRD", args: &["render", "--volume", "{d}/corrupt_gzip.nrrd"], env: NO_ENV, code: 1, fragments: &["corrupt_gzip.nrrd", "corrupt gzip data"], absent: &["holds more than"] },
     Case { name: "longer gzip NRRD", args: &["render", "--volume", "{d}/long_gzip.nrrd"], env: NO_ENV, code: 1, fragments: &["long_gzip.nrrd", "decodes intact to 65 bytes", "64 bytes described"], absent: &[] },
     Case { name: "NaN in a raw file", args: &["render", "--volume", "{d}/nan.raw", "--dims", "2,2,2", "--scalar", "f32"], env: NO_ENV, code: 1, fragments: &["nan.raw: voxel 2", "NaN"], absent: &[] },

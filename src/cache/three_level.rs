@@ -3,7 +3,7 @@
 //! level-1 bricks in `(n/2 + 2)^3` sub-slots, or sixty-four level-2 bricks in `(n/4 + 1)^3`
 //! sub-slots. A slot holds bricks of one level only.
 //!
-//! Levels and what a brick stores (`reference::LevelGrid::vertex_pyramid`):
+//! Levels and what a brick stores (`pyramid::LevelGrid::vertex_pyramid`):
 //! - level 0: hi-res voxels at cell centres; texel `origin + t` (t in `0..n+4`) holds voxel
 //!   `n*b - 2 + t`, clamped to the volume. The ray-caster's band reads the inner border layer
 //!   (slot-local texels 1 and `n + 2`), which the border fixup rewrites exactly as in the

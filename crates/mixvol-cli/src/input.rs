@@ -274,7 +274,7 @@ pub fn open_input_with_meta(args: &RenderArgs) -> Result<(Input, Option<VolumeMe
 
 /// The model transform `mixvol render` draws the volume of `meta` with, and what to say about
 /// it: the residual oblique rotation of a NIfTI file or DICOM series
-/// ([`VolumeMeta::model_transform`]), unless `--axis-aligned` or the rotation cannot be made
+/// ([`ModelTransform::of_volume`]), unless `--axis-aligned` or the rotation cannot be made
 /// (then the identity, and why). Identity and no note for other inputs.
 pub fn model_transform(args: &RenderArgs, meta: Option<&VolumeMeta>) -> (ModelTransform, String) {
     let Some(meta) = meta.filter(|m| m.reorientation.is_some()) else {

@@ -322,6 +322,24 @@ fn only_tests_use_the_reference() {
         users.is_empty(),
         "production modules name the test oracle `reference`: {users:?}"
     );
+    // Nor do their unit tests: a test that needs the oracle is an integration test.
+    let src = src_dir();
+    let mut files = Vec::new();
+    production_files(&src, &mut files);
+    let in_tests: Vec<String> = files
+        .iter()
+        .map(|f| relative(&src, f))
+        .filter(|rel| !rel.starts_with("reference/"))
+        .filter(|rel| {
+            fs::read_to_string(src.join(rel))
+                .unwrap()
+                .contains("crate::reference")
+        })
+        .collect();
+    assert!(
+        in_tests.is_empty(),
+        "src/ files name `crate::reference`: {in_tests:?}"
+    );
 }
 
 #[test]

@@ -217,15 +217,7 @@ impl LevelGrid {
     pub fn stored_brick(&self, first: UVec3, brick_size: u32) -> Vec<f32> {
         let start = crate::cache::stored_first_sample(first, brick_size, self.level);
         let edge = crate::cache::stored_brick_edge(brick_size, self.level) as i32;
-        let mut values = Vec::with_capacity(edge.pow(3) as usize);
-        for z in 0..edge {
-            for y in 0..edge {
-                for x in 0..edge {
-                    values.push(self.value(start + IVec3::new(x, y, z)));
-                }
-            }
-        }
-        values
+        box_values(start, edge, |k| self.value(k))
     }
 
     /// The next coarser level (`level + 1`) with `placement`, covering a volume of `volume_dims`
@@ -257,6 +249,20 @@ impl LevelGrid {
             values,
         }
     }
+}
+
+/// The `edge^3` samples `value` gives from `start`, x fastest: a stored brick's texels, cut from
+/// a level grid ([`LevelGrid::stored_brick`]) or from a window of planes (the slab writer).
+pub fn box_values(start: IVec3, edge: i32, value: impl Fn(IVec3) -> f32) -> Vec<f32> {
+    let mut values = Vec::with_capacity(edge.max(0).pow(3) as usize);
+    for z in 0..edge {
+        for y in 0..edge {
+            for x in 0..edge {
+                values.push(value(start + IVec3::new(x, y, z)));
+            }
+        }
+    }
+    values
 }
 
 /// The taps `(index, weight)` along one axis of the sample `j` of the next coarser level (placed

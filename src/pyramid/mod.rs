@@ -8,6 +8,8 @@ mod grid;
 mod packing;
 mod plan;
 
-pub use grid::{downsample_sum, downsample_taps, LevelGrid, PyramidError, SamplePlacement};
+pub use grid::{
+    box_values, downsample_sum, downsample_taps, LevelGrid, PyramidError, SamplePlacement,
+};
 pub use packing::{LevelPacking, PackingError};
 pub use plan::LevelPlan;

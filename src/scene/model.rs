@@ -279,60 +279,6 @@ mod tests {
         assert!((a - b).abs().max_element() < EPS);
     }
 
-    /// The host-depth convention end to end on the CPU reference (which mirrors the GLSL): a
-    /// host draws a surface point `P` in world space with its own `clip_from_world`; the rays,
-    /// cast in the volume frame, must stop at `P`'s distance when the depth is unprojected
-    /// through `(clip_from_world * M)^-1`, as `VolumePass::record` sets it, and not through
-    /// `clip_from_world^-1` alone.
-    #[test]
-    fn host_depth_unprojects_into_the_volume_frame_at_the_hosts_surface() {
-        use crate::reference::{depth_limit, generate_ray};
-        use crate::scene::RaycastParams;
-        use glam::{UVec3, Vec2};
-        let m = ModelTransform::from_directions(rz(30.0)).unwrap();
-        let (w, h) = (40, 30);
-        let camera = Camera::perspective(Vec3::new(2.0, 0.4, 0.5), Vec3::new(0.05, 0.0, 0.0), 40.0);
-        let params = |c: &Camera| {
-            RaycastParams::for_dims(
-                UVec3::splat(8),
-                Vec3::ONE,
-                (0.0, 1.0),
-                false,
-                c,
-                &RenderSettings::default(),
-                w,
-                h,
-            )
-            .unwrap()
-        };
-        let world = params(&camera);
-        let mut volume = params(&m.volume_camera(&camera));
-        // The host's camera: the same view, Vulkan clip space (y down, depth in [0, 1]).
-        let clip_from_world = Mat4::from_scale(Vec3::new(1.0, -1.0, 1.0))
-            * Mat4::perspective_rh(40f32.to_radians(), w as f32 / h as f32, 0.1, 10.0)
-            * Mat4::look_at_rh(camera.eye, camera.target, camera.up);
-        let pixel = Vec2::new(27.5, 8.5);
-        let distance = 1.7;
-        let p = {
-            let ray = generate_ray(&world, pixel);
-            ray.origin + distance * ray.dir
-        };
-        let clip = clip_from_world * p.extend(1.0);
-        let ndc = clip.truncate() / clip.w;
-        let expected_ndc = pixel / Vec2::new(w as f32, h as f32) * 2.0 - Vec2::ONE;
-        assert!(
-            (ndc.truncate() - expected_ndc).abs().max_element() < 1e-5,
-            "{ndc}"
-        );
-        let ray = generate_ray(&volume, pixel);
-        volume.world_from_clip = m.clip_from_volume(clip_from_world).inverse();
-        let t = depth_limit(&volume, &ray, pixel, ndc.z);
-        assert!((t - distance).abs() < 1e-4, "{t} vs {distance}");
-        volume.world_from_clip = clip_from_world.inverse();
-        let wrong = depth_limit(&volume, &ray, pixel, ndc.z);
-        assert!((wrong - distance).abs() > 0.05, "{wrong}");
-    }
-
     #[test]
     fn directions_are_normalised_and_orthogonalised_and_mirrors_refused() {
         // Scaled columns with a small shear: the nearest rotation of the unit columns, which for

@@ -19,7 +19,7 @@ use super::plane_file::{downsample_file, PlaneFile, PlaneFileWriter, PlaneWindow
 use super::writer::{assemble_level_store, check_level_desc, LevelWriteSummary, TexelSink};
 use crate::bricks::{BrickGrid, ValueRange};
 use crate::cache::{block_bricks, stored_brick_edge, stored_bricks_per_axis, stored_first_sample};
-use crate::pyramid::{downsample_sum, downsample_taps, LevelGrid, SamplePlacement};
+use crate::pyramid::{box_values, downsample_sum, downsample_taps, LevelGrid, SamplePlacement};
 use crate::store::StoreError;
 use crate::volume::{SlabMut, SlabReader, VoxelData};
 use glam::{IVec3, UVec3};
@@ -197,15 +197,7 @@ impl<'a> Planes<'a> {
 
     /// The `edge^3` voxels from `start` (clamped), x fastest.
     fn brick(&self, start: IVec3, edge: i32) -> Vec<f32> {
-        let mut values = Vec::with_capacity(edge.pow(3) as usize);
-        for z in 0..edge {
-            for y in 0..edge {
-                for x in 0..edge {
-                    values.push(self.voxel(start + IVec3::new(x, y, z)));
-                }
-            }
-        }
-        values
+        box_values(start, edge, |v| self.voxel(v))
     }
 
     fn finish(&mut self) -> Result<(), StoreError> {

@@ -27,7 +27,7 @@
 //! time per frame (median, p95, max) and wall time (median, p95, min), with the machine's load
 //! average, as other processes on the cores inflate the times; compare versions only when run
 //! interleaved in the same minutes. Then one row for the level choice of any number of levels
-//! (`plan::choose_levels_near`, [`level_rows`]), and one line of JSON per case with at least
+//! (`plan::LevelChooser::choose`, [`level_rows`]), and one line of JSON per case with at least
 //! `"bricks"`, `"levels"` and `"ms_per_frame"` (CPU median).
 //!
 //! Figures (2026-12-02 21:40 UTC, 2-core Intel Xeon VM, load average 1.1-1.2, three rounds of
@@ -46,8 +46,7 @@ use mixvol::cache::pyramid_levels;
 use mixvol::lod::{cull_bricks, BrickGeometry, CullParams, LodView, TfCullTable};
 use mixvol::optics::{TransferFunction, TF_SIZE};
 use mixvol::plan::{
-    choose_levels_near, level_margin, upload_bytes, FrameInput, PlanBudget, PlanOptions,
-    ResidencyPlanner,
+    level_margin, upload_bytes, FrameInput, LevelChooser, PlanBudget, PlanOptions, ResidencyPlanner,
 };
 use mixvol::scene::Camera;
 use std::hint::black_box;
@@ -353,11 +352,13 @@ fn main() {
     }
 }
 
-/// The level choice for any number of levels (`plan::choose_levels_near`, what
-/// `VolumePass::plan_brick_levels` runs each view) on the same grid along the orbit, every
-/// level the bricks take (`cache::pyramid_levels`), the slot budget binding (an eighth of the
-/// bricks), hysteresis against the last choice. `MIXVOL_PLANNER_LEVEL_FRAMES` views (default
-/// 12; about 0.7 s each on the 2-core VM at 2d27ea4).
+/// The level choice for any number of levels (`plan::LevelChooser::choose`, what
+/// `VolumePass::plan_brick_levels` runs each view) on the same grid, every level the bricks
+/// take (`cache::pyramid_levels`), the slot budget binding (an eighth of the bricks),
+/// hysteresis against the last choice, one chooser kept across the views as a host keeps it.
+/// Rows: the still camera (settled, then the same view again: the chooser returns its last
+/// plan), the orbit and the dolly of the two-level rows. `MIXVOL_PLANNER_LEVEL_FRAMES` views
+/// per row (default 12).
 fn level_rows(
     geometry: &BrickGeometry,
     ranges: &[ValueRange],
@@ -370,35 +371,46 @@ fn level_rows(
     let levels = pyramid_levels(BRICK_SIZE, BRICKS);
     let slots = (bricks / 8) as u64;
     let active = cull_bricks(geometry, ranges, cull).expect("cull");
-    let mut previous: Vec<Option<u32>> = Vec::new();
-    let (mut cpu_times, mut used) = (Vec::new(), Vec::new());
-    for f in 0..frames {
-        let view = LodView::new(&Path::Orbit.camera(start, f), WIDTH, HEIGHT).expect("view");
-        let cpu = thread_cpu_ms();
-        let margin = level_margin(PlanOptions::default().hysteresis);
-        let choice = choose_levels_near(
-            geometry, &view, &active, levels, slots, 1.0, &previous, margin,
-        )
-        .expect("choice");
-        cpu_times.push(thread_cpu_ms() - cpu);
-        used.push(choice.slots);
-        previous = black_box(choice).levels;
-    }
-    cpu_times.sort_by(f64::total_cmp);
+    let margin = level_margin(PlanOptions::default().hysteresis);
     println!();
-    println!(
-        "Level choice (`choose_levels_near`), {bricks} bricks, {levels} levels, {slots} slots, \
-         orbit 1 deg/frame, {frames} views: CPU median {:.1} ms, p95 {:.1} ms, max {:.1} ms; \
-         slots used per view {used:?}",
-        percentile(&cpu_times, 0.5),
-        percentile(&cpu_times, 0.95),
-        cpu_times[cpu_times.len() - 1],
-    );
-    json_lines.push(format!(
-        "{{\"planner\": \"levels\", \"query\": \"choose_levels_near\", \"camera\": \"orbit\", \
-         \"bricks\": {bricks}, \"levels\": {levels}, \"slots\": {slots}, \"frames\": {frames}, \
-         \"ms_per_frame\": {:.4}, \"p95_ms\": {:.4}}}",
-        percentile(&cpu_times, 0.5),
-        percentile(&cpu_times, 0.95),
-    ));
+    for path in [Path::Still, Path::Orbit, Path::Dolly] {
+        let mut previous: Vec<Option<u32>> = Vec::new();
+        let mut chooser = LevelChooser::new();
+        let (mut cpu_times, mut used) = (Vec::new(), Vec::new());
+        // The still camera settles first (the plan no longer changes), untimed.
+        let settle = if matches!(path, Path::Still) { 3 } else { 0 };
+        for f in 0..settle + frames {
+            let view = LodView::new(&path.camera(start, f), WIDTH, HEIGHT).expect("view");
+            let cpu = thread_cpu_ms();
+            let choice = chooser
+                .choose(
+                    geometry, &view, &active, levels, slots, 1.0, &previous, margin,
+                )
+                .expect("choice");
+            let ms = thread_cpu_ms() - cpu;
+            if f >= settle {
+                cpu_times.push(ms);
+                used.push(choice.slots);
+            }
+            previous.clone_from(&black_box(choice).levels);
+        }
+        cpu_times.sort_by(f64::total_cmp);
+        println!(
+            "Level choice (`LevelChooser::choose`), {bricks} bricks, {levels} levels, {slots} \
+             slots, {}, {frames} views: CPU median {:.2} ms, p95 {:.2} ms, max {:.2} ms; slots \
+             used per view {used:?}",
+            path.name(),
+            percentile(&cpu_times, 0.5),
+            percentile(&cpu_times, 0.95),
+            cpu_times[cpu_times.len() - 1],
+        );
+        json_lines.push(format!(
+            "{{\"planner\": \"levels\", \"query\": \"LevelChooser::choose\", \"camera\": \
+             \"{}\", \"bricks\": {bricks}, \"levels\": {levels}, \"slots\": {slots}, \
+             \"frames\": {frames}, \"ms_per_frame\": {:.4}, \"p95_ms\": {:.4}}}",
+            path.key(),
+            percentile(&cpu_times, 0.5),
+            percentile(&cpu_times, 0.95),
+        ));
+    }
 }

@@ -12,8 +12,46 @@ use mixvol::bricks::BrickGrid;
 use mixvol::cache::{block_bricks, block_origin, slots_for_plan};
 use mixvol::lod::{BrickGeometry, LodView};
 use mixvol::plan::{
-    choose_levels, choose_levels_near, level_margin, LevelChoiceError, PlanOptions,
+    choose_levels, choose_levels_near, level_margin, LevelChoiceError, LevelChooser, PlanOptions,
 };
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+/// Counts the allocations of each thread (the tests of this file run on several threads).
+struct CountingAllocator;
+
+thread_local! {
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+// SAFETY: every call is passed on to the system allocator unchanged; the count is a
+// thread-local `Cell` with a const initialiser, which does not allocate.
+unsafe impl GlobalAlloc for CountingAllocator {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.with(|a| a.set(a.get() + 1));
+        // SAFETY: the caller's layout, passed on.
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: `ptr` came from `System.alloc` with this layout.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.with(|a| a.set(a.get() + 1));
+        // SAFETY: `ptr` came from `System.alloc` with this layout.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: CountingAllocator = CountingAllocator;
+
+/// Allocations this thread has made so far.
+fn allocations() -> u64 {
+    ALLOCATIONS.with(Cell::get)
+}
 use mixvol::pyramid::LevelGrid;
 use mixvol::reference::LevelField;
 use mixvol::scene::Camera;
@@ -481,4 +519,91 @@ fn a_cache_that_holds_the_coarsest_plan_draws_it_whatever_the_target() {
             "target {target}: every brick drawn"
         );
     }
+}
+
+/// A chooser kept across views (as `VolumePass` keeps one) gives what a fresh one gives, for
+/// every view, culling, budget, level count and previous plan in a random sequence: nothing of
+/// an earlier choice leaks into a later one, and a repeated call returns the same plan.
+#[test]
+fn a_kept_chooser_chooses_as_a_fresh_one() {
+    let mut rng = Rng(0x91a4_0007);
+    let bricks = UVec3::new(11, 9, 13);
+    let geometry = geometry(bricks);
+    let count = geometry.grid().brick_count();
+    let mut chooser = LevelChooser::new();
+    let mut previous: Vec<Option<u32>> = Vec::new();
+    let mut active = vec![true; count];
+    let margin = level_margin(0.1);
+    for round in 0..40 {
+        let levels = [5, 5, 3, 2, 6][round % 5];
+        let slots = [4u64, 40, 400, 1_000_000][rng.below(4) as usize];
+        if round % 7 == 3 {
+            active = (0..count).map(|_| rng.unit() > 0.3).collect();
+        }
+        if round % 5 == 0 {
+            previous.clear(); // the level count changed: no previous plan
+        }
+        let camera = random_camera(&mut rng);
+        let view = LodView::new(&camera, 120, 90).unwrap();
+        let fresh = choose_levels_near(
+            &geometry, &view, &active, levels, slots, 1.5, &previous, margin,
+        )
+        .unwrap();
+        let kept = chooser
+            .choose(
+                &geometry, &view, &active, levels, slots, 1.5, &previous, margin,
+            )
+            .unwrap();
+        assert_eq!(*kept, fresh, "round {round}");
+        let again = chooser
+            .choose(
+                &geometry, &view, &active, levels, slots, 1.5, &previous, margin,
+            )
+            .unwrap();
+        assert_eq!(*again, fresh, "round {round}: the same inputs again");
+        previous = fresh.levels;
+    }
+}
+
+/// Once its buffers have grown to the views it has seen, the chooser allocates nothing: an
+/// orbit of views chosen a third time (hysteresis against the last plan, the budget binding;
+/// the second time, its first view meets a new previous plan) makes no allocation.
+#[test]
+fn a_kept_chooser_allocates_nothing_in_steady_state() {
+    let bricks = UVec3::new(24, 20, 16);
+    let geometry = geometry(bricks);
+    let count = geometry.grid().brick_count();
+    let active: Vec<bool> = (0..count).map(|i| i % 11 != 0).collect();
+    let margin = level_margin(0.1);
+    let mut chooser = LevelChooser::new();
+    let mut previous = vec![None; count];
+    let views: Vec<LodView> = (0..8)
+        .map(|f| {
+            let angle = (f as f32 * 2.0).to_radians();
+            let eye = glam::Quat::from_rotation_y(angle) * Vec3::new(0.6, 0.5, 1.2);
+            LodView::new(&Camera::perspective(eye, Vec3::ZERO, 45.0), 640, 480).unwrap()
+        })
+        .collect();
+    let mut slots_used = Vec::new();
+    for pass in 0..3 {
+        let before = allocations();
+        for view in &views {
+            let choice = chooser
+                .choose(
+                    &geometry, view, &active, LEVELS, 600, 1.0, &previous, margin,
+                )
+                .unwrap();
+            if pass == 0 {
+                slots_used.push(choice.slots);
+            }
+            previous.copy_from_slice(&choice.levels);
+        }
+        if pass == 2 {
+            assert_eq!(allocations() - before, 0, "the third pass allocated");
+        }
+    }
+    assert!(
+        slots_used.iter().all(|&s| s > 500 && s <= 600),
+        "the budget binds: {slots_used:?}"
+    );
 }

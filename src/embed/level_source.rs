@@ -48,6 +48,8 @@ pub(crate) struct LevelState {
     pub(super) residency: LevelResidency,
     /// The levels the last camera choice wanted (drawn once their bricks are uploaded).
     pub(super) wanted: Vec<Option<u32>>,
+    /// The camera's level chooser, with its buffers (kept between views).
+    pub(super) chooser: crate::plan::LevelChooser,
     /// What the last residency change moved.
     pub(super) last_update: Option<LevelUpdateReport>,
     /// Per brick, the range culling tests (`crate::levels::conservative_ranges`).
@@ -375,6 +377,7 @@ impl VolumePass {
             },
             residency: LevelResidency::new(&geometry, grid.brick_count()),
             wanted: Vec::new(),
+            chooser: crate::plan::LevelChooser::new(),
             last_update: None,
             cull_ranges,
             failed: HashSet::new(),

@@ -27,8 +27,8 @@ use crate::cache::block_origin;
 use crate::error::{Error, Result};
 use crate::lod::{cull_bricks, CullParams, LodView, ValueCulling};
 use crate::plan::{
-    admit_by_budget, choose_levels_near, cull_params, level_margin, next_target, step_towards,
-    FrameInput, FramePlan, LevelChoice, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
+    admit_by_budget, cull_params, level_margin, next_target, step_towards, FrameInput, FramePlan,
+    LevelChoice, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
 };
 use crate::scene::{Camera, RenderSettings};
 use crate::volume::ScalarType;
@@ -240,7 +240,7 @@ impl VolumePass {
     /// Chooses the level of every brick of a three-level source ([`VolumeSource::Levels`],
     /// [`VolumeSource::LevelStore`]) for a frame of `camera` (world space) with `settings` at
     /// `width` x `height` pixels, with drawn voxels at most `target_pixels` on screen where the
-    /// cache allows ([`crate::plan::choose_levels_near`], with hysteresis against the last
+    /// cache allows ([`crate::plan::LevelChooser`], with hysteresis against the last
     /// choice), and stages a step towards it (the next
     /// [`VolumePass::record`] uploads what changed): the step refines at most one level per brick
     /// and uploads at most [`ResidencyConfig::upload_bytes_per_frame`] bytes, counting every
@@ -300,16 +300,20 @@ impl VolumePass {
         let active = cull_bricks(&state.bricks, &state.cull_ranges, &cull)?;
         let view = LodView::new(&camera, width, height)?;
         // Hysteresis against the last choice, so that a hovering camera does not churn.
-        let mut choice = choose_levels_near(
-            &state.bricks,
-            &view,
-            &active,
-            state.level_count(),
-            state.slot_count(),
-            target_pixels,
-            &state.wanted,
-            level_margin(self.residency.options.hysteresis),
-        )?;
+        let (levels, slots) = (state.level_count(), state.slot_count());
+        let mut choice = state
+            .chooser
+            .choose(
+                &state.bricks,
+                &view,
+                &active,
+                levels,
+                slots,
+                target_pixels,
+                &state.wanted,
+                level_margin(self.residency.options.hysteresis),
+            )?
+            .clone();
         // A stored brick whose read fails is kept out and the step planned again without it
         // (its region keeps the level it draws), at most a few times a call.
         let mut drawn = budgeted_step(state, &view, &choice.levels, budget);

@@ -112,7 +112,7 @@ pub fn step_towards(
 /// Where a step from `current` towards `wanted` heads (both keep the rules; `levels` levels,
 /// one entry per brick of a grid of `bricks` per axis): per brick the wanted level, but at most
 /// one level finer than the current one (a brick not drawn now counts as drawn at the coarsest
-/// level), refined where the rule or a block needs it (the passes of [`super::choose_levels`]), and not
+/// level), refined where the rule or a block needs it (the rule and block passes below), and not
 /// drawn where the wanted plan does not draw it and no drawn block covers it. It keeps the
 /// rules, and is never finer than the wanted plan but where a block or the rule refines it.
 pub fn next_target(
@@ -131,8 +131,8 @@ pub fn next_target(
         })
         .collect();
     loop {
-        let mut changed = super::levels::keep_rule(bricks, &mut level);
-        changed |= super::levels::keep_blocks(bricks, &mut level);
+        let mut changed = keep_rule(bricks, &mut level);
+        changed |= keep_blocks(bricks, &mut level);
         if !changed {
             break;
         }
@@ -217,4 +217,105 @@ pub fn admit_by_budget(
         admitted.push((i, level));
     }
     admitted
+}
+
+/// Refines every brick to at most one level coarser than its finest neighbour: the Chebyshev
+/// distance transform of the levels, in a forward and a backward raster sweep over the 13
+/// neighbours before (after) each brick. Returns whether a level changed.
+fn keep_rule(bricks: UVec3, level: &mut [u32]) -> bool {
+    let size = bricks.as_ivec3();
+    let index = |b: IVec3| (b.x + size.x * (b.y + size.y * b.z)) as usize;
+    let before: Vec<IVec3> = (-1..=1)
+        .flat_map(|z| (-1..=1).flat_map(move |y| (-1..=1).map(move |x| IVec3::new(x, y, z))))
+        .filter(|d| (d.z, d.y, d.x) < (0, 0, 0))
+        .collect();
+    let mut changed = false;
+    let mut sweep = |order: &mut dyn Iterator<Item = IVec3>, sign: i32| {
+        for b in order {
+            let here = index(b);
+            for d in &before {
+                let nb = b + *d * sign;
+                if nb.cmpge(IVec3::ZERO).all() && nb.cmplt(size).all() {
+                    let bound = level[index(nb)] + 1;
+                    if level[here] > bound {
+                        level[here] = bound;
+                        changed = true;
+                    }
+                }
+            }
+        }
+    };
+    let forward = (0..size.z)
+        .flat_map(|z| (0..size.y).flat_map(move |y| (0..size.x).map(move |x| IVec3::new(x, y, z))));
+    sweep(&mut forward.clone(), 1);
+    let backward: Vec<IVec3> = forward.collect();
+    sweep(&mut backward.into_iter().rev(), -1);
+    changed
+}
+
+/// Makes every block of a block level uniform, refining as little as it must: a brick at a
+/// block level `k` whose aligned block holds a finer brick takes the coarsest level `j < k`
+/// whose block around it holds none finer than `j` (level 2 at worst, a single brick), repeated
+/// until every block is uniform. Refining a whole block to its finest brick instead would let
+/// one culled brick that wants the coarsest level (its block spans the grid) pull every brick
+/// of the volume down to the finest level anywhere. Levels only get finer, and finer inputs
+/// give finer outputs. Returns whether a level changed.
+fn keep_blocks(bricks: UVec3, level: &mut [u32]) -> bool {
+    let index = |b: UVec3| (b.x + bricks.x * (b.y + bricks.y * b.z)) as usize;
+    let mut changed = false;
+    loop {
+        let deepest = level.iter().copied().max().unwrap_or(0);
+        if deepest < 3 {
+            return changed;
+        }
+        let mins = block_minima(bricks, level, deepest);
+        let mut pass_changed = false;
+        for z in 0..bricks.z {
+            for y in 0..bricks.y {
+                for x in 0..bricks.x {
+                    let b = UVec3::new(x, y, z);
+                    let i = index(b);
+                    let uniform = |j: u32| {
+                        let (counts, values) = &mins[(j - 3) as usize];
+                        let c = b / block_bricks(j);
+                        values[(c.x + counts.x * (c.y + counts.y * c.z)) as usize] >= j
+                    };
+                    let kept = (3..=level[i]).rev().find(|&j| uniform(j)).unwrap_or(2);
+                    if kept < level[i] {
+                        level[i] = kept;
+                        pass_changed = true;
+                    }
+                }
+            }
+        }
+        if !pass_changed {
+            return changed;
+        }
+        changed = true;
+    }
+}
+
+/// For every block level `3..=deepest`: the blocks per axis and the smallest brick level in
+/// each block (x fastest).
+fn block_minima(bricks: UVec3, level: &[u32], deepest: u32) -> Vec<(UVec3, Vec<u32>)> {
+    let mut out: Vec<(UVec3, Vec<u32>)> = Vec::new();
+    // Level 3's blocks (2 bricks per axis) from the bricks, each coarser level from the last.
+    let (mut counts, mut values) = (bricks, level.to_vec());
+    for _ in 3..=deepest {
+        let next = (counts + UVec3::ONE) / 2;
+        let mut reduced = vec![u32::MAX; next.element_product() as usize];
+        for z in 0..counts.z {
+            for y in 0..counts.y {
+                for x in 0..counts.x {
+                    let v = values[(x + counts.x * (y + counts.y * z)) as usize];
+                    let c = UVec3::new(x, y, z) / 2;
+                    let slot = &mut reduced[(c.x + next.x * (c.y + next.y * c.z)) as usize];
+                    *slot = (*slot).min(v);
+                }
+            }
+        }
+        out.push((next, reduced.clone()));
+        (counts, values) = (next, reduced);
+    }
+    out
 }

@@ -132,7 +132,9 @@ pub use frame::{
     cull_params, upload_bytes, FrameInput, FramePlan, PlanBudget, PlanOptions, PlanReport,
 };
 pub use level_steps::{admit_by_budget, next_target, step_towards};
-pub use levels::{choose_levels, choose_levels_near, level_margin, LevelChoice, LevelChoiceError};
+pub use levels::{
+    choose_levels, choose_levels_near, level_margin, LevelChoice, LevelChoiceError, LevelChooser,
+};
 
 mod frame;
 mod level_steps;

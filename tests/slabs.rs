@@ -11,9 +11,9 @@ use flate2::write::GzEncoder;
 use flate2::Compression;
 use glam::{UVec3, Vec3};
 use mixvol::bricks::DownsampleFilter;
-use mixvol::store::writer::partial_path;
 use mixvol::store::{
-    slab_store_desc, write_store_from_slabs, write_store_from_volume, BrickStore, StoreError,
+    slab_store_desc, write_level_store_from_slabs, write_store_from_slabs, write_store_from_volume,
+    BrickStore, LevelStore, StoreError,
 };
 use mixvol::volume::{
     load_raw, load_volume_with_meta, open_raw_slabs, open_slabs, RawDescriptor, ScalarType,
@@ -353,7 +353,7 @@ fn assert_same_store(
             ba.iter().zip(&bb).position(|(x, y)| x != y)
         );
         BrickStore::open(&b).unwrap();
-        assert!(!partial_path(&b).exists());
+        assert_no_partial(&b);
         std::fs::remove_file(&a).unwrap();
         std::fs::remove_file(&b).unwrap();
     }
@@ -614,11 +614,20 @@ fn small_and_flat_volumes_are_identical() {
 /// Asserts there is neither a store nor a partial file at `store`.
 fn assert_nothing_at(store: &Path) {
     assert!(!store.exists(), "{} exists", store.display());
-    assert!(
-        !partial_path(store).exists(),
-        "partial file of {} left",
-        store.display()
-    );
+    assert_no_partial(store);
+}
+
+/// Asserts no temporary file of a write of `store` (`.NAME.partial-...` beside it) is left.
+fn assert_no_partial(store: &Path) {
+    let name = store.file_name().unwrap().to_string_lossy().into_owned();
+    let prefix = format!(".{name}.partial");
+    let Ok(entries) = std::fs::read_dir(store.parent().unwrap()) else {
+        return; // no folder, no partial file
+    };
+    for entry in entries {
+        let entry = entry.unwrap().file_name().to_string_lossy().into_owned();
+        assert!(!entry.starts_with(&prefix), "partial file {entry} left");
+    }
 }
 
 #[test]
@@ -773,4 +782,75 @@ fn slab_requests_are_checked() {
     reader.finish().unwrap();
     // A zarr level on a NRRD file.
     assert!(open_slabs(&path, Some(1)).is_err());
+}
+
+/// Review D3 and D4 (../shared/reviews/reliability-2026-12-05.md): a store write never opens
+/// what was already beside its target. A symbolic link at the old `STORE.partial` name (to a
+/// file the user keeps) and a regular file there both stay as they were, and the store is a
+/// regular file of its own; a target that is a FIFO is refused before any work, and stays a
+/// FIFO. Both writers (brick store and level store).
+#[test]
+fn store_writes_never_open_what_was_beside_the_target() {
+    let dir = TempDir::new("beside");
+    let path = dir.write("v.nrrd", &nrrd(StoredType::U8, [16, 16, 16], "raw", false));
+    let keep = dir.write("keep.bin", b"the user's file");
+    for (tag, level_store) in [("mvbs", false), ("mvl", true)] {
+        let write = |store: &Path| {
+            let mut reader = open_slabs(&path, None).unwrap();
+            if level_store {
+                write_level_store_from_slabs(store, &mut *reader, 8, None, BUDGET, &mut |_, _| {})
+                    .map(|_| ())
+            } else {
+                let desc = slab_store_desc(&*reader, 8, DownsampleFilter::Mean2);
+                write_store_from_slabs(store, desc, &mut *reader, BUDGET, &mut |_, _| {})
+                    .map(|_| ())
+            }
+        };
+        let opens = |store: &Path| {
+            if level_store {
+                LevelStore::open(store).map(|_| ()).unwrap();
+            } else {
+                BrickStore::open(store).map(|_| ()).unwrap();
+            }
+        };
+        // A link at STORE.partial: not followed.
+        let store = dir.join(&format!("linked.{tag}"));
+        let link = dir.join(&format!("linked.{tag}.partial"));
+        std::os::unix::fs::symlink(&keep, &link).unwrap();
+        write(&store).unwrap();
+        assert_eq!(std::fs::read(&keep).unwrap(), b"the user's file", "{tag}");
+        assert!(std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink());
+        assert!(
+            std::fs::symlink_metadata(&store).unwrap().is_file(),
+            "{tag}"
+        );
+        opens(&store);
+        assert_no_partial(&store);
+        // A regular file at STORE.partial: not truncated, not renamed.
+        let store = dir.join(&format!("beside.{tag}"));
+        let mine = dir.write(&format!("beside.{tag}.partial"), b"mine");
+        write(&store).unwrap();
+        assert_eq!(std::fs::read(&mine).unwrap(), b"mine", "{tag}");
+        opens(&store);
+        // A FIFO as the target: refused, naming it, and left a FIFO.
+        let fifo = dir.join(&format!("pipe.{tag}"));
+        let status = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(status.success());
+        let err = write(&fifo).unwrap_err();
+        assert!(
+            err.to_string().contains(&format!("pipe.{tag}"))
+                && err.to_string().contains("not a regular file"),
+            "{tag}: {err}"
+        );
+        assert!(std::os::unix::fs::FileTypeExt::is_fifo(
+            &std::fs::symlink_metadata(&fifo).unwrap().file_type()
+        ));
+        assert_no_partial(&fifo);
+    }
 }

@@ -152,7 +152,7 @@ fn worker_bytes(grid: &BrickGrid, storage: ScalarType) -> u64 {
 
 /// Writes a brick store at `path` from `reader` (whose dims must be `desc.dims`), holding at most
 /// about `ram_budget` bytes (see [`plan_slab_write`] and the [module docs](self)); like
-/// [`super::write_store_from_volume`] it writes `<path>.partial` and renames it at the end, and
+/// [`super::write_store_from_volume`] it writes a fresh temporary file beside `path` and renames it at the end, and
 /// removes it on any error. `progress(done, total)` gets brick counts on the calling thread.
 ///
 /// With `desc.scalar == reader.scalar()` and `desc.spacing == reader.spacing()` (what

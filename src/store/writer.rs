@@ -11,7 +11,8 @@
 //! [`CHUNK_WINDOW_BYTES`] allows (at least one brick), so the writer's memory is about
 //! `threads * 2.5 * CHUNK_WINDOW_BYTES` whatever the volume size. An in-memory volume
 //! ([`write_store_from_volume`]) needs no window: the kernel reads the volume itself. The table of
-//! value ranges and the header are written last, into `<path>.partial`, which is then renamed to
+//! value ranges and the header are written last, into a fresh temporary file beside it (`.NAME.partial-PID-N`, created exclusively, so
+//! nothing already there is written through), which is then renamed to
 //! `path`: a crashed write never leaves a file that opens.
 //!
 //! The kernel's arithmetic is the reference's ([`crate::bricks::pack_hi_res_brick`],
@@ -162,7 +163,7 @@ pub(super) struct Target<'a> {
 /// per-brick `[hi, lo]` CRC-32s.
 pub(super) type Written = (Vec<ValueRange>, ValueRange, Vec<[u32; 2]>);
 
-/// Checks `desc`, creates `<path>.partial` at its final length, lets `bricks` write every brick
+/// Checks `desc`, creates a fresh temporary file beside `path` ([`create_partial`]) at its final length, lets `bricks` write every brick
 /// into it (returning the per-brick ranges and the volume's value range), then writes the tables
 /// and the header and renames the file to `path`. On any error the partial file is removed.
 pub(super) fn assemble(
@@ -188,7 +189,7 @@ pub(super) fn assemble(
             desc.brick_size
         ),
     })?;
-    let partial = partial_path(path);
+    let (file, partial) = create_partial(path)?;
     let io = |action: &'static str| {
         let p = partial.clone();
         move |source| StoreError::Io {
@@ -197,13 +198,6 @@ pub(super) fn assemble(
             source,
         }
     };
-    let file = OpenOptions::new()
-        .read(true)
-        .write(true)
-        .create(true)
-        .truncate(true)
-        .open(&partial)
-        .map_err(io("create"))?;
     let result = (|| {
         file.set_len(header.file_size).map_err(io("set length"))?;
         let target = Target {
@@ -303,11 +297,38 @@ pub(super) fn commit_partial(
     })
 }
 
-/// `<path>.partial`, where the store is assembled before it is renamed into place.
-pub fn partial_path(path: &Path) -> PathBuf {
-    let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(".partial");
-    path.with_file_name(name)
+/// Creates the file a store for `path` is assembled in before it is renamed into place: a fresh
+/// name beside `path` (`.NAME.partial-PID-N`, [`crate::output::partial_name`]), created
+/// exclusively, so that nothing already there (a file, or a link the write would follow) is
+/// opened. Errors: `path` exists and is not a regular file or a link (a folder, a device, a FIFO
+/// or a socket is never replaced), or the file cannot be created.
+pub(crate) fn create_partial(path: &Path) -> Result<(File, PathBuf), StoreError> {
+    if let Ok(meta) = std::fs::symlink_metadata(path) {
+        let kind = meta.file_type();
+        if !(kind.is_file() || kind.is_symlink()) {
+            return Err(StoreError::Io {
+                path: path.to_path_buf(),
+                action: "replace the store",
+                source: std::io::Error::new(
+                    std::io::ErrorKind::InvalidInput,
+                    "the path exists and is not a regular file (a folder, device, FIFO or \
+                     socket); give a file path",
+                ),
+            });
+        }
+    }
+    let partial = crate::output::partial_name(path);
+    let file = OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create_new(true)
+        .open(&partial)
+        .map_err(|source| StoreError::Io {
+            path: partial.clone(),
+            action: "create",
+            source,
+        })?;
+    Ok((file, partial))
 }
 
 /// Checks a description and returns its brick grid.

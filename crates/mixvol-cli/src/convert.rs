@@ -156,11 +156,23 @@ pub(crate) fn load_dicom_input(args: &ConvertArgs, budget: u64) -> Result<Option
     Ok(Some(load_dicom(path, &options)?))
 }
 
-/// Refuses an existing STORE without `--force`, and a STORE that is a folder.
+/// Refuses an existing STORE without `--force`, and, with or without it, a STORE that is not a
+/// regular file: a folder, a symbolic link (convert never writes through one), a device, a FIFO
+/// or a socket.
 pub(crate) fn check_destination(store: &Path, force: bool) -> Result<()> {
     match std::fs::symlink_metadata(store) {
         Ok(meta) if meta.is_dir() => Err(Error::InvalidInput(format!(
             "STORE {} is a folder; give the path of the store file to write",
+            store.display()
+        ))),
+        Ok(meta) if meta.file_type().is_symlink() => Err(Error::InvalidInput(format!(
+            "STORE {} is a symbolic link; convert does not replace links, even with --force: \
+             give the path of a regular file",
+            store.display()
+        ))),
+        Ok(meta) if !meta.is_file() => Err(Error::InvalidInput(format!(
+            "STORE {} exists and is not a regular file (a device, FIFO or socket); convert \
+             replaces only a regular file, even with --force",
             store.display()
         ))),
         Ok(_) if !force => Err(Error::InvalidInput(format!(

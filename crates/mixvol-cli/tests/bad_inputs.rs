@@ -79,6 +79,9 @@ const CASES: &[Case] = &[
     Case { name: "the invalid-call hook needs validation", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--frames", "1"], env: INVALID_CALL, code: 0, fragments: &["wrote "], absent: &["VUID", "validation:"] },
     Case { name: "RUST_LOG reaches the library's log", args: &["render", "--volume", "ml", "--dims", "8,8,8"], env: &[("RUST_LOG", "info")], code: 0, fragments: &["[INFO mixvol::gpu::context] device: "], absent: &[] },
     Case { name: "--verbose logs at info", args: &["render", "--verbose", "--volume", "ml", "--dims", "8,8,8"], env: NO_ENV, code: 0, fragments: &["[INFO mixvol::gpu::context] device: "], absent: &[] },
+    // Issue 42, item 3 (review D4): convert replaces only a regular file, even with --force.
+    Case { name: "convert onto a FIFO with --force", args: &["convert", "ml", "{d}/store.fifo", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store.fifo", "not a regular file", "even with --force"], absent: &[] },
+    Case { name: "convert onto a link with --force", args: &["convert", "ml", "{d}/store_link.mvbs", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store_link.mvbs", "symbolic link"], absent: &[] },
     Case { name: "--device matching nothing", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--device", "no-such-gpu-x"], env: NO_ENV, code: 1, fragments: &["matching 'no-such-gpu-x'", "devices present: "], absent: &["rejected: []"] },
 ];
 
@@ -118,6 +121,8 @@ fn fixtures(d: &Path) {
     mkfifo(&d.join("vol.fifo"));
     mkfifo(&d.join("data.fifo"));
     mkfifo(&d.join("pipe.nrrd"));
+    mkfifo(&d.join("store.fifo"));
+    std::os::unix::fs::symlink(d.join("small.raw"), d.join("store_link.mvbs")).unwrap();
     std::fs::write(
         d.join("fifo_data.nhdr"),
         nrrd_header("uint8", "4 4 4", "raw", Some("data.fifo")),

@@ -447,6 +447,58 @@ fn failed_converts_leave_nothing_and_name_the_file() {
     assert!(out.status.success(), "{}", text(&out));
     BrickStore::open(&store).unwrap();
 
+    // Review D4: with or without --force, STORE is replaced only when it is a regular file: a
+    // FIFO stays a FIFO, a link and the file it points to stay as they were.
+    let fifo = dir.join("pipe.mvbs");
+    assert!(Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success());
+    let out = convert(&input, &fifo, &["--force"]);
+    assert!(!out.status.success(), "{}", text(&out));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("pipe.mvbs") && err.contains("not a regular file"),
+        "{err}"
+    );
+    assert!(std::os::unix::fs::FileTypeExt::is_fifo(
+        &std::fs::symlink_metadata(&fifo).unwrap().file_type()
+    ));
+    let kept = dir.write("kept.bin", b"precious");
+    let link = dir.join("link.mvbs");
+    std::os::unix::fs::symlink(&kept, &link).unwrap();
+    let out = convert(&input, &link, &["--force"]);
+    assert!(!out.status.success(), "{}", text(&out));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("link.mvbs") && err.contains("symbolic link"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&kept).unwrap(), b"precious");
+    assert!(std::fs::symlink_metadata(&link)
+        .unwrap()
+        .file_type()
+        .is_symlink());
+    // Review D3: a link at STORE.partial is not written through, for both kinds of store.
+    for name in ["through.mvbs", "through.mvl"] {
+        let store = dir.join(name);
+        let partial = dir.join(&format!("{name}.partial"));
+        std::os::unix::fs::symlink(&kept, &partial).unwrap();
+        let extra: &[&str] = if name.ends_with(".mvl") {
+            &["--all-levels"]
+        } else {
+            &[]
+        };
+        let out = convert(&input, &store, extra);
+        assert!(out.status.success(), "{}", text(&out));
+        assert_eq!(std::fs::read(&kept).unwrap(), b"precious", "{name}");
+        assert!(
+            std::fs::symlink_metadata(&store).unwrap().is_file(),
+            "{name}"
+        );
+    }
+
     // The input itself is never the store, even with --force.
     let out = convert(&input, &input, &["--force"]);
     assert!(!out.status.success());

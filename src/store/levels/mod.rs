@@ -7,7 +7,7 @@
 //! from the file.
 //!
 //! - [`write_level_store`] writes one from an in-memory volume (level by level, two levels in
-//!   RAM at a time), into `<path>.partial`, renamed into place once complete;
+//!   RAM at a time), into a fresh temporary file beside it (created exclusively), renamed into place once complete;
 //!   [`write_level_store_from_slabs`] writes the same bytes from a volume file read in slabs
 //!   (level 0 streamed, each coarser level built plane by plane in a temporary file: a few
 //!   planes in RAM).

@@ -47,7 +47,8 @@ pub(super) struct PlaneFileWriter {
 impl PlaneFileWriter {
     /// Creates the temporary file of `level` (samples `dims`) at `path`.
     pub(super) fn create(path: PathBuf, level: u32, dims: UVec3) -> Result<Self, StoreError> {
-        let out = File::create(&path).map_err(io(&path, "create a temporary level file"))?;
+        // Exclusively: never a file or a link that was there.
+        let out = File::create_new(&path).map_err(io(&path, "create a temporary level file"))?;
         Ok(Self {
             file: PlaneFile { path, level, dims },
             out: BufWriter::with_capacity(1 << 20, out),

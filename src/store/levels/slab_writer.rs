@@ -275,9 +275,10 @@ fn taps(j: i32) -> Vec<(i32, f32)> {
     )
 }
 
-/// The temporary file of `level`'s samples while the store at `path` is written.
+/// A fresh name for the temporary file of `level`'s samples while the store at `path` is
+/// written (`.NAME.partial-PID-N.levelK` beside it; created exclusively).
 fn level_temp(path: &Path, level: u32) -> PathBuf {
-    let mut name = crate::store::writer::partial_path(path).into_os_string();
+    let mut name = crate::output::partial_name(path).into_os_string();
     name.push(format!(".level{level}"));
     PathBuf::from(name)
 }

@@ -1,5 +1,6 @@
 //! Writing a level store from an in-memory volume: every level of its vertex pyramid, packed as
-//! the three-level cache stores it, into `<path>.partial`, renamed into place once complete.
+//! the three-level cache stores it, into a fresh temporary file
+//! beside it (created exclusively, never through a link), renamed into place once complete.
 //! The pieces shared with the slab writer ([`super::slab_writer`]): the file's assembly and the
 //! sink the stored bricks stream into.
 
@@ -13,11 +14,11 @@ use crate::cache::{
 };
 use crate::pyramid::{LevelGrid, SamplePlacement};
 use crate::store::format::brick_crc;
-use crate::store::writer::{commit_partial, partial_path};
+use crate::store::writer::{commit_partial, create_partial};
 use crate::store::StoreError;
 use crate::volume::{ScalarType, Volume};
 use glam::{UVec3, Vec3};
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
@@ -90,7 +91,7 @@ pub(super) fn check_level_desc(
 ///
 /// RAM: the volume plus two adjacent levels as f32 (about 4.5 bytes per voxel at the peak);
 /// the texels stream to disk level by level. [`super::write_level_store_from_slabs`] writes
-/// the same bytes from a file under a RAM budget. The file is assembled as `<path>.partial`
+/// the same bytes from a file under a RAM budget. The file is assembled in a fresh temporary file beside `path`
 /// and renamed to `path` only once complete; on any error the partial file is removed.
 ///
 /// Errors: a brick size the volume cannot be bricked with, a level count outside `1..=31` or
@@ -184,7 +185,7 @@ impl TexelSink<'_> {
     }
 }
 
-/// Creates `<path>.partial`, lets `fill` stream every stored brick into the sink in table
+/// Creates a fresh temporary file beside `path` (`store::writer::create_partial`), lets `fill` stream every stored brick into the sink in table
 /// order (and return the volume's value range), checks that it wrote them all, then writes the
 /// table and the header and renames the file to `path`. On any error the partial file is
 /// removed.
@@ -195,7 +196,7 @@ pub(super) fn assemble_level_store(
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<LevelWriteSummary, StoreError> {
     let start = Instant::now();
-    let partial = partial_path(path);
+    let (file, partial) = create_partial(path)?;
     let io = |action: &'static str| {
         let p = partial.clone();
         move |source| StoreError::Io {
@@ -204,13 +205,6 @@ pub(super) fn assemble_level_store(
             source,
         }
     };
-    let file = OpenOptions::new()
-        .read(true)
-        .write(true)
-        .create(true)
-        .truncate(true)
-        .open(&partial)
-        .map_err(io("create"))?;
     let result = (|| {
         let mut out = BufWriter::with_capacity(1 << 20, &file);
         out.seek(SeekFrom::Start(header.data_offset))

@@ -46,8 +46,9 @@ fn main() -> mixvol::Result<()> {
     }
     let levels = mixvol::cache::pyramid_levels(brick_size, grid.bricks_per_axis());
     // The slots of the renderers' cache: 32 MiB of u8 texels.
-    let slots = mixvol::cache::ThreeLevelGeometry::choose(
+    let slots = mixvol::cache::SlotGeometry::choose(
         brick_size,
+        mixvol::cache::classes_for_levels(levels),
         1,
         config.cache_budget_bytes,
         ctx.info().limits.max_image_dimension3_d,

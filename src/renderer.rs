@@ -266,6 +266,11 @@ impl Renderer {
         self.pass.brick_levels()
     }
 
+    /// The slots of a level source's cache (`None` for other sources).
+    pub fn level_slot_count(&self) -> Option<u64> {
+        self.pass.level_slot_count()
+    }
+
     /// Stages a residency change without submitting it: the next [`Renderer::render`] records
     /// the uploads and the fixup in its own command buffer (so the frame's timings include them).
     /// Renders no longer plan residency from the camera, as with [`Renderer::set_levels`].

@@ -16,7 +16,7 @@ use gpu_allocator::vulkan::{
 use gpu_allocator::MemoryLocation;
 use mixvol::bricks::BrickGrid;
 use mixvol::bricks::Level;
-use mixvol::cache::ThreeLevelGeometry;
+use mixvol::cache::SlotGeometry;
 use mixvol::embed::{MixedConfig, PassDesc, PassTarget, TargetLoad, VolumePass, VolumeSource};
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::pyramid::LevelGrid;
@@ -555,7 +555,7 @@ fn frames_in_flight(source: InFlightSource) {
                     let grids = LevelGrid::vertex_pyramid(&volume, deepest + 1);
                     let field = LevelField::new(&grid, &grids, levels).unwrap();
                     let geometry =
-                        ThreeLevelGeometry::new(config.brick_size, UVec3::splat(256)).unwrap();
+                        SlotGeometry::new(config.brick_size, 3, UVec3::splat(256)).unwrap();
                     let cache = LevelReferenceCache::build_stored_as(
                         &field,
                         &geometry,

@@ -9,7 +9,7 @@ use common::levels::{distance_plan, staircase_plan, textured_volume};
 use common::Rng;
 use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
-use mixvol::cache::{block_bricks, block_origin, ThreeLevelGeometry};
+use mixvol::cache::{block_bricks, block_origin, SlotGeometry};
 use mixvol::levels::LevelResidency;
 use mixvol::pyramid::{LevelPlan, PackingError};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
@@ -112,7 +112,7 @@ fn a_change_uploads_exactly_the_new_bricks_and_those_whose_neighbours_changed() 
     let grid = BrickGrid::new(UVec3::new(8 * N, 8 * N, 4 * N), N).unwrap();
     let bricks = grid.bricks_per_axis();
     // 1000 slots: every plan fits, so no change needs a fresh packing.
-    let geometry = ThreeLevelGeometry::new(N, UVec3::splat(128)).unwrap();
+    let geometry = SlotGeometry::new(N, 3, UVec3::splat(128)).unwrap();
     let mut residency = LevelResidency::new(&geometry, grid.brick_count());
     let mut previous: Option<Drawn> = None;
     let (mut kept_total, mut refixed_total) = (0, 0);
@@ -207,7 +207,7 @@ fn a_change_uploads_exactly_the_new_bricks_and_those_whose_neighbours_changed() 
 fn a_change_the_free_sub_slots_cannot_take_moves_a_few_bricks() {
     let grid = BrickGrid::new(UVec3::new(4 * N, 4 * N, 4 * N), N).unwrap();
     // 5 x 2 x 1 = 10 slots of 12^3.
-    let geometry = ThreeLevelGeometry::new(N, UVec3::new(64, 32, 16)).unwrap();
+    let geometry = SlotGeometry::new(N, 3, UVec3::new(64, 32, 16)).unwrap();
     assert_eq!(geometry.slot_count(), 10);
     let mut residency = LevelResidency::new(&geometry, grid.brick_count());
     // Every brick at level 1: 64 bricks in slots 0-7.

@@ -10,7 +10,7 @@ use common::levels::{distance_plan, staircase_plan, textured_volume};
 use common::Rng;
 use glam::{UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
-use mixvol::cache::{block_origin, stored_brick_edge, ThreeLevelGeometry};
+use mixvol::cache::{block_origin, stored_brick_edge, SlotGeometry};
 use mixvol::embed::ResidencyConfig;
 use mixvol::plan::{admit_by_budget, next_target, step_towards};
 use mixvol::pyramid::{LevelGrid, LevelPlan};
@@ -208,7 +208,7 @@ fn a_budgeted_source_reaches_the_wanted_levels_in_steps() {
             .unwrap();
         let levels = mixvol::cache::pyramid_levels(N, grid.bricks_per_axis());
         let grids = LevelGrid::vertex_pyramid(&volume, levels);
-        let geometry = ThreeLevelGeometry::new(N, UVec3::splat(128)).unwrap();
+        let geometry = SlotGeometry::new(N, 3, UVec3::splat(128)).unwrap();
         let mut steps = 0;
         let mut waiting = Vec::new();
         let mut uploaded = Vec::new();

@@ -10,7 +10,8 @@ use common::levels::{staircase_plan, textured_volume};
 use common::Rng;
 use glam::{UVec3, Vec3, Vec4};
 use mixvol::bricks::DownsampleFilter;
-use mixvol::cache::ThreeLevelGeometry;
+use mixvol::bricks::Level;
+use mixvol::cache::{classes_for_levels, CacheGeometry, SlotGeometry};
 use mixvol::pyramid::LevelGrid;
 use mixvol::reference::{self, LevelField, LevelReferenceCache};
 use mixvol::renderer::{Frame, MixedConfig, Renderer, TargetFormat, VolumeSource};
@@ -55,7 +56,9 @@ fn reference_frame(renderer: &Renderer, store: &LevelStore) -> Vec<Vec4> {
     let grids = store.read_grids().unwrap();
     let levels = renderer.brick_levels().unwrap().to_vec();
     let field = LevelField::new(&store.grid(), &grids, &levels).unwrap();
-    let geometry = ThreeLevelGeometry::new(N, UVec3::splat(128)).unwrap();
+    // The slot classes the pass's cache has for the store's levels (two for two levels).
+    let classes = classes_for_levels(store.level_count());
+    let geometry = SlotGeometry::new(N, classes, UVec3::splat(128)).unwrap();
     // The cache holds the store's scalar type: the mirror rounds its texels alike.
     let scalar = store.header().scalar;
     let cpu = LevelReferenceCache::build_stored_as(&field, &geometry, Transition::Smooth, scalar)
@@ -297,12 +300,108 @@ fn an_unreadable_stored_brick_falls_back_and_is_counted() {
         let frame = renderer.render(&camera, &settings(), W, W).unwrap();
         let grids = LevelGrid::vertex_pyramid(&volume, store.level_count());
         let field = LevelField::new(&store.grid(), &grids, &drawn).unwrap();
-        let geometry = ThreeLevelGeometry::new(N, UVec3::splat(128)).unwrap();
+        let geometry = SlotGeometry::new(N, 3, UVec3::splat(128)).unwrap();
         let cpu = LevelReferenceCache::build(&field, &geometry, Transition::Smooth).unwrap();
         let params = renderer.params(&camera, &settings(), W, W).unwrap();
         let tf = mixvol::optics::TransferFunction::preset(mixvol::optics::TfPreset::Bands);
         let expected = reference::render_mixed(&cpu.view(), Transition::Smooth, &tf, &params);
         assert_matches("around the damaged brick", &frame, &expected);
+        let _ = std::fs::remove_file(&path);
+    }
+    common::finish(ctx);
+}
+
+/// Two levels through the one level system take the two-level cache's slots (issue 36): a
+/// store of two levels gets a cache of two slot classes, `(n+2)^3` slots, so a budget in
+/// which the two-level cache holds every brick at level 0, and a cache of `(n+4)^3` slots does
+/// not, draws every brick at level 0. Its frames, at level 0 everywhere and at a checker of
+/// levels 0 and 1, match the CPU reference over the store's levels (mirrored with two
+/// classes) and the two-level cache's frames of the same volume (`VolumeSource::Mixed`,
+/// `Hi`/`Lo`); a store of five levels in the same budget cannot draw every brick at level 0.
+#[test]
+fn two_levels_take_the_two_level_caches_slots() {
+    let ctx = common::validated_context();
+    {
+        let mut rng = Rng(0x1e7e_1570_6900_0002);
+        let volume = textured_volume(&mut rng, UVec3::new(4 * N, 4 * N, 3 * N));
+        let count = 48;
+        // 64 x 32 x 32 f32 texels: 6 x 3 x 3 = 54 slots of 10^3, but 5 x 2 x 2 = 20 of 12^3.
+        let budget = 64 * 32 * 32 * 4;
+        let two = CacheGeometry::choose(N, 4, budget, 4096, count).unwrap();
+        let three = SlotGeometry::choose(N, 3, 4, budget, 4096, count).unwrap();
+        assert!(two.slot_count() >= count && three.slot_count() < count);
+        let two_classes = SlotGeometry::choose(N, 2, 4, budget, 4096, count).unwrap();
+        assert_eq!(two_classes.slot_count(), two.slot_count());
+
+        let path = temp_path("two-levels");
+        write_level_store(&path, &volume, N, Some(2), &mut |_, _| {}).unwrap();
+        let store = Arc::new(LevelStore::open(&path).unwrap());
+        assert_eq!(store.level_count(), 2);
+        let bricks = store.grid().bricks_per_axis();
+        let finest = vec![Some(0); count as usize];
+        let checker: Vec<Option<u32>> = (0..count)
+            .map(|i| {
+                let b = UVec3::new(
+                    i % bricks.x,
+                    (i / bricks.x) % bricks.y,
+                    i / (bricks.x * bricks.y),
+                );
+                Some((b.x + b.y + b.z) % 2)
+            })
+            .collect();
+        let mut from_store = renderer_for(
+            &ctx,
+            VolumeSource::LevelStore {
+                store: store.clone(),
+                levels: &finest,
+                config: config(budget),
+            },
+        );
+        let mut two_level = renderer_for(
+            &ctx,
+            VolumeSource::Mixed {
+                volume: Arc::new(volume.clone()),
+                config: config(budget),
+            },
+        );
+        for (name, levels) in [
+            ("level 0", &finest),
+            ("checker of levels 0 and 1", &checker),
+        ] {
+            from_store.set_brick_levels(levels).unwrap();
+            let hi_lo: Vec<Level> = levels
+                .iter()
+                .map(|l| if *l == Some(0) { Level::Hi } else { Level::Lo })
+                .collect();
+            two_level.set_levels(&hi_lo).unwrap();
+            let a = from_store.render(&camera(), &settings(), W, W).unwrap();
+            let b = two_level.render(&camera(), &settings(), W, W).unwrap();
+            assert_matches(name, &a, &reference_frame(&from_store, &store));
+            let d = common::diff(&a.pixels, &b.pixels, 1.0 / 255.0);
+            assert!(
+                d.max < 1e-4,
+                "{name}: the one system and the two-level cache draw the same frame: {d:?}"
+            );
+        }
+        drop((from_store, two_level));
+        let _ = std::fs::remove_file(&path);
+
+        // Five levels in the same budget: slots of 12^3, too few for every brick at level 0.
+        let path = temp_path("five-levels");
+        write_level_store(&path, &volume, N, None, &mut |_, _| {}).unwrap();
+        let store = Arc::new(LevelStore::open(&path).unwrap());
+        let coarsest = vec![Some(store.level_count() - 1); count as usize];
+        let mut five = renderer_for(
+            &ctx,
+            VolumeSource::LevelStore {
+                store: store.clone(),
+                levels: &coarsest,
+                config: config(budget),
+            },
+        );
+        let err = five.set_brick_levels(&finest).unwrap_err().to_string();
+        assert!(err.contains("slots"), "{err}");
+        drop(five);
         let _ = std::fs::remove_file(&path);
     }
     common::finish(ctx);

@@ -9,7 +9,7 @@ use common::levels::textured_volume;
 use common::Rng;
 use glam::{UVec3, Vec3, Vec4};
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
-use mixvol::cache::{block_bricks, stored_bricks_per_axis, ThreeLevelGeometry};
+use mixvol::cache::{block_bricks, stored_bricks_per_axis, SlotGeometry};
 use mixvol::reference::{self, LevelField, LevelReferenceCache};
 use mixvol::renderer::{MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Transition};
@@ -314,7 +314,7 @@ fn reference_frame(renderer: &Renderer, store: &LevelStore) -> Vec<Vec4> {
     let grids = store.read_grids().unwrap();
     let levels = renderer.brick_levels().unwrap().to_vec();
     let field = LevelField::new(&store.grid(), &grids, &levels).unwrap();
-    let geometry = ThreeLevelGeometry::new(N, UVec3::splat(128)).unwrap();
+    let geometry = SlotGeometry::new(N, 3, UVec3::splat(128)).unwrap();
     let cpu = LevelReferenceCache::build(&field, &geometry, Transition::Smooth).unwrap();
     let params = renderer.params(&camera(), &settings(), W, W).unwrap();
     let tf = mixvol::optics::TransferFunction::preset(mixvol::optics::TfPreset::Bands);

@@ -15,7 +15,7 @@ use common::Rng;
 use glam::{IVec3, UVec3, Vec3};
 use mixvol::bricks::{BrickGrid, Level};
 use mixvol::cache::block_origin;
-use mixvol::cache::{BrickCache, CacheError, CacheGeometry, ThreeLevelGeometry};
+use mixvol::cache::{BrickCache, CacheError, CacheGeometry, SlotGeometry};
 use mixvol::pyramid::{LevelGrid, PackingError, SamplePlacement};
 use mixvol::reference::{sample_mixed, LevelField, LevelReferenceCache, LevelSampling};
 use mixvol::scene::Transition;
@@ -24,13 +24,13 @@ const N: u32 = 8;
 const LEVELS: u32 = 3;
 
 /// A cache big enough for every brick of `grid` at level 0.
-fn roomy_geometry(grid: &BrickGrid) -> ThreeLevelGeometry {
+fn roomy_geometry(grid: &BrickGrid) -> SlotGeometry {
     let mut extent = UVec3::splat((N + 4).next_power_of_two());
     while (extent / (N + 4)).element_product() < grid.brick_count() as u32 {
         let smallest = (0..3).min_by_key(|&a| extent[a]).unwrap_or(0);
         extent[smallest] *= 2;
     }
-    ThreeLevelGeometry::new(N, extent).unwrap()
+    SlotGeometry::new(N, 3, extent).unwrap()
 }
 
 /// Compares the cache's field with the level field at `points`, smooth and discontinuous.
@@ -206,7 +206,7 @@ fn a_volume_too_big_for_two_levels_is_drawn_whole_with_three() {
 
     // Three levels in the same image: 8 slots of (n+4)^3. One level-0 brick on the volume's
     // face (1 slot), the 17 bricks around it at level 1 (3 slots), 238 at level 2 (4 slots).
-    let three_level = ThreeLevelGeometry::new(N, extent).unwrap();
+    let three_level = SlotGeometry::new(N, 3, extent).unwrap();
     assert_eq!(three_level.slot_count(), 8);
     let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
     let levels = distance_plan(grid.bricks_per_axis(), IVec3::new(0, 4, 1), 0, LEVELS);
@@ -253,7 +253,7 @@ fn block_levels_share_one_stored_brick_and_draw_the_level_field() {
     let grids = LevelGrid::vertex_pyramid(&volume, 5);
     let levels = staircase_plan(grid.bricks_per_axis(), 0, 5);
     let field = LevelField::new(&grid, &grids, &levels).unwrap();
-    let geometry = ThreeLevelGeometry::new(N, UVec3::splat(32)).unwrap();
+    let geometry = SlotGeometry::new(N, 3, UVec3::splat(32)).unwrap();
     assert_eq!(geometry.slot_count(), 8);
     let points = probe_points(&mut rng, dims, N, 5, 4000);
     for transition in [Transition::Smooth, Transition::Discontinuous] {
@@ -314,7 +314,7 @@ fn fields_the_packing_cannot_hold_are_refused() {
     let geometry = roomy_geometry(&grid);
     let levels = [Some(0), Some(1)];
     let pyramid = LevelGrid::vertex_pyramid(&volume, 2);
-    let other = ThreeLevelGeometry::new(2 * N, UVec3::splat(32)).unwrap();
+    let other = SlotGeometry::new(2 * N, 3, UVec3::splat(32)).unwrap();
     let field = LevelField::new(&grid, &pyramid, &levels).unwrap();
     assert_eq!(
         LevelReferenceCache::build(&field, &other, Transition::Smooth).unwrap_err(),

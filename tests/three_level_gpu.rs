@@ -9,7 +9,7 @@ use common::levels::{distance_plan, per_brick, probe_points, staircase_plan, tex
 use common::Rng;
 use glam::{IVec3, UVec3, Vec3, Vec4};
 use mixvol::bricks::{BrickGrid, DownsampleFilter, Level};
-use mixvol::cache::{CacheGeometry, ThreeLevelGeometry};
+use mixvol::cache::{CacheGeometry, SlotGeometry};
 use mixvol::levels::GpuLevelCache;
 use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::pyramid::{LevelGrid, PackingError, PyramidError};
@@ -60,7 +60,7 @@ fn check_gpu_cache(
     rng: &mut Rng,
     name: &str,
     field: &LevelField,
-    geometry: &ThreeLevelGeometry,
+    geometry: &SlotGeometry,
     levels: u32,
 ) {
     let dims = field.grids()[0].dims();
@@ -170,7 +170,7 @@ fn the_gpu_three_level_cache_matches_its_cpu_mirror() {
         let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
         // 2 x 2 x 2 slots of (n+4)^3 = 12^3 texels: fewer than the 36 bricks, so the plans must
         // use the coarser levels.
-        let geometry = ThreeLevelGeometry::new(N, UVec3::new(32, 32, 32)).unwrap();
+        let geometry = SlotGeometry::new(N, 3, UVec3::new(32, 32, 32)).unwrap();
         for (name, levels) in plans(&mut rng, grid.bricks_per_axis()) {
             let field = LevelField::new(&grid, &grids, &levels).unwrap();
             check_gpu_cache(&ctx, &mut rng, name, &field, &geometry, LEVELS);
@@ -221,7 +221,7 @@ fn render_levels(
     let params = renderer.params(&camera, &settings, 80, 80).unwrap();
     // The reference's cache geometry need not be the renderer's: the field does not depend on
     // where the bricks sit.
-    let geometry = ThreeLevelGeometry::new(N, UVec3::splat(64)).unwrap();
+    let geometry = SlotGeometry::new(N, 3, UVec3::splat(64)).unwrap();
     let cpu = LevelReferenceCache::build(&field, &geometry, transition).unwrap();
     let expected = reference::render_mixed(&cpu.view(), transition, &tf, &params);
     (frame, expected)
@@ -384,7 +384,7 @@ fn residency_changes_across_three_levels_stay_clean() {
                 config: config(Transition::Smooth, budget),
             })
             .unwrap();
-        let geometry = ThreeLevelGeometry::new(N, UVec3::splat(64)).unwrap();
+        let geometry = SlotGeometry::new(N, 3, UVec3::splat(64)).unwrap();
         let mut seen = [false; 3];
         for change in 0..40 {
             let centre = UVec3::new(

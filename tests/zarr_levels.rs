@@ -15,8 +15,7 @@ mod remote_util;
 use glam::{UVec3, Vec3, Vec4};
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
 use mixvol::cache::{
-    block_bricks, stored_brick_edge, stored_bricks_per_axis, stored_first_sample,
-    ThreeLevelGeometry,
+    block_bricks, stored_brick_edge, stored_bricks_per_axis, stored_first_sample, SlotGeometry,
 };
 use mixvol::pyramid::{LevelGrid, SamplePlacement};
 use mixvol::reference::{self, LevelField, LevelReferenceCache};
@@ -184,7 +183,7 @@ fn reference_frame(renderer: &Renderer, backend: &dyn LevelBackend) -> Vec<Vec4>
     let grids = backend.read_grids().unwrap();
     let levels = renderer.brick_levels().unwrap().to_vec();
     let field = LevelField::new(&backend.grid(), &grids, &levels).unwrap();
-    let geometry = ThreeLevelGeometry::new(N, UVec3::splat(128)).unwrap();
+    let geometry = SlotGeometry::new(N, 3, UVec3::splat(128)).unwrap();
     let cpu = LevelReferenceCache::build_stored_as(
         &field,
         &geometry,

@@ -159,7 +159,7 @@ impl CacheGeometry {
 }
 
 /// The cache extent [`CacheGeometry::choose`] picks for slots of `slot_edge` texels (its doc
-/// comment gives the rule); shared with [`super::ThreeLevelGeometry::choose`].
+/// comment gives the rule); shared with [`super::SlotGeometry::choose`].
 pub(super) fn choose_extent(
     slot_edge: u32,
     bytes_per_texel: u32,
@@ -231,7 +231,7 @@ pub(super) fn choose_extent(
 
 /// Whole slots of edge `slot_edge` per axis of a cache of `extent` texels: every axis a power of
 /// two holding at least one slot, fewer slots than a `u32` slot index below [`super::EMPTY`]
-/// addresses. Shared with [`super::ThreeLevelGeometry::new`].
+/// addresses. Shared with [`super::SlotGeometry::new`].
 pub(super) fn whole_slots(slot_edge: u32, extent: UVec3) -> Result<UVec3, CacheError> {
     if extent
         .to_array()

@@ -2,11 +2,11 @@
 //! residency change keep every brick that stays where it is (`levels::LevelResidency`).
 //!
 //! A slot holds stored bricks of one packing class only (level 0: one brick; level 1: eight;
-//! level 2 and the block levels: sixty-four, `ThreeLevelGeometry::bricks_per_slot`). A sub-slot
+//! level 2 and the block levels: sixty-four, `SlotGeometry::bricks_per_slot`). A sub-slot
 //! is taken from a slot of its class that has room, else from an empty slot, lowest index first
 //! (so allocation is deterministic); a slot whose last sub-slot is released is empty again.
 
-use super::three_level::{LevelSlot, ThreeLevelGeometry, THREE_LEVELS};
+use super::slot_geometry::{LevelSlot, SlotGeometry, THREE_LEVELS};
 use std::collections::BTreeSet;
 
 /// The occupancy of every slot of a three-level cache.
@@ -42,7 +42,7 @@ impl LevelSlots {
     /// class is full and no slot is empty.
     pub fn allocate(&mut self, level: u32) -> Option<LevelSlot> {
         let class = class_of(level);
-        let capacity = ThreeLevelGeometry::bricks_per_slot(level);
+        let capacity = SlotGeometry::bricks_per_slot(level);
         let slot = match self.partial[class].first() {
             Some(&slot) => slot,
             None => {
@@ -68,7 +68,7 @@ impl LevelSlots {
     pub fn take(&mut self, place: LevelSlot) -> bool {
         let s = place.slot as usize;
         let class = class_of(place.level);
-        let capacity = ThreeLevelGeometry::bricks_per_slot(place.level);
+        let capacity = SlotGeometry::bricks_per_slot(place.level);
         if s >= self.used.len()
             || place.index >= capacity
             || self.classes[s].is_some_and(|c| c != class as u32)
@@ -116,7 +116,7 @@ impl LevelSlots {
     pub fn emptiable_slot(&self) -> Option<u32> {
         let mut best: Option<(u32, u32)> = None;
         for class in 1..THREE_LEVELS as usize {
-            let capacity = ThreeLevelGeometry::bricks_per_slot(class as u32);
+            let capacity = SlotGeometry::bricks_per_slot(class as u32);
             let free: u32 = self.partial[class]
                 .iter()
                 .map(|&s| capacity - self.used[s as usize].count_ones())

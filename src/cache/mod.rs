@@ -62,8 +62,8 @@
 mod geometry;
 mod level_slots;
 mod residency;
+mod slot_geometry;
 pub mod tables;
-mod three_level;
 
 #[cfg(test)]
 mod translation_tests;
@@ -71,14 +71,14 @@ mod translation_tests;
 pub use geometry::{CacheGeometry, MIN_BRICK_SIZE};
 pub use level_slots::LevelSlots;
 pub use residency::{BrickCache, BrickUpload, CacheUpdate};
+pub use slot_geometry::{
+    block_bricks, block_origin, classes_for_levels, min_brick_size_for_levels, pyramid_levels,
+    slots_for_classes, slots_for_plan, stored_brick_edge, stored_bricks_per_axis,
+    stored_first_sample, LevelSlot, SlotGeometry, THREE_LEVELS,
+};
 pub use tables::{
     compute_neighbour_bits, layout_entry, neighbour_bit, neighbour_bit_index, neighbour_offset,
     EMPTY, NEIGHBOUR_COUNT,
-};
-pub use three_level::{
-    block_bricks, block_origin, min_brick_size_for_levels, pyramid_levels, slots_for_classes,
-    slots_for_plan, stored_brick_edge, stored_bricks_per_axis, stored_first_sample, LevelSlot,
-    ThreeLevelGeometry, THREE_LEVELS,
 };
 
 use crate::bricks::Level;
@@ -134,6 +134,12 @@ pub enum CacheError {
     InvalidBrickSize {
         /// The size given.
         size: u32,
+    },
+    /// A slot geometry of a class count other than 2 or 3.
+    #[error("a brick cache has 2 or 3 slot classes, not {classes}")]
+    InvalidClasses {
+        /// The count given.
+        classes: u32,
     },
     /// `bytes_per_texel` is zero.
     #[error("bytes per texel must be positive")]

@@ -5,8 +5,8 @@
 use super::source::{MixedConfig, Source};
 use super::VolumePass;
 use crate::bricks::dequantize;
-use crate::cache::ThreeLevelGeometry;
-use crate::cache::{block_origin, stored_brick_edge};
+use crate::cache::block_origin;
+use crate::cache::SlotGeometry;
 use crate::error::{Error, Result};
 use crate::gpu::GpuBrickCache;
 use crate::levels::{
@@ -30,7 +30,7 @@ pub(crate) struct LevelState {
     /// them).
     grid: crate::bricks::BrickGrid,
     data: LevelData,
-    geometry: ThreeLevelGeometry,
+    geometry: SlotGeometry,
     /// The brick grid in world space (for [`VolumePass::plan_brick_levels`]).
     pub(super) bricks: BrickGeometry,
     /// The level of every brick drawn now.
@@ -216,8 +216,7 @@ impl LevelState {
 
     /// Bytes of one stored brick of `level` in the cache.
     pub(super) fn stored_bytes(&self, level: u32) -> u64 {
-        u64::from(stored_brick_edge(self.brick_size, level)).pow(3)
-            * self.scalar.size_bytes() as u64
+        u64::from(self.geometry.stored_edge(level)).pow(3) * self.scalar.size_bytes() as u64
     }
 
     /// Bytes that staging `levels` now would upload, exactly as [`LevelState::stage`] would:
@@ -315,8 +314,11 @@ impl VolumePass {
         config: MixedConfig,
     ) -> Result<()> {
         let grid = facts.grid;
-        let geometry = ThreeLevelGeometry::choose(
+        // Two levels take the two-level cache's slots (its bytes and capacity), more the
+        // three-level packing.
+        let geometry = SlotGeometry::choose(
             config.brick_size,
+            crate::cache::classes_for_levels(data.level_count()),
             facts.scalar.size_bytes() as u32,
             config.cache_budget_bytes,
             self.ctx.shared.info.limits.max_image_dimension3_d,
@@ -419,6 +421,14 @@ impl VolumePass {
     pub fn brick_levels(&self) -> Option<&[Option<u32>]> {
         match &self.source {
             Source::Levels(state) => Some(&state.current),
+            _ => None,
+        }
+    }
+
+    /// The slots of a level source's cache (`None` for other sources).
+    pub fn level_slot_count(&self) -> Option<u64> {
+        match &self.source {
+            Source::Levels(state) => Some(state.slot_count()),
             _ => None,
         }
     }

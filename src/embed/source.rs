@@ -55,7 +55,7 @@ pub enum VolumeSource<'a> {
         config: MixedConfig,
     },
     /// A volume drawn through the paper's three-level brick cache (`(n+4)^3` slots holding one
-    /// level-0, eight level-1 or sixty-four level-2 bricks; `crate::cache::ThreeLevelGeometry`)
+    /// level-0, eight level-1 or sixty-four level-2 bricks; `crate::cache::SlotGeometry`)
     /// at the levels the host gives, one per brick: `Some(0)` full resolution, `Some(k)` the
     /// vertex level `k` of [`crate::pyramid::LevelGrid::vertex_pyramid`], `None` not drawn (an
     /// empty slice: every brick at the coarsest level, a start for

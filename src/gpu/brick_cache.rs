@@ -48,9 +48,10 @@ pub(crate) fn cache_format(
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub(crate) enum SlotPacking {
     /// `(n+2)^3` slots holding a level-0 brick or eight level-1 bricks
-    /// ([`crate::cache::CacheGeometry`]).
+    /// ([`crate::cache::CacheGeometry`], and a [`crate::cache::SlotGeometry`] of two classes).
     TwoLevel,
-    /// `(n+4)^3` slots of the three-level packing ([`crate::cache::ThreeLevelGeometry`]): the
+    /// `(n+4)^3` slots of the three-level packing (a [`crate::cache::SlotGeometry`] of three
+    /// classes): the
     /// border fixup works on the inner `(n+2)^3` box of a level-0 slot, and the skeleton fixup
     /// runs over the bricks of the coarser levels.
     ThreeLevel,

@@ -1,6 +1,6 @@
 //! The three-level brick cache on the GPU (issue 19, item 1), filled from a level plan
 //! ([`crate::pyramid::LevelPlan`]) and its levels' samples: every drawn brick packed into its slot or sub-slot of a
-//! [`ThreeLevelGeometry`] cache and uploaded with one `vkCmdCopyBufferToImage` (one region per
+//! [`SlotGeometry`] cache and uploaded with one `vkCmdCopyBufferToImage` (one region per
 //! brick), the border fixup (level 0 towards level 1, `fixup.comp` on the inner box of a
 //! `(n+4)^3` slot) and the skeleton fixup (`skeleton_fixup.comp`, level 1 towards level 2) as
 //! compute dispatches, and the field read with the ray-caster's own functions (`probe.comp`
@@ -19,7 +19,7 @@ mod residency;
 pub use ranges::conservative_ranges;
 pub use residency::{LevelResidency, LevelUpdate};
 
-use crate::cache::{ThreeLevelGeometry, EMPTY};
+use crate::cache::{SlotGeometry, EMPTY};
 use crate::error::{Error, Result};
 use crate::gpu::{
     CacheRegion, CacheTables, DeviceShared, FieldProbe, GpuBrickCache, GpuContext, SlotPacking,
@@ -76,7 +76,7 @@ pub(crate) struct LevelPlanFacts {
 /// UNORM or f32), tables for `brick_count` bricks and `frames` frame slots.
 pub(crate) fn new_three_level_cache(
     shared: &Arc<DeviceShared>,
-    geometry: &ThreeLevelGeometry,
+    geometry: &SlotGeometry,
     scalar: ScalarType,
     brick_count: usize,
     smooth: bool,
@@ -91,7 +91,11 @@ pub(crate) fn new_three_level_cache(
         geometry.slot_count() as usize,
         frames,
         smooth,
-        SlotPacking::ThreeLevel,
+        if geometry.classes() == 2 {
+            SlotPacking::TwoLevel
+        } else {
+            SlotPacking::ThreeLevel
+        },
     )
 }
 
@@ -102,7 +106,7 @@ fn stage_grids(
     gpu: &mut GpuBrickCache,
     plan: &LevelPlan,
     grids: &[LevelGrid],
-    geometry: &ThreeLevelGeometry,
+    geometry: &SlotGeometry,
 ) -> Result<LevelPlanFacts> {
     let packed = LevelPacking::for_grids(plan, grids, geometry)?;
     stage_three_level(
@@ -126,7 +130,7 @@ fn stage_grids(
 pub(crate) fn stage_three_level(
     gpu: &mut GpuBrickCache,
     packed: &LevelPacking,
-    geometry: &ThreeLevelGeometry,
+    geometry: &SlotGeometry,
     scalar: ScalarType,
     upload: &[usize],
     texels: &mut dyn FnMut(usize) -> Result<Vec<f32>>,
@@ -155,7 +159,8 @@ pub(crate) fn stage_three_level(
         let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
         let extent = UVec3::splat(geometry.stored_edge(place.level));
         let values = texels(brick)?;
-        let expected = extent.element_product() as usize;
+        let expected =
+            (crate::cache::stored_brick_edge(geometry.brick_size(), place.level) as usize).pow(3);
         if values.len() != expected {
             return Err(Error::InvalidInput(format!(
                 "stored brick {brick} (level {}): {} texels, expected {expected}",
@@ -163,6 +168,8 @@ pub(crate) fn stage_three_level(
                 values.len()
             )));
         }
+        // The cache's box of the stored brick (its inner box at level 0 with two classes).
+        let values = geometry.cache_texels(place.level, &values);
         boxes.push((origin, extent, crate::bricks::quantize_to(&values, scalar)));
         if place.level == 0 {
             if packed.neighbours[brick] != 0 {
@@ -211,7 +218,7 @@ impl GpuLevelCache {
         ctx: &GpuContext,
         plan: &LevelPlan,
         grids: &[LevelGrid],
-        geometry: &ThreeLevelGeometry,
+        geometry: &SlotGeometry,
         transition: Transition,
     ) -> Result<Self> {
         let shared = &ctx.shared;

@@ -19,7 +19,7 @@
 //! until the new bricks fit: that always succeeds when the plan fits the cache at all. Only
 //! after a change that was staged but never recorded is everything packed afresh.
 
-use crate::cache::{block_bricks, LevelSlot, LevelSlots, ThreeLevelGeometry};
+use crate::cache::{block_bricks, LevelSlot, LevelSlots, SlotGeometry};
 use crate::pyramid::{LevelPacking, LevelPlan, PackingError};
 use glam::UVec3;
 
@@ -50,7 +50,7 @@ pub struct LevelResidency {
 
 impl LevelResidency {
     /// An empty cache of `geometry` for `brick_count` bricks.
-    pub fn new(geometry: &ThreeLevelGeometry, brick_count: usize) -> Self {
+    pub fn new(geometry: &SlotGeometry, brick_count: usize) -> Self {
         Self {
             slots: LevelSlots::new(geometry.slot_count()),
             stored: vec![None; brick_count],
@@ -85,7 +85,7 @@ impl LevelResidency {
     pub fn update(
         &mut self,
         plan: &LevelPlan,
-        geometry: &ThreeLevelGeometry,
+        geometry: &SlotGeometry,
     ) -> Result<LevelUpdate, PackingError> {
         let wanted = LevelPacking::stored_levels(plan, geometry)?;
         let count = wanted.len();
@@ -180,7 +180,7 @@ impl LevelResidency {
     fn repack(
         &mut self,
         plan: &LevelPlan,
-        geometry: &ThreeLevelGeometry,
+        geometry: &SlotGeometry,
     ) -> Result<LevelUpdate, PackingError> {
         let packing = LevelPacking::new(plan, geometry)?;
         let mut slots = LevelSlots::new(geometry.slot_count());

@@ -1,10 +1,10 @@
 //! Where the drawn bricks of a [`LevelPlan`] go in a three-level cache ([`LevelPacking`]): slots
 //! by packing class, one stored brick per block past level 2, the layout entries and coarser
-//! bits the ray-caster reads (module docs of `cache::three_level`).
+//! bits the ray-caster reads (module docs of `cache::slot_geometry`).
 
 use super::{LevelGrid, LevelPlan, SamplePlacement};
 use crate::cache::{block_bricks, block_origin, slots_for_classes};
-use crate::cache::{LevelSlot, LevelSlots, ThreeLevelGeometry, THREE_LEVELS};
+use crate::cache::{LevelSlot, LevelSlots, SlotGeometry, THREE_LEVELS};
 use glam::UVec3;
 
 /// Why the drawn bricks of a [`LevelPlan`] cannot be packed into a cache.
@@ -26,6 +26,13 @@ pub enum PackingError {
         /// Brick size of the cache.
         cache: u32,
     },
+    /// The plan draws a level the cache has no slot class for (level 2 or coarser in a cache of
+    /// two classes).
+    #[error("the plan draws level 2 or coarser, but the cache has {classes} slot classes (levels 0 and 1)")]
+    Classes {
+        /// The cache's slot classes.
+        classes: u32,
+    },
     /// The drawn bricks need more slots than the cache has.
     #[error(
         "the plan needs {needed} slots ({per_level:?} stored bricks of level 0, level 1 and \
@@ -46,7 +53,7 @@ pub enum PackingError {
 /// ([`LevelPacking::stored_values`]).
 #[derive(Clone, Debug)]
 pub struct LevelPacking {
-    /// Layout entry per brick ([`ThreeLevelGeometry::layout_entry`]).
+    /// Layout entry per brick ([`SlotGeometry::layout_entry`]).
     pub layout: Vec<[f32; 4]>,
     /// Coarser bits per brick ([`LevelPlan::coarser_bits`]): for a level-0 brick the 26
     /// neighbour bits of the two-level cache.
@@ -71,7 +78,7 @@ impl LevelPacking {
     pub fn for_grids(
         plan: &LevelPlan,
         grids: &[LevelGrid],
-        geometry: &ThreeLevelGeometry,
+        geometry: &SlotGeometry,
     ) -> Result<Self, PackingError> {
         for g in grids {
             let expected = if g.level() == 0 {
@@ -91,10 +98,10 @@ impl LevelPacking {
 
     /// Places every drawn brick of `plan` in a cache of `geometry`: slots filled by packing
     /// class (level 0, level 1, level 2 and coarser), in brick order; past level 2 one stored
-    /// brick per block (module docs of `cache::three_level`).
+    /// brick per block (module docs of `cache::slot_geometry`).
     ///
     /// Errors: a brick size other than the cache's, or more slots needed than the cache has.
-    pub fn new(plan: &LevelPlan, geometry: &ThreeLevelGeometry) -> Result<Self, PackingError> {
+    pub fn new(plan: &LevelPlan, geometry: &SlotGeometry) -> Result<Self, PackingError> {
         let wanted = Self::stored_levels(plan, geometry)?;
         let mut by_class: [Vec<usize>; 3] = Default::default();
         for (i, level) in wanted.iter().enumerate() {
@@ -115,10 +122,11 @@ impl LevelPacking {
     /// does: not drawn, or inside a block), after checking that `plan` suits a cache of
     /// `geometry`.
     ///
-    /// Errors: a brick size other than the cache's, or more slots needed than the cache has.
+    /// Errors: a brick size other than the cache's, a level the cache has no class for, or
+    /// more slots needed than the cache has.
     pub fn stored_levels(
         plan: &LevelPlan,
-        geometry: &ThreeLevelGeometry,
+        geometry: &SlotGeometry,
     ) -> Result<Vec<Option<u32>>, PackingError> {
         let n = plan.brick_size();
         if n != geometry.brick_size() {
@@ -140,6 +148,11 @@ impl LevelPacking {
                 })
             })
             .collect();
+        if geometry.classes() < THREE_LEVELS && per_level[2] > 0 {
+            return Err(PackingError::Classes {
+                classes: geometry.classes(),
+            });
+        }
         let needed = slots_for_classes(per_level.map(|c| c as u64));
         if needed > u64::from(geometry.slot_count()) {
             return Err(PackingError::OverBudget {
@@ -157,7 +170,7 @@ impl LevelPacking {
     /// (a [`LevelSlots`] hands out places that do not overlap).
     pub fn from_places(
         plan: &LevelPlan,
-        geometry: &ThreeLevelGeometry,
+        geometry: &SlotGeometry,
         stored_places: &[Option<LevelSlot>],
     ) -> Self {
         let bricks = plan.bricks_per_axis();
@@ -197,12 +210,12 @@ impl LevelPacking {
 
     /// The texels of the stored brick held by `brick` (one of [`Self::stored`]), x fastest,
     /// `stored_edge` of its level per axis: level 0 voxel `n*b - 2 + t`, level `k` sample
-    /// `n*b0/2^k + t` (module docs of `cache::three_level`), clamped by the grids. Empty for a
+    /// `n*b0/2^k + t` (module docs of `cache::slot_geometry`), clamped by the grids. Empty for a
     /// brick that is not drawn.
     pub fn stored_values(
         &self,
         grids: &[LevelGrid],
-        geometry: &ThreeLevelGeometry,
+        geometry: &SlotGeometry,
         brick: usize,
     ) -> Vec<f32> {
         let Some(place) = self.places[brick] else {

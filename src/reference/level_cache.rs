@@ -1,5 +1,5 @@
 //! The CPU mirror of a three-level brick cache (issue 19): the levels of a [`LevelField`] packed
-//! into a [`ThreeLevelGeometry`] cache image, the two fixups, and the tables the ray-caster
+//! into a [`SlotGeometry`] cache image, the two fixups, and the tables the ray-caster
 //! reads. Sampled through [`sample_mixed`](super::sample_mixed) unchanged: a level-0 brick blends
 //! towards level-1 neighbours through its fixed-up inner border exactly as a hi-res brick of the
 //! two-level cache does, and a brick of level 1 or 2 is a plain fetch of its fixed-up samples.
@@ -25,7 +25,7 @@
 use super::level_field::LevelField;
 use super::mixed::{first_marked_neighbour, fixup_value, touching, CacheImage, MixedVolume};
 use crate::bricks::{dequantize, quantize_to};
-use crate::cache::{block_bricks, slots_for_plan, ThreeLevelGeometry};
+use crate::cache::{block_bricks, slots_for_plan, SlotGeometry};
 use crate::pyramid::{LevelPacking, PackingError};
 use crate::scene::Transition;
 use crate::volume::ScalarType;
@@ -48,7 +48,7 @@ impl LevelReferenceCache {
     /// Errors: those of [`LevelPacking::for_grids`].
     pub fn build(
         field: &LevelField,
-        geometry: &ThreeLevelGeometry,
+        geometry: &SlotGeometry,
         transition: Transition,
     ) -> Result<Self, PackingError> {
         Self::build_stored_as(field, geometry, transition, ScalarType::F32)
@@ -59,7 +59,7 @@ impl LevelReferenceCache {
     /// stores round them.
     pub fn build_stored_as(
         field: &LevelField,
-        geometry: &ThreeLevelGeometry,
+        geometry: &SlotGeometry,
         transition: Transition,
         scalar: ScalarType,
     ) -> Result<Self, PackingError> {
@@ -72,10 +72,11 @@ impl LevelReferenceCache {
             };
             let origin = geometry.origin(place).unwrap_or(UVec3::ZERO);
             let edge = UVec3::splat(geometry.stored_edge(place.level));
+            let stored = packing.stored_values(field.grids(), geometry, i);
             image.write_box(
                 origin,
                 edge,
-                &round(&packing.stored_values(field.grids(), geometry, i)),
+                &round(&geometry.cache_texels(place.level, &stored)),
             );
         }
         let LevelPacking {
@@ -99,8 +100,9 @@ impl LevelReferenceCache {
                     if bits == 0 {
                         continue;
                     }
-                    // The inner (n+2)^3 box of the slot is the two-level cache's hi-res brick.
-                    let inner = origin + UVec3::ONE;
+                    // The inner (n+2)^3 box of the slot is the two-level cache's hi-res brick
+                    // (the slot itself with two classes).
+                    let inner = origin + UVec3::splat(geometry.border() - 1);
                     for t in boundary_texels(n + 2, |t| t == 0 || t == n + 1) {
                         if let Some(v) =
                             fixup_value(&image, layout, bits, bricks, n, brick.as_ivec3(), t)

@@ -30,10 +30,9 @@ pub struct FrameRow {
     pub uploaded_mb: f64,
     /// Megabytes of level changes against the per-frame upload budget.
     pub upload_budget_mb: f64,
-    /// Bricks drawn hi-res.
-    pub resident_hi: usize,
-    /// Bricks drawn low-res.
-    pub resident_lo: usize,
+    /// Bricks drawn at each level, level 0 (full resolution) first: `Hi` and `Lo` of a
+    /// two-level scene, every level of a level source (CSV columns `resident_l0`, ...).
+    pub resident: Vec<usize>,
     /// Bricks drawn absent although the view wants them (not loaded yet, or deferred).
     pub absent_wanted: usize,
     /// Bricks culled (transfer function, iso value, clip planes).
@@ -75,8 +74,7 @@ impl FrameRow {
             row.uploaded_bricks = r.residency.uploaded_bricks;
             row.uploaded_mb = r.residency.uploaded_bytes as f64 / 1e6;
             row.upload_budget_mb = p.upload_budget as f64 / 1e6;
-            row.resident_hi = p.drawn_hi;
-            row.resident_lo = p.drawn_lo;
+            row.resident = vec![p.drawn_hi, p.drawn_lo];
             row.absent_wanted = p.drawn_absent;
             row.culled = p.culled;
             row.dropped = p.dropped;
@@ -93,23 +91,72 @@ impl FrameRow {
         }
         row
     }
+
+    /// Fills the residency of a level source's frame: `levels` the level of every brick drawn
+    /// now (`None`: not drawn), `choice` the last camera choice, `update` the residency change
+    /// staged for this frame (none when the plan did not change), `upload_budget` the per-frame
+    /// upload budget in bytes and `slots` the cache's slots.
+    pub fn set_levels(
+        &mut self,
+        levels: &[Option<u32>],
+        choice: &mixvol::plan::LevelChoice,
+        update: Option<&mixvol::levels::LevelUpdateReport>,
+        upload_budget: u64,
+        slots: u64,
+    ) {
+        let deepest = levels.iter().flatten().max().map_or(0, |&l| l as usize + 1);
+        self.resident = vec![0; deepest];
+        for level in levels.iter().flatten() {
+            self.resident[*level as usize] += 1;
+        }
+        self.dropped = choice.dropped;
+        self.waiting = choice.waiting;
+        self.source_errors = choice.failed_reads;
+        self.upload_budget_mb = upload_budget as f64 / 1e6;
+        self.budget_fill = if slots == 0 {
+            0.0
+        } else {
+            choice.slots as f64 / slots as f64
+        };
+        if let Some(u) = update {
+            self.uploaded_bricks = u.uploaded_bricks;
+            self.uploaded_mb = u.uploaded_bytes as f64 / 1e6;
+            self.plan_ms = u.stage_ms;
+        }
+    }
 }
 
-const CSV_HEADER: &str = "frame,gpu_upload_ms,gpu_fixup_ms,gpu_raycast_ms,cpu_frame_ms,plan_ms,\
-uploaded_bricks,uploaded_mb,upload_budget_mb,resident_hi,resident_lo,absent_wanted,culled,\
-dropped,waiting,deferred,budget_fill,cache_mb,gpu_allocated_mb,worst_error,source_errors";
+/// The CSV columns before the residency per level.
+const CSV_HEAD: &str = "frame,gpu_upload_ms,gpu_fixup_ms,gpu_raycast_ms,cpu_frame_ms,plan_ms,\
+uploaded_bricks,uploaded_mb,upload_budget_mb";
+
+/// The CSV columns after it.
+const CSV_TAIL: &str = "absent_wanted,culled,dropped,waiting,deferred,budget_fill,cache_mb,\
+gpu_allocated_mb,worst_error,source_errors";
 
 fn opt(v: Option<f64>) -> String {
     v.map(|v| format!("{v:.4}")).unwrap_or_default()
 }
 
-/// The rows as CSV text (header first; empty cells where a GPU time was not measured).
+/// The rows as CSV text (header first; empty cells where a GPU time was not measured; one
+/// `resident_lK` column per level any row draws, 0 where a row draws fewer levels).
 pub fn to_csv(rows: &[FrameRow]) -> String {
-    let mut out = String::from(CSV_HEADER);
+    let levels = rows
+        .iter()
+        .map(|r| r.resident.len())
+        .max()
+        .unwrap_or(0)
+        .max(1);
+    let mut out = String::from(CSV_HEAD);
+    for level in 0..levels {
+        out.push_str(&format!(",resident_l{level}"));
+    }
+    out.push(',');
+    out.push_str(CSV_TAIL);
     out.push('\n');
     for r in rows {
         out.push_str(&format!(
-            "{},{},{},{},{:.4},{:.4},{},{:.4},{:.4},{},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.6},{}\n",
+            "{},{},{},{},{:.4},{:.4},{},{:.4},{:.4},",
             r.frame,
             opt(r.gpu_upload_ms),
             opt(r.gpu_fixup_ms),
@@ -119,8 +166,12 @@ pub fn to_csv(rows: &[FrameRow]) -> String {
             r.uploaded_bricks,
             r.uploaded_mb,
             r.upload_budget_mb,
-            r.resident_hi,
-            r.resident_lo,
+        ));
+        for level in 0..levels {
+            out.push_str(&format!("{},", r.resident.get(level).copied().unwrap_or(0)));
+        }
+        out.push_str(&format!(
+            "{},{},{},{},{},{:.4},{:.4},{:.4},{:.6},{}\n",
             r.absent_wanted,
             r.culled,
             r.dropped,
@@ -156,7 +207,7 @@ mod tests {
             FrameRow {
                 frame: 3,
                 gpu_raycast_ms: Some(1.5),
-                resident_hi: 7,
+                resident: vec![7, 2],
                 ..FrameRow::default()
             };
             2
@@ -173,5 +224,9 @@ mod tests {
         assert_eq!(cells[1], "", "an unmeasured GPU time is an empty cell");
         assert_eq!(cells[3], "1.5000");
         assert_eq!(cells[9], "7");
+        assert_eq!(
+            &lines[0].split(',').collect::<Vec<_>>()[9..11],
+            ["resident_l0", "resident_l1"]
+        );
     }
 }

@@ -89,6 +89,15 @@ pub fn three_level_plan(
     }
 }
 
+/// The per-step upload budget of a three-level scene in bytes: `--upload-mb`, else the default
+/// of `ResidencyConfig` ([`set_level_upload_budget`]).
+pub fn level_upload_budget(args: &RenderArgs) -> u64 {
+    match args.residency.upload_mb {
+        Some(mb) => (mb * f64::from(1 << 20)) as u64,
+        None => ResidencyConfig::default().upload_bytes_per_frame,
+    }
+}
+
 /// `--upload-mb` as the per-step upload budget of a three-level scene whose levels come from
 /// the camera (without it, the default of `ResidencyConfig`).
 pub fn set_level_upload_budget(renderer: &mut Renderer, args: &RenderArgs) -> Result<()> {

@@ -682,15 +682,27 @@ fn render_path(
     let mut last = None;
     let mut level_moves = Vec::new();
     for (i, camera) in cameras.iter().enumerate() {
+        let mut choice = None;
+        let mut update = None;
         if scene.camera_levels {
             let before = renderer.brick_levels().map(<[_]>::to_vec);
-            plan_levels(renderer, camera, settings, args)?;
+            choice = Some(plan_levels(renderer, camera, settings, args)?);
             // A view whose plan did not change stages nothing.
             if renderer.brick_levels() != before.as_deref() {
-                level_moves.extend(renderer.last_level_update().cloned());
+                update = renderer.last_level_update().cloned();
+                level_moves.extend(update.clone());
             }
         }
-        let (frame, row) = frame_row(renderer, ctx, i, camera, settings, args)?;
+        let (frame, mut row) = frame_row(renderer, ctx, i, camera, settings, args)?;
+        if let (Some(choice), Some(levels)) = (&choice, renderer.brick_levels()) {
+            row.set_levels(
+                levels,
+                choice,
+                update.as_ref(),
+                crate::level_scene::level_upload_budget(args),
+                renderer.level_slot_count().unwrap_or(0),
+            );
+        }
         frame.save_png(&dir.join(format!("frame_{i:04}.png")), args.background)?;
         rows.push(row);
         last = Some(frame);

@@ -439,8 +439,12 @@ fn an_orbit_writes_every_frame_and_a_per_frame_log() {
             .unwrap();
     assert_eq!(json.as_array().unwrap().len(), 6);
     assert_eq!(
-        json[2]["resident_hi"].as_f64().unwrap(),
-        cell(2, "resident_hi")
+        json[2]["resident"][0].as_f64().unwrap(),
+        cell(2, "resident_l0")
+    );
+    assert_eq!(
+        json[2]["resident"][1].as_f64().unwrap(),
+        cell(2, "resident_l1")
     );
     assert!(text.contains("validation: 0 warnings/errors"), "{text}");
     std::fs::remove_dir_all(&dir).unwrap();
@@ -748,4 +752,89 @@ fn a_damaged_level_store_renders_what_it_can_read_and_names_the_failure() {
         "stopped stepping once nothing could move"
     );
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Issue 36: a level store of two levels and one of seven drawn along an orbit from the camera
+/// (`--levels camera`, the default) write a per-frame CSV with the residency per level
+/// (`resident_l0`, `resident_l1`, ...) and the bytes each view uploaded, which never exceed
+/// `--upload-mb`, for both level counts; the two-level store draws levels 0 and 1 only, the
+/// seven-level one more, and the drawn bricks never exceed the grid's.
+#[test]
+fn level_stores_log_residency_per_level_within_the_upload_cap() {
+    let dir = temp_dir("level_csv");
+    let raw = dir.join("ml.raw");
+    let volume = SyntheticField::MarschnerLobb
+        .generate(glam::UVec3::splat(96), ScalarType::U8)
+        .unwrap();
+    std::fs::write(&raw, volume.data().as_bytes()).unwrap();
+    let upload_mb = 0.05;
+    for (name, levels) in [("two", Some("2")), ("seven", None)] {
+        let store = dir.join(format!("{name}.mvl"));
+        let mut a = vec![
+            "convert",
+            raw.to_str().unwrap(),
+            store.to_str().unwrap(),
+            "--dims",
+            "96,96,96",
+            "--brick-size",
+            "8",
+            "--all-levels",
+        ];
+        if let Some(l) = levels {
+            a.extend_from_slice(&["--level-count", l]);
+        }
+        let (out, text) = run(&a);
+        assert!(out.status.success(), "{text}");
+        let frames = dir.join(format!("{name}-orbit"));
+        let (out, text) = run(&[
+            "render",
+            "--volume",
+            store.to_str().unwrap(),
+            "--cache-mb",
+            "1",
+            "--upload-mb",
+            "0.05",
+            "--width",
+            "48",
+            "--height",
+            "48",
+            "--orbit",
+            "6",
+            "--frames-dir",
+            frames.to_str().unwrap(),
+        ]);
+        assert!(out.status.success(), "{name}: {text}");
+        let csv = std::fs::read_to_string(frames.join("frames.csv")).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(lines.len(), 7, "{name}: {csv}");
+        let header: Vec<&str> = lines[0].split(',').collect();
+        assert!(!header.contains(&"resident_hi"), "{csv}");
+        let level_columns: Vec<usize> = (0..header.len())
+            .filter(|&i| header[i].starts_with("resident_l"))
+            .collect();
+        let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+        let mut uploaded = 0.0;
+        for line in &lines[1..] {
+            let cells: Vec<f64> = line.split(',').map(|c| c.parse().unwrap_or(0.0)).collect();
+            // MB (10^6 bytes) against MiB; the CSV rounds to 4 decimals.
+            let cap = upload_mb * 1.048576 + 1e-4;
+            assert!(
+                cells[col("uploaded_mb")] <= cap,
+                "{name}: over the cap: {csv}"
+            );
+            uploaded += cells[col("uploaded_mb")];
+            let drawn: f64 = level_columns.iter().map(|&i| cells[i]).sum();
+            assert!(
+                drawn > 0.0 && drawn <= 1728.0,
+                "{name}: {drawn} bricks: {csv}"
+            );
+            assert!(cells[col("budget_fill")] <= 1.0 + 1e-9, "{name}: {csv}");
+        }
+        assert!(uploaded > 0.0, "{name}: the views upload: {csv}");
+        match name {
+            "two" => assert_eq!(level_columns.len(), 2, "{csv}"),
+            _ => assert!(level_columns.len() >= 3, "{csv}"),
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -7,7 +7,7 @@
 //!   eight `(n/2+1)^3` level-1 bricks. Its slot and sub-slot extents are read from the library
 //!   ([`hi_res_brick_extent`], [`low_res_brick_extent`], [`SUB_SLOTS_PER_SLOT`]).
 //! - [`Scheme::ThreeLevel`], Beyer et al. §3.1, which `mixvol` builds too
-//!   ([`mixvol::cache::ThreeLevelGeometry`], drawn through `VolumeSource::Levels`): `(n+4)^3`
+//!   ([`mixvol::cache::SlotGeometry`], drawn through `VolumeSource::Levels`): `(n+4)^3`
 //!   slots holding one level-0 brick, eight `(n/2+2)^3` level-1 bricks or sixty-four
 //!   `(n/4+1)^3` level-2 bricks. Its slot and sub-slot extents are read from the library too.
 //! - [`Scheme::Blocks`], the three-level packing with the block levels past 2 that `mixvol`
@@ -23,7 +23,7 @@
 
 use mixvol::bricks::{hi_res_brick_extent, low_res_brick_extent, SUB_SLOTS_PER_SLOT};
 use mixvol::cache::block_bricks;
-use mixvol::cache::{ThreeLevelGeometry, THREE_LEVELS};
+use mixvol::cache::{SlotGeometry, THREE_LEVELS};
 
 /// Levels of [`Scheme::Blocks`] in the report (0-5: blocks of up to 8^3 bricks).
 pub const BLOCK_LEVELS: u32 = 6;
@@ -78,12 +78,7 @@ impl Scheme {
                     THREE_LEVELS
                 };
                 (0..levels)
-                    .map(|k| {
-                        (
-                            geometry.sub_slot_edge(k),
-                            ThreeLevelGeometry::bricks_per_slot(k),
-                        )
-                    })
+                    .map(|k| (geometry.sub_slot_edge(k), SlotGeometry::bricks_per_slot(k)))
                     .collect()
             }
         }
@@ -103,9 +98,9 @@ impl Scheme {
 
 /// The library's three-level geometry for bricks of `n` voxels (one slot; only its slot and
 /// sub-slot extents are read). `n` is a power of two of at least 4, as everywhere here.
-fn three_level(n: u32) -> ThreeLevelGeometry {
+fn three_level(n: u32) -> SlotGeometry {
     let edge = (n + 4).next_power_of_two();
-    ThreeLevelGeometry::new(n, glam::UVec3::splat(edge))
+    SlotGeometry::new(n, 3, glam::UVec3::splat(edge))
         .expect("a power-of-two brick size of at least 4 has a three-level slot")
 }
 

@@ -4,7 +4,7 @@
 
 use glam::Vec4;
 use mixvol::bricks::{BrickGrid, DownsampleFilter};
-use mixvol::cache::{BrickCache, ThreeLevelGeometry};
+use mixvol::cache::{BrickCache, SlotGeometry};
 use mixvol::optics::TransferFunction;
 use mixvol::pyramid::LevelGrid;
 use mixvol::reference::{self, slots_needed, LevelField, LevelReferenceCache, ReferenceCache};
@@ -75,8 +75,11 @@ pub fn reference_frame(
             // The three-level cache's CPU mirror; the slots' places do not change the field.
             let field = LevelField::new(&grid, grids, levels)?;
             let slots = u32::try_from(slots_needed(&field)).unwrap_or(u32::MAX);
-            let geometry = ThreeLevelGeometry::choose(grid.brick_size(), 4, u64::MAX, 16384, slots)
-                .map_err(Error::from)?;
+            // The slot classes the pass's cache has for this many levels.
+            let classes = mixvol::cache::classes_for_levels(grids.len() as u32);
+            let geometry =
+                SlotGeometry::choose(grid.brick_size(), classes, 4, u64::MAX, 16384, slots)
+                    .map_err(Error::from)?;
             let cache =
                 LevelReferenceCache::build_stored_as(&field, &geometry, transition, scalar)?;
             reference::render_mixed_scene(&cache.view(), transition, tf, settings, params)

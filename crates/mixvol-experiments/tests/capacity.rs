@@ -1,7 +1,7 @@
 //! The capacity report's figures: the slot packings hold their bricks exactly, the slot search
 //! finds what the library's cache layout finds, and the capacities follow.
 
-use mixvol::cache::{CacheGeometry, ThreeLevelGeometry};
+use mixvol::cache::{CacheGeometry, SlotGeometry};
 use mixvol_experiments::capacity::{capacity, level_costs, most_slots, Scheme};
 
 #[test]
@@ -35,7 +35,7 @@ fn every_level_fills_its_slot_exactly() {
 
 #[test]
 fn the_slot_search_finds_as_many_slots_as_the_cache_layout() {
-    // `CacheGeometry::choose` and `ThreeLevelGeometry::choose` asked for more slots than fit
+    // `CacheGeometry::choose` and `SlotGeometry::choose` asked for more slots than fit
     // return the extent with the most slots: the same count (and texels) as `most_slots` for
     // their slot edges.
     for n in [8, 16, 32, 64] {
@@ -49,15 +49,13 @@ fn the_slot_search_finds_as_many_slots_as_the_cache_layout() {
             for bytes_per_texel in [1, 2] {
                 let two = CacheGeometry::choose(n, bytes_per_texel, budget, max_dim, u32::MAX)
                     .map(|g| (u64::from(g.slot_count()), g.texel_count()));
-                let three =
-                    ThreeLevelGeometry::choose(n, bytes_per_texel, budget, max_dim, u32::MAX).map(
-                        |g| {
-                            (
-                                u64::from(g.slot_count()),
-                                g.extent().as_u64vec3().element_product(),
-                            )
-                        },
-                    );
+                let three = SlotGeometry::choose(n, 3, bytes_per_texel, budget, max_dim, u32::MAX)
+                    .map(|g| {
+                        (
+                            u64::from(g.slot_count()),
+                            g.extent().as_u64vec3().element_product(),
+                        )
+                    });
                 for (scheme, geometry) in [(Scheme::TwoLevel, two), (Scheme::ThreeLevel, three)] {
                     let found = most_slots(scheme.slot_edge(n), bytes_per_texel, budget, max_dim);
                     match (geometry, found) {

@@ -11,7 +11,7 @@ use crate::volume::ScalarType;
 use glam::{UVec3, Vec3};
 
 /// A supplier of the stored bricks of a volume's every level, as the three-level cache
-/// uploads them (`crate::cache::three_level`: level 0 `(n+4)^3` with two border voxels, levels
+/// uploads them (`crate::cache::slot_geometry`: level 0 `(n+4)^3` with two border voxels, levels
 /// 1-2 `(n/2^k+1)^3` vertex samples, one `(n/4+1)^3` brick per block past level 2). Reads may
 /// block (disk, network): the streamer calls [`LevelBackend::read_stored_bytes`] on its loader
 /// thread, the render thread only for what is not in RAM.

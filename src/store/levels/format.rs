@@ -9,7 +9,7 @@
 //! [data_offset, file_size)         the stored bricks' texels
 //! ```
 //!
-//! A stored brick is what the three-level cache uploads for it (`crate::cache::three_level`):
+//! A stored brick is what the three-level cache uploads for it (`crate::cache::slot_geometry`):
 //! `stored_brick_edge(n, k)^3` texels of level `k` from `stored_first_sample`, clamped to the
 //! level's grid, in the store's scalar type (`u8` / `u16` UNORM or `f32`), x fastest. Levels 0-2
 //! store one brick per brick; a block level `k > 2` one per aligned block of

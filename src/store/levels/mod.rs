@@ -2,7 +2,7 @@
 //! checked file (issue 19, item 4). Where the two-level store ([`super::BrickStore`]) holds a
 //! hi-res and a low-res brick per brick, a level store holds, per level `k`, one stored brick
 //! per brick up to level 2 and one per aligned block of `block_bricks(k)^3` bricks past it
-//! (`crate::cache::three_level`), so a volume is drawn at any mix of levels without the
+//! (`crate::cache::slot_geometry`), so a volume is drawn at any mix of levels without the
 //! volume in RAM: `renderer::VolumeSource::LevelStore` packs each drawn brick straight
 //! from the file.
 //!

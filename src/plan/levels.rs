@@ -436,12 +436,11 @@ impl LevelChooser {
         self.active.extend_from_slice(active);
         self.boxes_for = Some((bricks, levels));
         self.boxes.clear();
-        let mut below: Option<(UVec3, Vec<BrickBox>)> = None;
         for k in 3..levels {
             let blocks = (bricks + UVec3::splat(block_bricks(k) - 1)) / block_bricks(k);
             let mut boxes = vec![BrickBox::EMPTY; blocks.element_product() as usize];
             let at = |c: UVec3| (c.x + blocks.x * (c.y + blocks.y * c.z)) as usize;
-            match &below {
+            match self.boxes.last() {
                 None => {
                     for z in 0..bricks.z {
                         for y in 0..bricks.y {
@@ -467,8 +466,7 @@ impl LevelChooser {
                     }
                 }
             }
-            self.boxes.push((blocks, boxes.clone()));
-            below = Some((blocks, boxes));
+            self.boxes.push((blocks, boxes));
         }
     }
 
@@ -494,6 +492,16 @@ impl LevelChooser {
     fn drawn(&self, input: &Inputs<'_>, level: u32, origin: UVec3) -> bool {
         !self.dropped[self.root_index(input, origin)]
             && !self.node_box(input, level, origin).is_empty()
+    }
+
+    /// The first brick of root `r` (linear index over the roots, x fastest).
+    fn root_origin(input: &Inputs<'_>, r: usize) -> UVec3 {
+        let (r, roots) = (r as u32, input.roots);
+        UVec3::new(
+            r % roots.x,
+            (r / roots.x) % roots.y,
+            r / (roots.x * roots.y),
+        ) << input.root_shift
     }
 
     /// The linear index of the root holding `brick`.
@@ -552,28 +560,20 @@ impl LevelChooser {
         let root = input.root;
         let bricks = input.bricks;
         let count = bricks.element_product() as usize;
-        let root_block = block_bricks(root);
-        let roots = (bricks + UVec3::splat(root_block - 1)) / root_block;
         self.dropped.clear();
-        self.dropped.resize(roots.element_product() as usize, false);
+        self.dropped
+            .resize(input.roots.element_product() as usize, false);
         self.level.clear();
         self.level.resize(count, root as u8);
         self.queue.clear();
         let mut per_class = [0u64; 3];
-        let root_origin = |r: usize| {
-            let r = r as u32;
-            UVec3::new(
-                r % roots.x,
-                (r / roots.x) % roots.y,
-                r / (roots.x * roots.y),
-            ) * root_block
-        };
         for r in 0..self.dropped.len() {
-            per_class[class(root)] += u64::from(self.drawn(input, root, root_origin(r)));
+            let origin = Self::root_origin(input, r);
+            per_class[class(root)] += u64::from(self.drawn(input, root, origin));
         }
         let dropped = self.drop_to_fit(input, slots, &mut per_class);
         for r in 0..self.dropped.len() {
-            let origin = root_origin(r);
+            let origin = Self::root_origin(input, r);
             let headroom = self.headroom(input, root, origin);
             self.push(input, root, origin, headroom);
         }
@@ -612,16 +612,10 @@ impl LevelChooser {
         }
         let block = block_bricks(root);
         let bricks = input.bricks;
-        let roots = (bricks + UVec3::splat(block - 1)) / block;
         let eye = input.view.eye();
         self.drop_order.clear();
-        for r in 0..self.dropped.len() as u32 {
-            let k = UVec3::new(
-                r % roots.x,
-                (r / roots.x) % roots.y,
-                r / (roots.x * roots.y),
-            );
-            let first = k * block;
+        for r in 0..self.dropped.len() {
+            let first = Self::root_origin(input, r);
             let end = (first + UVec3::splat(block)).min(bricks);
             if !self.drawn(input, root, first) {
                 continue; // dropping it frees nothing
@@ -634,7 +628,7 @@ impl LevelChooser {
                 let (min, max) = input.geometry.brick_box(b);
                 input.active[linear(bricks, b)] && !input.view.box_outside_frustum(min, max)
             });
-            self.drop_order.push((in_view, distance, r));
+            self.drop_order.push((in_view, distance, r as u32));
         }
         // Least important first: out of view, then the farthest, then the first in z, y, x.
         self.drop_order
@@ -645,11 +639,7 @@ impl LevelChooser {
                 break;
             }
             let r = self.drop_order[i].2 as usize;
-            let first = UVec3::new(
-                r as u32 % roots.x,
-                (r as u32 / roots.x) % roots.y,
-                r as u32 / (roots.x * roots.y),
-            ) * block;
+            let first = Self::root_origin(input, r);
             let end = (first + UVec3::splat(block)).min(bricks);
             dropped += bricks_in(first, end)
                 .filter(|&b| input.active[linear(bricks, b)])
@@ -706,14 +696,10 @@ impl LevelChooser {
         }
         self.fill(origin, size, bricks, finer);
         if level >= 3 {
-            let half = size / 2;
-            for c in 0..8u32 {
-                let child = origin + UVec3::new(c & 1, (c >> 1) & 1, c >> 2) * half;
-                if child.cmplt(bricks).all() {
-                    per_class[class(finer)] += u64::from(self.drawn(input, finer, child));
-                    let headroom = self.headroom(input, finer, child);
-                    self.push(input, finer, child, headroom);
-                }
+            for child in children(origin, size, bricks) {
+                per_class[class(finer)] += u64::from(self.drawn(input, finer, child));
+                let headroom = self.headroom(input, finer, child);
+                self.push(input, finer, child, headroom);
             }
         } else {
             // A brick refined in place: the same box, so the same headroom.
@@ -739,12 +725,8 @@ impl LevelChooser {
         let size = block_bricks(level);
         let finer = level - 1;
         if level >= 3 {
-            let half = size / 2;
-            for c in 0..8u32 {
-                let child = origin + UVec3::new(c & 1, (c >> 1) & 1, c >> 2) * half;
-                if child.cmplt(bricks).all() {
-                    per_class[class(finer)] -= u64::from(self.drawn(input, finer, child));
-                }
+            for child in children(origin, size, bricks) {
+                per_class[class(finer)] -= u64::from(self.drawn(input, finer, child));
             }
         } else {
             per_class[class(finer)] -= u64::from(self.drawn(input, finer, origin));
@@ -783,13 +765,9 @@ impl LevelChooser {
                     let b = UVec3::new(x, y, z);
                     let i = linear(bricks, b);
                     let level = u32::from(self.level[i]);
-                    // A brick is drawn when active, or inside a drawn block.
-                    let drawn = if level <= 2 {
-                        input.active[i] && !self.dropped[self.root_index(input, b)]
-                    } else {
-                        self.drawn(input, level, b)
-                    };
-                    levels.push(drawn.then_some(level));
+                    // A brick is drawn when active, or inside a drawn block (the node of a
+                    // block level holds it whole).
+                    levels.push(self.drawn(input, level, b).then_some(level));
                 }
             }
         }
@@ -817,6 +795,14 @@ fn probe(origin: UVec3, size: u32, d: UVec3, bricks: UVec3) -> Option<UVec3> {
         axis(origin.y, d.y, bricks.y)?,
         axis(origin.z, d.z, bricks.z)?,
     ))
+}
+
+/// The first bricks of the (up to) 8 blocks of half the size in the block at `origin` of
+/// `size` bricks per axis, inside a grid of `bricks` per axis.
+fn children(origin: UVec3, size: u32, bricks: UVec3) -> impl Iterator<Item = UVec3> {
+    (0..8u32)
+        .map(move |c| origin + UVec3::new(c & 1, (c >> 1) & 1, c >> 2) * (size / 2))
+        .filter(move |child| child.cmplt(bricks).all())
 }
 
 /// The linear index of `b` in a grid of `size` per axis (x fastest).

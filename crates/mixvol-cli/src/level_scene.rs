@@ -108,7 +108,7 @@ pub fn set_level_upload_budget(renderer: &mut Renderer, args: &RenderArgs) -> Re
             )));
         }
         renderer.set_residency_config(ResidencyConfig {
-            upload_bytes_per_frame: (mb * f64::from(1 << 20)) as u64,
+            upload_bytes_per_frame: level_upload_budget(args),
             ..ResidencyConfig::default()
         });
     }

@@ -5,36 +5,43 @@
 //! [`block_bricks`]`(k)` bricks per axis (one stored brick), split into the (up to) 8 blocks of
 //! level `k - 1` it holds; a node of level 2, 1 or 0 is one brick, refined in place to the next
 //! finer level. A plan is a cut through the tree: every brick at the level of the node that
-//! holds it. [`LevelChooser::choose`] builds it greedily:
+//! holds it. [`LevelChooser::choose`] builds it in a few passes over the bricks:
 //!
 //! 0. **A cache too small** for the coarsest plan (every brick at the coarsest level) drops
 //!    whole blocks of the coarsest level, the least important first (no active brick in view,
 //!    then the farthest), until that plan fits; the dropped bricks are never drawn
 //!    ([`LevelChoice::dropped`] counts them). Never an error.
-//! 1. **Priority** of a node of level `k`: `k - log2(target / p0)`, with `p0` the projected size
-//!    of a hi-res voxel at the nearest point of the bounding box of the node's active bricks
-//!    (those the transfer function does not cull): by how many levels its voxels are too
-//!    large on screen. A node with no active brick, or whose active box lies outside the
-//!    frustum, has none: it is refined only when the rule forces it. The priority of a node is
-//!    larger than that of every node below it (a child's box is inside its parent's, one level
-//!    finer).
-//! 2. **Refinement, neediest first**: the node of largest positive priority is split (a block)
-//!    or refined (a brick), repeatedly. **The rule** (a brick at most one level coarser than any
-//!    of its 26 neighbours) holds throughout: before a node goes to level `k - 1`, every
-//!    neighbouring node of level `k + 1` is split or refined first (recursively). Blocks are
-//!    whole by construction.
-//! 3. **The budget**: the first refinement (with what the rule forced) that takes more slots
-//!    than the cache has ([`crate::cache::slots_for_classes`]: 1 level-0, 8 level-1 or 64
-//!    coarser stored bricks a slot) is undone and the choice stops there. A larger cache runs
-//!    the same sequence further, so it never coarsens a brick; the plan meets the priority of
-//!    the refinement it stopped at ([`LevelChoice::pixels_per_voxel`]).
+//! 1. **Priority** of refining a node of level `k`: `k - headroom`, the headroom being log2 of
+//!    the target over the projected size of a hi-res voxel at the nearest point of the node's
+//!    nearest active brick in view: by how many levels its voxels are too large on screen. A
+//!    node with no active brick in view has none: it is refined only when the rule forces it.
+//!    A node's priority is capped by its parent's (a node is reached only once its parent is
+//!    split), so the refinements wanted at a priority above any threshold form a cut.
+//! 2. **The threshold**: the priorities fall in buckets of 1/64 level; each refinement adds its
+//!    slot classes' counts to its bucket. Scanning the buckets from the neediest, the first
+//!    whose refinements would take more slots than the cache has
+//!    ([`crate::cache::slots_for_classes`]: 1 level-0, 8 level-1 or 64 coarser stored bricks a
+//!    slot) is the threshold: every refinement in a bucket above it is made, none below it,
+//!    and inside it those that fit, neediest first (then the coarser node, then the first in
+//!    z, y, x), up to the first that does not (a bucket of equal priorities, as an
+//!    orthographic view gives, is split somewhere). A larger cache puts the threshold lower,
+//!    so it never coarsens a brick; the plan meets the priority at the threshold's upper edge
+//!    ([`LevelChoice::pixels_per_voxel`]).
+//! 3. **The rule** (a brick at most one level coarser than any of its 26 neighbours): a node
+//!    coarser than that is refined (a block split, recursively, down to the level its finest
+//!    neighbour allows), until no brick breaks it; blocks stay whole. When what the rule added
+//!    does not fit, fewer of the threshold bucket's refinements are made (leaving room for what
+//!    the rule added, a few tries), then none, then the threshold moves up to the next bucket
+//!    that holds a refinement and steps 2-3 run again: the coarsest plan breaks no rule, so
+//!    this ends.
 //! 4. **Culled bricks** are not drawn, unless a drawn block covers them (its stored brick holds
 //!    them anyway; drawing them costs nothing), and take no slot.
 //!
-//! The work is the size of the cut, not of the grid: the nodes refined, each with 26 neighbour
-//! probes and a queue push (priorities in buckets of 1/64 level), plus one pass writing the plan. The chooser keeps its buffers
-//! between calls (no allocation in steady state), and a call with the inputs of the last one
-//! (a still camera) returns its plan without choosing again.
+//! The work is a few passes over the bricks (their headrooms from per-axis terms, the block
+//! minima, the buckets, the cut, a 3x3x3 minimum filter per pass of the rule) and over the
+//! blocks, with no queue and no allocation once the chooser's buffers have grown to the grid;
+//! a call with the inputs of the last one (a still camera) returns its plan without choosing
+//! again.
 //!
 //! Hysteresis ([`LevelChooser::choose`]'s `previous` and `margin`): a node that the last plan
 //! refined stays refined until its priority falls `margin` levels below zero, and a node the
@@ -46,7 +53,7 @@
 //! a streamed source, onto the stored bricks its [`crate::store::LevelStreamer`] holds in RAM.
 
 use crate::cache::{block_bricks, slots_for_classes};
-use crate::lod::{BrickGeometry, LodView};
+use crate::lod::{BrickGeometry, LodView, ViewProjection};
 use glam::{UVec3, Vec3};
 
 /// Why [`choose_levels`] cannot choose.
@@ -173,25 +180,50 @@ pub fn choose_levels_near(
 pub struct LevelChooser {
     /// The inputs of the last choice, and whether it succeeded (a still camera reuses it).
     last: Option<LastInputs>,
-    /// The activity the boxes below were built from.
+    /// The activity the tree below was built from.
     active: Vec<bool>,
-    /// The grid (bricks per axis) and level count the boxes were built for.
-    boxes_for: Option<(UVec3, u32)>,
-    /// Per block level `k >= 3` (index `k - 3`): the blocks per axis and each block's box of
-    /// active bricks, in bricks.
-    boxes: Vec<(UVec3, Vec<BrickBox>)>,
+    /// The grid (bricks per axis) and level count the tree was built for.
+    tree_for: Option<(UVec3, u32)>,
+    /// Per block level `k >= 3` (index `k - 3`): the nodes per axis and, per node, how many of
+    /// its children (bricks for level 3) hold an active brick (0: the node is never drawn).
+    tree: Vec<(UVec3, Vec<u8>)>,
     /// The `previous` of the last choice (compared for reuse).
     previous: Vec<Option<u32>>,
     /// Per root (block of the coarsest level, x fastest): dropped to fit (step 0).
     dropped: Vec<bool>,
     /// The roots in the order they are dropped (reused buffer).
     drop_order: Vec<(bool, f32, u32)>,
+    /// Per axis: the brick slabs' terms (step 1).
+    axes: [AxisTerms; 3],
+    /// Per brick: its headroom (step 1), infinite for a brick not drawn or not in view.
+    headroom: Vec<f32>,
+    /// Per brick: the bucket of refining it from level 1 and from level 2 (index level - 1),
+    /// [`NO_BUCKET`] for none.
+    brick_buckets: Vec<[i16; 2]>,
+    /// Per block level (index `k - 3`), per node: its priority (capped by its parent's).
+    node_priority: Vec<Vec<f32>>,
+    /// Per block level, per node: the bucket of splitting it, [`NO_BUCKET`] for none.
+    node_bucket: Vec<Vec<i16>>,
+    /// Per block level, per node: the level of the leaf of the cut holding it, or [`SPLIT`].
+    cover: Vec<Vec<u8>>,
+    /// Per bucket: the change of the slot classes' counts its refinements make, and how many
+    /// ([`MAX_BUCKETS`] of them once sized).
+    buckets: Vec<([i64; 3], u32)>,
+    /// No bucket above this one holds a refinement.
+    top_bucket: usize,
+    /// The largest priority bucketed (the top bucket has no upper edge).
+    largest: f32,
     /// The level of the node holding every brick (the cut being built).
     level: Vec<u8>,
-    /// Nodes to refine, neediest first.
-    queue: BucketQueue,
-    /// The nodes the refinement being tried split, in order (undone when it does not fit).
-    undo: Vec<(u32, UVec3)>,
+    /// The refinements of the threshold bucket: priority, level, index (brick, or node of its
+    /// level).
+    in_bucket: Vec<(f32, u8, u32)>,
+    /// The slot classes' counts after each prefix of `in_bucket` that fits.
+    prefix_counts: Vec<[u64; 3]>,
+    /// Scratch for the 3x3x3 minimum filter of the rule.
+    filtered: [Vec<u8>; 2],
+    /// Bricks whose level the rule lowered, their neighbours still to check.
+    lowered: Vec<u32>,
     /// The last choice.
     choice: LevelChoice,
 }
@@ -210,105 +242,81 @@ struct LastInputs {
     margin: f32,
 }
 
-/// The active bricks of a block, as an inclusive box of brick coordinates (`min > max` for
-/// none).
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct BrickBox {
-    min: UVec3,
-    max: UVec3,
+/// The brick slabs' terms along one axis (step 1), one entry per slab.
+#[derive(Clone, Debug, Default)]
+struct AxisTerms {
+    /// Per frustum plane: the normal's component times the slab's bound on the side it points
+    /// to (the box's positive vertex, as [`crate::scene::ClipPlane::box_clipped`] takes it).
+    corner: [Vec<f32>; 6],
+    /// The squared distance from the eye to the slab along the axis (0 inside it).
+    distance2: Vec<f32>,
 }
 
-impl BrickBox {
-    const EMPTY: Self = Self {
-        min: UVec3::splat(u32::MAX),
-        max: UVec3::ZERO,
-    };
-
-    fn is_empty(&self) -> bool {
-        self.min.x > self.max.x
-    }
-
-    fn add(&mut self, other: &BrickBox) {
-        self.min = self.min.min(other.min);
-        self.max = self.max.max(other.max);
-    }
-}
-
-/// A node waiting to be refined.
+/// A brick's headroom from its squared distance `d2` to the eye: `constant +
+/// half_log_distance * log2(max(d2, voxel2))`.
 #[derive(Clone, Copy, Debug)]
-struct Candidate {
-    priority: f32,
-    /// The node's headroom (a brick refined in place keeps it).
-    headroom: f32,
-    level: u32,
-    origin: UVec3,
+struct HeadroomTerms {
+    constant: f32,
+    /// 0.5 for a perspective view, 0 for an orthographic one.
+    half_log_distance: f32,
+    voxel2: f32,
 }
 
-/// Buckets of priority per level: the queue orders nodes to 1/64 of a level (within a bucket,
-/// the last queued first), which keeps a push and a pop O(1).
+/// Step 1 for one row of bricks along x (`out`, one per brick): the headroom of each brick
+/// in the frustum, infinite for one outside. `yz` holds the row's y and z terms of the planes,
+/// `distance2` its squared distances along y and z. Straight-line arithmetic per brick, so
+/// that it runs on vector lanes.
+fn headroom_row(
+    x: &AxisTerms,
+    yz: [[f32; 6]; 2],
+    offsets: [f32; 6],
+    distance2: [f32; 2],
+    terms: HeadroomTerms,
+    out: &mut [f32],
+) {
+    let n = out.len();
+    let corner: [&[f32]; 6] = std::array::from_fn(|p| &x.corner[p][..n]);
+    let dx2 = &x.distance2[..n];
+    for (i, out) in out.iter_mut().enumerate() {
+        let mut inside = f32::INFINITY;
+        for p in 0..6 {
+            inside = inside.min(corner[p][i] + yz[0][p] + yz[1][p] + offsets[p]);
+        }
+        let d2 = (dx2[i] + distance2[0] + distance2[1]).max(terms.voxel2);
+        let h = terms.constant + terms.half_log_distance * fast_log2(d2);
+        *out = if inside >= 0.0 { h } else { f32::INFINITY };
+    }
+}
+
+/// Buckets of priority per level: the threshold falls on a multiple of 1/64 level.
 const BUCKETS_PER_LEVEL: f32 = 64.0;
 
 /// The most buckets: priorities past 64 levels share the top one.
 const MAX_BUCKETS: usize = 64 * 64;
 
-/// Nodes to refine, in buckets of [`BUCKETS_PER_LEVEL`] per level of priority, the largest
-/// first. The buckets keep their capacity between choices.
-#[derive(Debug, Default)]
-struct BucketQueue {
-    buckets: Vec<Vec<Candidate>>,
-    /// No bucket above this one holds a node.
-    top: usize,
-    len: usize,
-    /// The largest priority queued since the last clear (the top bucket has no upper edge).
-    largest: f32,
+/// The bucket of a refinement that is never made by its own priority.
+const NO_BUCKET: i16 = -1;
+
+/// A node of the cut that is split: its children carry the level.
+const SPLIT: u8 = u8::MAX;
+
+/// The bucket of `priority`, [`NO_BUCKET`] unless it is positive.
+fn bucket(priority: f32) -> i16 {
+    if priority > 0.0 {
+        (priority * BUCKETS_PER_LEVEL).min((MAX_BUCKETS - 1) as f32) as i16
+    } else {
+        NO_BUCKET
+    }
 }
 
-impl BucketQueue {
-    fn clear(&mut self) {
-        let used = (self.top + 1).min(self.buckets.len());
-        for bucket in &mut self.buckets[..used] {
-            bucket.clear();
-        }
-        self.top = 0;
-        self.len = 0;
-        self.largest = 0.0;
-    }
-
-    /// The bucket of a positive priority.
-    fn bucket(priority: f32) -> usize {
-        ((priority * BUCKETS_PER_LEVEL) as usize).min(MAX_BUCKETS - 1)
-    }
-
-    fn push(&mut self, candidate: Candidate) {
-        let b = Self::bucket(candidate.priority);
-        if self.buckets.len() <= b {
-            self.buckets.resize_with(b + 1, Vec::new);
-        }
-        self.buckets[b].push(candidate);
-        self.top = self.top.max(b);
-        self.len += 1;
-        self.largest = self.largest.max(candidate.priority);
-    }
-
-    fn pop(&mut self) -> Option<Candidate> {
-        if self.len == 0 {
-            return None;
-        }
-        loop {
-            if let Some(c) = self.buckets[self.top].pop() {
-                self.len -= 1;
-                return Some(c);
-            }
-            self.top -= 1;
-        }
-    }
-
-    /// The largest priority a queued node in the bucket of `priority` may have.
-    fn bucket_top(&self, priority: f32) -> f32 {
-        match Self::bucket(priority) {
-            b if b == MAX_BUCKETS - 1 => self.largest,
-            b => (b + 1) as f32 / BUCKETS_PER_LEVEL,
-        }
+/// The threshold of refining a node of `level` that the last plan drew at `last`, with
+/// hysteresis `margin` ([`Inputs::threshold`]).
+fn threshold(level: u32, last: Option<u32>, margin: f32) -> f32 {
+    let k = level as f32;
+    match last {
+        Some(p) if p < level => k + margin,
+        Some(p) if p == level => k - margin,
+        _ => k,
     }
 }
 
@@ -331,6 +339,34 @@ struct Inputs<'a> {
     voxel: f32,
     target_pixels: f32,
     margin: f32,
+}
+
+impl Inputs<'_> {
+    /// The threshold of refining a node of `level` whose first brick is `origin` (linear): its
+    /// level, moved by the hysteresis margin (refined in the last plan: kept refined past the
+    /// boundary; drawn whole: refined only past it).
+    fn threshold(&self, level: u32, origin: usize) -> f32 {
+        threshold(
+            level,
+            self.previous.get(origin).copied().flatten(),
+            self.margin,
+        )
+    }
+
+    /// The linear index of the root holding `brick`.
+    fn root_index(&self, brick: UVec3) -> usize {
+        linear(self.roots, brick >> self.root_shift)
+    }
+
+    /// The first brick of root `r` (linear index over the roots, x fastest).
+    fn root_origin(&self, r: usize) -> UVec3 {
+        let (r, roots) = (r as u32, self.roots);
+        UVec3::new(
+            r % roots.x,
+            (r / roots.x) % roots.y,
+            r / (roots.x * roots.y),
+        ) << self.root_shift
+    }
 }
 
 impl LevelChooser {
@@ -407,8 +443,8 @@ impl LevelChooser {
             return Ok(&self.choice);
         }
         self.last = None;
-        if self.boxes_for != Some((bricks, levels)) || self.active != active {
-            self.build_boxes(bricks, levels, active);
+        if self.tree_for != Some((bricks, levels)) || self.active != active {
+            self.build_tree(bricks, levels, active);
         }
         self.previous.clear();
         self.previous.extend_from_slice(previous);
@@ -430,176 +466,238 @@ impl LevelChooser {
         Ok(&self.choice)
     }
 
-    /// Rebuilds the boxes of active bricks of every block level for `active`.
-    fn build_boxes(&mut self, bricks: UVec3, levels: u32, active: &[bool]) {
+    /// Rebuilds the tree's counts of children holding an active brick, and sizes the per-node
+    /// buffers, for `active`.
+    fn build_tree(&mut self, bricks: UVec3, levels: u32, active: &[bool]) {
         self.active.clear();
         self.active.extend_from_slice(active);
-        self.boxes_for = Some((bricks, levels));
-        self.boxes.clear();
-        for k in 3..levels {
-            let blocks = (bricks + UVec3::splat(block_bricks(k) - 1)) / block_bricks(k);
-            let mut boxes = vec![BrickBox::EMPTY; blocks.element_product() as usize];
-            let at = |c: UVec3| (c.x + blocks.x * (c.y + blocks.y * c.z)) as usize;
-            match self.boxes.last() {
+        self.tree_for = Some((bricks, levels));
+        let block_levels = levels.saturating_sub(3) as usize;
+        self.tree.resize_with(block_levels, Default::default);
+        self.node_priority.resize_with(block_levels, Vec::new);
+        self.node_bucket.resize_with(block_levels, Vec::new);
+        self.cover.resize_with(block_levels, Vec::new);
+        for i in 0..block_levels {
+            let k = i as u32 + 3;
+            let nodes = (bricks + UVec3::splat(block_bricks(k) - 1)) / block_bricks(k);
+            let size = nodes.element_product() as usize;
+            let (finer, rest) = self.tree.split_at_mut(i);
+            let (counts_per_axis, counts) = &mut rest[0];
+            *counts_per_axis = nodes;
+            counts.clear();
+            counts.resize(size, 0);
+            match finer.last() {
                 None => {
-                    for z in 0..bricks.z {
-                        for y in 0..bricks.y {
-                            for x in 0..bricks.x {
-                                let b = UVec3::new(x, y, z);
-                                if active[(x + bricks.x * (y + bricks.y * z)) as usize] {
-                                    boxes[at(b / 2)].add(&BrickBox { min: b, max: b });
-                                }
-                            }
-                        }
-                    }
+                    for_each_cell(bricks, |b, i| {
+                        counts[linear(nodes, b >> 1)] += u8::from(active[i]);
+                    });
                 }
-                Some((counts, finer)) => {
-                    for z in 0..counts.z {
-                        for y in 0..counts.y {
-                            for x in 0..counts.x {
-                                let f = &finer[(x + counts.x * (y + counts.y * z)) as usize];
-                                if !f.is_empty() {
-                                    boxes[at(UVec3::new(x, y, z) / 2)].add(f);
-                                }
-                            }
-                        }
-                    }
+                Some((finer_nodes, finer_counts)) => {
+                    for_each_cell(*finer_nodes, |c, i| {
+                        counts[linear(nodes, c >> 1)] += u8::from(finer_counts[i] > 0);
+                    });
                 }
             }
-            self.boxes.push((blocks, boxes));
+            self.node_priority[i].resize(size, 0.0);
+            self.node_bucket[i].resize(size, NO_BUCKET);
+            self.cover[i].resize(size, SPLIT);
         }
     }
 
-    /// The box of active bricks of node `(level, origin)`.
-    fn node_box(&self, input: &Inputs<'_>, level: u32, origin: UVec3) -> BrickBox {
+    /// Whether node `(level, origin)` holds an active brick (its root not dropped aside).
+    fn holds_active(&self, input: &Inputs<'_>, level: u32, origin: UVec3) -> bool {
         if level <= 2 {
-            let i = linear(input.bricks, origin);
-            return if input.active[i] {
-                BrickBox {
-                    min: origin,
-                    max: origin,
-                }
-            } else {
-                BrickBox::EMPTY
-            };
+            return input.active[linear(input.bricks, origin)];
         }
-        let (blocks, boxes) = &self.boxes[(level - 3) as usize];
-        boxes[linear(*blocks, origin >> (level - 2))]
+        let (nodes, counts) = &self.tree[(level - 3) as usize];
+        counts[linear(*nodes, origin >> (level - 2))] > 0
     }
 
     /// Whether node `(level, origin)` is drawn: it holds an active brick, and its root is not
     /// dropped.
     fn drawn(&self, input: &Inputs<'_>, level: u32, origin: UVec3) -> bool {
-        !self.dropped[self.root_index(input, origin)]
-            && !self.node_box(input, level, origin).is_empty()
-    }
-
-    /// The first brick of root `r` (linear index over the roots, x fastest).
-    fn root_origin(input: &Inputs<'_>, r: usize) -> UVec3 {
-        let (r, roots) = (r as u32, input.roots);
-        UVec3::new(
-            r % roots.x,
-            (r / roots.x) % roots.y,
-            r / (roots.x * roots.y),
-        ) << input.root_shift
-    }
-
-    /// The linear index of the root holding `brick`.
-    fn root_index(&self, input: &Inputs<'_>, brick: UVec3) -> usize {
-        linear(input.roots, brick >> input.root_shift)
-    }
-
-    /// The headroom of node `(level, origin)`: log2 of the target over the projected size of a
-    /// hi-res voxel at the nearest point of its active box (module docs, step 1); `None` for a
-    /// node with no active brick in view or a dropped root.
-    fn headroom(&self, input: &Inputs<'_>, level: u32, origin: UVec3) -> Option<f32> {
-        if self.dropped[self.root_index(input, origin)] {
-            return None;
-        }
-        let active = self.node_box(input, level, origin);
-        if active.is_empty() {
-            return None;
-        }
-        let (min, _) = input.geometry.brick_box(active.min);
-        let (_, max) = input.geometry.brick_box(active.max);
-        if input.view.box_outside_frustum(min, max) {
-            return None;
-        }
-        let eye = input.view.eye();
-        let distance = (min - eye).max(eye - max).max(Vec3::ZERO).length();
-        let pixels = input.voxel * input.view.pixels_per_world_unit(distance.max(input.voxel));
-        Some((input.target_pixels / pixels).log2())
-    }
-
-    /// Queues node `(level, origin)` of `headroom` when it has a finer level and a positive
-    /// priority: its level (moved by the hysteresis margin: refined in the last plan, kept
-    /// refined past the boundary; drawn whole, refined only past it) less its headroom.
-    fn push(&mut self, input: &Inputs<'_>, level: u32, origin: UVec3, headroom: Option<f32>) {
-        let Some(headroom) = headroom.filter(|_| level > 0) else {
-            return;
-        };
-        let k = level as f32;
-        let threshold = match input.previous.get(linear(input.bricks, origin)).copied() {
-            Some(Some(p)) if p < level => k + input.margin,
-            Some(Some(p)) if p == level => k - input.margin,
-            _ => k,
-        };
-        let priority = threshold - headroom;
-        if priority > 0.0 {
-            self.queue.push(Candidate {
-                priority,
-                headroom,
-                level,
-                origin,
-            });
-        }
+        !self.dropped[input.root_index(origin)] && self.holds_active(input, level, origin)
     }
 
     /// Steps 0-4 of the module docs into `self.choice`.
     fn plan(&mut self, input: &Inputs<'_>, slots: u64) {
         let root = input.root;
-        let bricks = input.bricks;
-        let count = bricks.element_product() as usize;
+        let count = input.bricks.element_product() as usize;
         self.dropped.clear();
         self.dropped
             .resize(input.roots.element_product() as usize, false);
-        self.level.clear();
-        self.level.resize(count, root as u8);
-        self.queue.clear();
-        let mut per_class = [0u64; 3];
+        let mut coarsest = [0u64; 3];
         for r in 0..self.dropped.len() {
-            let origin = Self::root_origin(input, r);
-            per_class[class(root)] += u64::from(self.drawn(input, root, origin));
+            let origin = input.root_origin(r);
+            coarsest[class(root)] += u64::from(self.drawn(input, root, origin));
         }
-        let dropped = self.drop_to_fit(input, slots, &mut per_class);
-        for r in 0..self.dropped.len() {
-            let origin = Self::root_origin(input, r);
-            let headroom = self.headroom(input, root, origin);
-            self.push(input, root, origin, headroom);
+        let dropped = self.drop_to_fit(input, slots, &mut coarsest);
+        self.buckets.resize(MAX_BUCKETS, ([0; 3], 0));
+        for bucket in &mut self.buckets[..=self.top_bucket] {
+            *bucket = ([0; 3], 0);
         }
-        let mut refused = None;
-        while let Some(next) = self.queue.pop() {
-            if u32::from(self.level[linear(bricks, next.origin)]) != next.level {
-                continue; // refined already, as the rule forced
+        self.top_bucket = 0;
+        self.largest = 0.0;
+        self.brick_headrooms(input);
+        self.node_priorities(input);
+        self.brick_events(input);
+        // Step 2: the first bucket, from the neediest, whose refinements do not fit.
+        let top = self.top_bucket + 1;
+        let mut cut = NO_BUCKET;
+        let mut counts = coarsest;
+        for b in (0..top).rev() {
+            let (delta, made) = self.buckets[b];
+            if made == 0 {
+                continue;
             }
-            self.undo.clear();
-            self.refine(
-                input,
-                next.level,
-                next.origin,
-                Some(next.headroom),
-                &mut per_class,
-            );
-            if slots_for_classes(per_class) > slots {
-                while let Some((level, origin)) = self.undo.pop() {
-                    self.unrefine(input, level, origin, &mut per_class);
-                }
-                // Every node left has a priority in this bucket or below.
-                refused = Some(self.queue.bucket_top(next.priority));
+            let next = add_counts(counts, delta);
+            if slots_for_classes(next) > slots {
+                cut = b as i16;
                 break;
             }
+            counts = next;
         }
-        self.write_choice(input, per_class, dropped, refused);
+        self.level.resize(count, 0);
+        let mut per_class = None;
+        if cut != NO_BUCKET {
+            per_class = self.fill_threshold_bucket(input, cut, counts, slots);
+        }
+        let per_class = match per_class {
+            Some(per_class) => per_class,
+            None => loop {
+                self.write_cut(input, cut);
+                self.keep_rule(input);
+                let per_class = self.write_levels(input);
+                if slots_for_classes(per_class) <= slots {
+                    break per_class;
+                }
+                // Step 3: what the rule added does not fit; the next bucket up that holds a
+                // refinement (past the top, the coarsest plan, which breaks no rule).
+                match (cut + 1..top as i16).find(|&b| self.buckets[b as usize].1 > 0) {
+                    Some(b) => cut = b,
+                    None if (cut as usize) < top || cut == NO_BUCKET => cut = top as i16,
+                    None => break per_class,
+                }
+            },
+        };
+        let refused = (cut != NO_BUCKET).then(|| match cut as usize {
+            b if b >= MAX_BUCKETS - 1 => self.largest,
+            b => (b + 1) as f32 / BUCKETS_PER_LEVEL,
+        });
+        self.choice.slots = slots_for_classes(per_class);
+        self.choice.pixels_per_voxel = input.target_pixels * refused.unwrap_or(0.0).max(0.0).exp2();
+        self.choice.waiting = 0;
+        self.choice.dropped = dropped;
+        self.choice.failed_reads = 0;
+    }
+
+    /// Step 2 inside the threshold bucket `cut`: its refinements, neediest first (then the
+    /// coarser node, then the first in z, y, x), are made while they fit with `above` (the
+    /// counts with every bucket above made), the first that does not fit ending them, as a
+    /// bucket of equal priorities (an orthographic view) must be split somewhere. When what
+    /// the rule adds does not fit, fewer are made (the prefix that leaves room for what the
+    /// rule added, a few times). Returns the plan's counts, written into `self.level`, or
+    /// `None` when no prefix fits with the rule (nothing of the bucket made).
+    fn fill_threshold_bucket(
+        &mut self,
+        input: &Inputs<'_>,
+        cut: i16,
+        above: [u64; 3],
+        slots: u64,
+    ) -> Option<[u64; 3]> {
+        self.in_bucket.clear();
+        for (i, buckets) in self.node_bucket.iter().enumerate() {
+            for (j, &b) in buckets.iter().enumerate() {
+                if b == cut {
+                    let k = i as u32 + 3;
+                    self.in_bucket
+                        .push((self.node_priority[i][j], k as u8, j as u32));
+                }
+            }
+        }
+        let top = input.root.min(2);
+        let parents = self.tree.first().map(|(nodes, _)| *nodes);
+        let first_priorities = self.node_priority.first();
+        let in_bucket = &mut self.in_bucket;
+        for_each_cell(input.bricks, |b, i| {
+            let buckets = self.brick_buckets[i];
+            if !buckets.contains(&cut) {
+                return;
+            }
+            // The priorities as bucketed: capped by the parent's.
+            let mut cap = match (parents, first_priorities) {
+                (Some(nodes), Some(p)) => p[linear(nodes, b >> 1)],
+                _ => f32::INFINITY,
+            };
+            for level in (1..=top).rev() {
+                let p = (input.threshold(level, i) - self.headroom[i]).min(cap);
+                if buckets[level as usize - 1] == cut {
+                    in_bucket.push((p, level as u8, i as u32));
+                }
+                cap = p;
+            }
+        });
+        // Neediest first; a parent (capped at least as high, one level coarser) before its
+        // children.
+        self.in_bucket
+            .sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(b.1.cmp(&a.1)).then(a.2.cmp(&b.2)));
+        // The counts after each prefix, as long as they fit.
+        let mut fits = 0;
+        let mut counts = above;
+        self.prefix_counts.clear();
+        self.prefix_counts.push(counts);
+        for &(_, level, index) in &self.in_bucket {
+            let level = u32::from(level);
+            let children = match level {
+                0..=2 => 1,
+                k => i64::from(self.tree[(k - 3) as usize].1[index as usize]),
+            };
+            let mut delta = [0i64; 3];
+            delta[class(level)] -= 1;
+            delta[class(level - 1)] += children;
+            counts = add_counts(counts, delta);
+            if slots_for_classes(counts) > slots {
+                break;
+            }
+            self.prefix_counts.push(counts);
+            fits += 1;
+        }
+        let mut made = fits;
+        for _ in 0..4 {
+            if made == 0 {
+                break;
+            }
+            self.promote(cut, made);
+            self.write_cut(input, cut);
+            self.keep_rule(input);
+            let per_class = self.write_levels(input);
+            let used = slots_for_classes(per_class);
+            if used <= slots {
+                self.promote(cut, 0);
+                return Some(per_class);
+            }
+            // What the rule added at this prefix, left room for.
+            let added = used - slots_for_classes(self.prefix_counts[made]);
+            let room = slots.saturating_sub(added);
+            made = (0..made)
+                .rev()
+                .find(|&m| slots_for_classes(self.prefix_counts[m]) <= room)
+                .unwrap_or(0);
+        }
+        self.promote(cut, 0);
+        None
+    }
+
+    /// Moves the first `made` refinements of the threshold bucket `cut` one bucket up (so that
+    /// [`LevelChooser::write_cut`] makes them) and the others back into it.
+    fn promote(&mut self, cut: i16, made: usize) {
+        for (n, &(_, level, index)) in self.in_bucket.iter().enumerate() {
+            let b = if n < made { cut + 1 } else { cut };
+            match u32::from(level) {
+                level @ 1..=2 => self.brick_buckets[index as usize][level as usize - 1] = b,
+                k => self.node_bucket[(k - 3) as usize][index as usize] = b,
+            }
+        }
     }
 
     /// Step 0 of the module docs: drops the least important roots until the coarsest plan
@@ -615,7 +713,7 @@ impl LevelChooser {
         let eye = input.view.eye();
         self.drop_order.clear();
         for r in 0..self.dropped.len() {
-            let first = Self::root_origin(input, r);
+            let first = input.root_origin(r);
             let end = (first + UVec3::splat(block)).min(bricks);
             if !self.drawn(input, root, first) {
                 continue; // dropping it frees nothing
@@ -639,7 +737,7 @@ impl LevelChooser {
                 break;
             }
             let r = self.drop_order[i].2 as usize;
-            let first = Self::root_origin(input, r);
+            let first = input.root_origin(r);
             let end = (first + UVec3::splat(block)).min(bricks);
             dropped += bricks_in(first, end)
                 .filter(|&b| input.active[linear(bricks, b)])
@@ -650,159 +748,415 @@ impl LevelChooser {
         dropped
     }
 
-    /// Refines node `(level, origin)` (a leaf of the cut) to level `level - 1`, after refining
-    /// every neighbouring node of level `level + 1` the rule would otherwise break, and logs
-    /// each node refined in `self.undo`. `headroom` is the node's, when known.
-    fn refine(
-        &mut self,
-        input: &Inputs<'_>,
-        level: u32,
-        origin: UVec3,
-        headroom: Option<f32>,
-        per_class: &mut [u64; 3],
-    ) {
-        let bricks = input.bricks;
-        let size = block_bricks(level);
-        // One probe per neighbouring direction: a node of level `level + 1` next to this one
-        // (aligned at twice the size) holds one of them. Below a split block (levels 2 up to
-        // the root's), the neighbours inside that block are siblings, never coarser: only the
-        // directions out of it are probed (7 of 26).
-        let (from, to) = if (2..input.root).contains(&level) {
-            let corner = (origin / size) & UVec3::ONE;
-            (corner, corner + UVec3::ONE)
-        } else {
-            (UVec3::ZERO, UVec3::splat(2))
+    /// Step 1 per brick: every brick's headroom into `self.headroom`, infinite for one that is
+    /// culled, in a dropped root or outside the frustum. The box tests and distances are
+    /// summed from per-axis terms, in the order [`LodView::box_outside_frustum`] and a box's
+    /// distance take them, a row at a time on vector lanes ([`headroom_row`]).
+    fn brick_headrooms(&mut self, input: &Inputs<'_>) {
+        let view = input.view;
+        let eye = view.eye();
+        let planes = view.frustum_planes();
+        for (axis, terms) in self.axes.iter_mut().enumerate() {
+            for corner in &mut terms.corner {
+                corner.clear();
+            }
+            terms.distance2.clear();
+            for i in 0..input.bricks[axis] {
+                let mut brick = UVec3::ZERO;
+                brick[axis] = i;
+                let (min, max) = input.geometry.brick_box(brick);
+                let (lo, hi) = (min[axis], max[axis]);
+                for (p, corner) in terms.corner.iter_mut().enumerate() {
+                    let n = planes[p].normal[axis];
+                    corner.push(n * if n >= 0.0 { hi } else { lo });
+                }
+                let d = (lo - eye[axis]).max(eye[axis] - hi).max(0.0);
+                terms.distance2.push(d * d);
+            }
+        }
+        let offsets: [f32; 6] = std::array::from_fn(|p| planes[p].offset);
+        // headroom = log2(target / (voxel * pixels per world unit at the distance)): a
+        // constant, plus log2 of the distance (at least a voxel) for a perspective view.
+        let voxel = input.voxel;
+        let headroom = HeadroomTerms {
+            constant: (input.target_pixels / (voxel * view.pixels_per_world_unit(1.0))).log2(),
+            half_log_distance: match view.projection() {
+                ViewProjection::Perspective { .. } => 0.5,
+                ViewProjection::Orthographic { .. } => 0.0,
+            },
+            voxel2: voxel * voxel,
         };
-        for dz in from.z..=to.z {
-            for dy in from.y..=to.y {
-                for dx in from.x..=to.x {
-                    if (dx, dy, dz) == (1, 1, 1) {
-                        continue;
+        let count = input.bricks.element_product() as usize;
+        self.headroom.resize(count, f32::INFINITY);
+        let dropped = &self.dropped;
+        let any_dropped = dropped.contains(&true);
+        let [ax, ay, az] = &self.axes;
+        let nx = ax.distance2.len();
+        for z in 0..input.bricks.z as usize {
+            for y in 0..input.bricks.y as usize {
+                let yz = UVec3::new(0, y as u32, z as u32);
+                let row = linear(input.bricks, yz);
+                let cy: [f32; 6] = std::array::from_fn(|p| ay.corner[p][y]);
+                let cz: [f32; 6] = std::array::from_fn(|p| az.corner[p][z]);
+                let (dy2, dz2) = (ay.distance2[y], az.distance2[z]);
+                let active = &input.active[row..row + nx];
+                let headrooms = &mut self.headroom[row..row + nx];
+                headroom_row(ax, [cy, cz], offsets, [dy2, dz2], headroom, headrooms);
+                for (h, &active) in headrooms.iter_mut().zip(active) {
+                    if !active {
+                        *h = f32::INFINITY;
                     }
-                    let Some(q) = probe(origin, size, UVec3::new(dx, dy, dz), bricks) else {
-                        continue;
-                    };
-                    let at = u32::from(self.level[linear(bricks, q)]);
-                    if at > level {
-                        let block = block_bricks(at);
-                        self.refine(input, at, q / block * block, None, per_class);
+                }
+                if any_dropped {
+                    for (x, h) in headrooms.iter_mut().enumerate() {
+                        if dropped[input.root_index(yz + UVec3::X * x as u32)] {
+                            *h = f32::INFINITY;
+                        }
                     }
                 }
             }
         }
-        let finer = level - 1;
-        if self.drawn(input, level, origin) {
-            per_class[class(level)] -= 1;
-        }
-        self.fill(origin, size, bricks, finer);
-        if level >= 3 {
-            for child in children(origin, size, bricks) {
-                per_class[class(finer)] += u64::from(self.drawn(input, finer, child));
-                let headroom = self.headroom(input, finer, child);
-                self.push(input, finer, child, headroom);
+    }
+
+    /// Steps 1-2 for the blocks: each node's headroom, the smallest of its bricks' (bottom up),
+    /// then its priority capped by its parent's and its bucket, added to the buckets' counts
+    /// (top down).
+    fn node_priorities(&mut self, input: &Inputs<'_>) {
+        for i in 0..self.tree.len() {
+            let (lower, rest) = self.node_priority.split_at_mut(i);
+            let minima = &mut rest[0];
+            minima.fill(f32::INFINITY);
+            let nodes = self.tree[i].0;
+            match lower.last() {
+                None => {
+                    let nx = input.bricks.x as usize;
+                    for z in 0..input.bricks.z {
+                        for y in 0..input.bricks.y {
+                            let row = linear(input.bricks, UVec3::new(0, y, z));
+                            let first = linear(nodes, UVec3::new(0, y, z) >> 1);
+                            let headrooms = &self.headroom[row..row + nx];
+                            for (x, &h) in headrooms.iter().enumerate() {
+                                let m = &mut minima[first + (x >> 1)];
+                                *m = m.min(h);
+                            }
+                        }
+                    }
+                }
+                Some(finer) => for_each_cell(self.tree[i - 1].0, |c, j| {
+                    let m = &mut minima[linear(nodes, c >> 1)];
+                    *m = m.min(finer[j]);
+                }),
             }
-        } else {
-            // A brick refined in place: the same box, so the same headroom.
-            per_class[class(finer)] += u64::from(self.drawn(input, finer, origin));
-            let headroom = match headroom {
-                Some(h) => Some(h),
-                None => self.headroom(input, level, origin),
+        }
+        for i in (0..self.tree.len()).rev() {
+            let k = i as u32 + 3;
+            let (finer, coarser) = self.node_priority.split_at_mut(i + 1);
+            let priorities = &mut finer[i];
+            let parent = coarser.first().map(|p| (self.tree[i + 1].0, p));
+            let (nodes, counts) = &self.tree[i];
+            let node_buckets = &mut self.node_bucket[i];
+            let buckets = &mut self.buckets;
+            let mut largest = self.largest;
+            let mut top_bucket = self.top_bucket;
+            for_each_cell(*nodes, |c, j| {
+                let mut p = input.threshold(k, linear(input.bricks, c << (k - 2))) - priorities[j];
+                if let Some((parents, parent)) = &parent {
+                    p = p.min(parent[linear(*parents, c >> 1)]);
+                }
+                priorities[j] = p;
+                let b = bucket(p);
+                node_buckets[j] = b;
+                if b != NO_BUCKET {
+                    // A node with a bucket holds an active brick in view: it is drawn.
+                    let (delta, made) = &mut buckets[b as usize];
+                    delta[class(k)] -= 1;
+                    delta[class(k - 1)] += i64::from(counts[j]);
+                    *made += 1;
+                    largest = largest.max(p);
+                    top_bucket = top_bucket.max(b as usize);
+                }
+            });
+            self.largest = largest;
+            self.top_bucket = top_bucket;
+        }
+    }
+
+    /// Step 2 for the bricks: each brick's refinements' priorities (capped by its block's)
+    /// and buckets, added to the buckets' counts.
+    fn brick_events(&mut self, input: &Inputs<'_>) {
+        let count = input.bricks.element_product() as usize;
+        self.brick_buckets.resize(count, [NO_BUCKET; 2]);
+        let top = input.root.min(2);
+        let parents = self.tree.first().map(|(nodes, _)| *nodes);
+        let parent_priorities = self.node_priority.first();
+        let buckets = &mut self.buckets;
+        let mut largest = self.largest;
+        let mut top_bucket = self.top_bucket;
+        let nx = input.bricks.x as usize;
+        // Runs of refinements of one level in one bucket (neighbouring bricks share buckets),
+        // added to the bucket when the run ends.
+        let mut runs = [(NO_BUCKET, 0i64); 2];
+        let mut end_run = |run: &mut (i16, i64), level: u32| {
+            if run.1 > 0 {
+                let (delta, made) = &mut buckets[run.0 as usize];
+                delta[class(level)] -= run.1;
+                delta[class(level - 1)] += run.1;
+                *made += run.1 as u32;
+                top_bucket = top_bucket.max(run.0 as usize);
+            }
+            *run = (NO_BUCKET, 0);
+        };
+        for z in 0..input.bricks.z as usize {
+            for y in 0..input.bricks.y as usize {
+                let row = linear(input.bricks, UVec3::new(0, y as u32, z as u32));
+                let yz = UVec3::new(0, y as u32, z as u32);
+                let headrooms = &self.headroom[row..row + nx];
+                let previous = input.previous.get(row..row + nx);
+                let caps = parents
+                    .zip(parent_priorities)
+                    .map(|(nodes, p)| &p[linear(nodes, yz >> 1)..]);
+                let brick_buckets = &mut self.brick_buckets[row..row + nx];
+                for x in 0..nx {
+                    let h = headrooms[x];
+                    let last = previous.and_then(|p| p[x]);
+                    let mut cap = caps.map_or(f32::INFINITY, |c| c[x >> 1]);
+                    let mut brick = [NO_BUCKET; 2];
+                    for level in (1..=top).rev() {
+                        let p = (threshold(level, last, input.margin) - h).min(cap);
+                        let b = bucket(p);
+                        brick[level as usize - 1] = b;
+                        if b != NO_BUCKET {
+                            let run = &mut runs[level as usize - 1];
+                            if run.0 != b {
+                                end_run(run, level);
+                                run.0 = b;
+                            }
+                            run.1 += 1;
+                            largest = largest.max(p);
+                        }
+                        cap = p;
+                    }
+                    brick_buckets[x] = brick;
+                }
+            }
+        }
+        for (l, run) in runs.iter_mut().enumerate() {
+            end_run(run, l as u32 + 1);
+        }
+        self.largest = largest;
+        self.top_bucket = top_bucket;
+    }
+
+    /// The cut of step 2 for threshold bucket `cut` (every refinement in a bucket above it
+    /// made) into `self.level`.
+    fn write_cut(&mut self, input: &Inputs<'_>, cut: i16) {
+        for i in (0..self.tree.len()).rev() {
+            let k = i as u32 + 3;
+            let (finer, coarser) = self.cover.split_at_mut(i + 1);
+            let cover = &mut finer[i];
+            let parent = coarser.first().map(|p| (self.tree[i + 1].0, p));
+            let buckets = &self.node_bucket[i];
+            for_each_cell(self.tree[i].0, |c, j| {
+                cover[j] = match &parent {
+                    Some((parents, parent)) if parent[linear(*parents, c >> 1)] != SPLIT => {
+                        parent[linear(*parents, c >> 1)]
+                    }
+                    _ if buckets[j] > cut => SPLIT,
+                    _ => k as u8,
+                };
+            });
+        }
+        let top = input.root.min(2);
+        let blocks = self.tree.first().map(|(nodes, _)| *nodes);
+        let first_cover = self.cover.first();
+        let level = &mut self.level;
+        let brick_buckets = &self.brick_buckets;
+        for_each_cell(input.bricks, |b, i| {
+            let covered = match (blocks, first_cover) {
+                (Some(nodes), Some(cover)) => cover[linear(nodes, b >> 1)],
+                _ => SPLIT,
             };
-            self.push(input, finer, origin, headroom);
-        }
-        self.undo.push((level, origin));
+            level[i] = if covered != SPLIT {
+                covered
+            } else {
+                let mut l = top;
+                while l > 0 && brick_buckets[i][l as usize - 1] > cut {
+                    l -= 1;
+                }
+                l as u8
+            };
+        });
     }
 
-    /// Undoes [`LevelChooser::refine`] of node `(level, origin)` (not what it forced).
-    fn unrefine(
-        &mut self,
-        input: &Inputs<'_>,
-        level: u32,
-        origin: UVec3,
-        per_class: &mut [u64; 3],
-    ) {
+    /// Step 3: refines every node that breaks the rule (a brick more than one level coarser
+    /// than a neighbour) down to the level its finest neighbour allows, splitting blocks whole,
+    /// until no brick breaks it: one pass of a 3x3x3 minimum filter, then the neighbours of
+    /// every brick lowered, in turn.
+    fn keep_rule(&mut self, input: &Inputs<'_>) {
         let bricks = input.bricks;
-        let size = block_bricks(level);
-        let finer = level - 1;
-        if level >= 3 {
-            for child in children(origin, size, bricks) {
-                per_class[class(finer)] -= u64::from(self.drawn(input, finer, child));
-            }
-        } else {
-            per_class[class(finer)] -= u64::from(self.drawn(input, finer, origin));
-        }
-        if self.drawn(input, level, origin) {
-            per_class[class(level)] += 1;
-        }
-        self.fill(origin, size, bricks, level);
-    }
-
-    /// Sets the level of the bricks of the block at `origin` of `size` bricks per axis.
-    fn fill(&mut self, origin: UVec3, size: u32, bricks: UVec3, level: u32) {
-        let end = (origin + UVec3::splat(size)).min(bricks);
-        for z in origin.z..end.z {
-            for y in origin.y..end.y {
-                let row = linear(bricks, UVec3::new(origin.x, y, z));
-                self.level[row..row + (end.x - origin.x) as usize].fill(level as u8);
+        self.neighbour_minimum(bricks);
+        self.lowered.clear();
+        for i in 0..self.level.len() {
+            let allowed = self.filtered[0][i].saturating_add(1);
+            if self.level[i] > allowed {
+                self.lower(bricks, i, allowed);
             }
         }
+        while let Some(i) = self.lowered.pop() {
+            let brick = brick_at(bricks, i as usize);
+            let allowed = self.level[i as usize] + 1;
+            let first = brick.saturating_sub(UVec3::ONE);
+            let end = (brick + UVec3::splat(2)).min(bricks);
+            for n in bricks_in(first, end) {
+                let j = linear(bricks, n);
+                if self.level[j] > allowed {
+                    self.lower(bricks, j, allowed);
+                }
+            }
+        }
     }
 
-    /// Step 4 and the report: the plan from the cut.
-    fn write_choice(
-        &mut self,
-        input: &Inputs<'_>,
-        per_class: [u64; 3],
-        dropped: usize,
-        refused: Option<f32>,
-    ) {
-        let bricks = input.bricks;
+    /// Lowers the node holding brick `i` to `level`: a block is split (each node on the way
+    /// holding the brick split in turn, its bricks one level finer), a brick refined in place.
+    /// Every brick lowered joins `self.lowered`.
+    fn lower(&mut self, bricks: UVec3, i: usize, level: u8) {
+        let brick = brick_at(bricks, i);
+        let from = self.level[i];
+        for k in (u32::from(level.max(2)) + 1..=u32::from(from)).rev() {
+            let size = block_bricks(k);
+            let origin = brick / size * size;
+            let end = (origin + UVec3::splat(size)).min(bricks);
+            for z in origin.z..end.z {
+                for y in origin.y..end.y {
+                    let row = linear(bricks, UVec3::new(origin.x, y, z));
+                    for j in row..row + (end.x - origin.x) as usize {
+                        if self.level[j] > k as u8 - 1 {
+                            self.level[j] = k as u8 - 1;
+                            self.lowered.push(j as u32);
+                        }
+                    }
+                }
+            }
+        }
+        if self.level[i] > level {
+            self.level[i] = level;
+            self.lowered.push(i as u32);
+        }
+    }
+
+    /// `self.filtered[0]`: the smallest level in every brick's 3x3x3 neighbourhood (itself
+    /// included), one axis at a time.
+    fn neighbour_minimum(&mut self, bricks: UVec3) {
+        let count = self.level.len();
+        let [out, scratch] = &mut self.filtered;
+        out.resize(count, 0);
+        scratch.resize(count, 0);
+        let (nx, ny, nz) = (bricks.x as usize, bricks.y as usize, bricks.z as usize);
+        for (src, dst) in self.level.chunks(nx).zip(scratch.chunks_mut(nx)) {
+            for x in 0..nx {
+                let lo = x.saturating_sub(1);
+                let hi = (x + 1).min(nx - 1);
+                dst[x] = src[lo].min(src[x]).min(src[hi]);
+            }
+        }
+        min_along(scratch, out, nx, ny);
+        min_along(out, scratch, nx * ny, nz);
+        std::mem::swap(out, scratch);
+    }
+
+    /// Step 4: the plan's levels from the cut in `self.level` into `self.choice.levels`, and
+    /// the slot classes' counts of its drawn nodes.
+    fn write_levels(&mut self, input: &Inputs<'_>) -> [u64; 3] {
+        let mut per_class = [0u64; 3];
         let mut levels = std::mem::take(&mut self.choice.levels);
         levels.clear();
-        for z in 0..bricks.z {
-            for y in 0..bricks.y {
-                for x in 0..bricks.x {
-                    let b = UVec3::new(x, y, z);
-                    let i = linear(bricks, b);
-                    let level = u32::from(self.level[i]);
-                    // A brick is drawn when active, or inside a drawn block (the node of a
-                    // block level holds it whole).
-                    levels.push(self.drawn(input, level, b).then_some(level));
-                }
-            }
+        let any_dropped = self.dropped.contains(&true);
+        let mut fine = [0u64; 3];
+        for_each_cell(input.bricks, |b, i| {
+            let level = self.level[i];
+            // A brick is drawn when active, or inside a drawn block (the node of a block level
+            // holds it whole); a block counts once, at its first brick.
+            let drawn = if level <= 2 && !any_dropped {
+                let drawn = input.active[i];
+                fine[usize::from(level)] += u64::from(drawn);
+                drawn
+            } else {
+                let level = u32::from(level);
+                let drawn = self.holds_active(input, level, b)
+                    && !(any_dropped && self.dropped[input.root_index(b)]);
+                let first =
+                    level <= 2 || (b & UVec3::splat(block_bricks(level) - 1)) == UVec3::ZERO;
+                per_class[class(level)] += u64::from(drawn && first);
+                drawn
+            };
+            levels.push(drawn.then_some(u32::from(level)));
+        });
+        for (c, n) in per_class.iter_mut().zip(fine) {
+            *c += n;
         }
-        self.choice = LevelChoice {
-            levels,
-            slots: slots_for_classes(per_class),
-            pixels_per_voxel: input.target_pixels * refused.unwrap_or(0.0).max(0.0).exp2(),
-            waiting: 0,
-            dropped,
-            failed_reads: 0,
-        };
+        self.choice.levels = levels;
+        per_class
     }
 }
 
-/// The brick next to the block at `origin` of `size` bricks per axis in direction `d` (each
-/// axis 0: before, 1: along, 2: after), `None` outside the grid.
-fn probe(origin: UVec3, size: u32, d: UVec3, bricks: UVec3) -> Option<UVec3> {
-    let axis = |o: u32, d: u32, n: u32| match d {
-        0 => o.checked_sub(1),
-        1 => Some(o),
-        _ => Some(o + size).filter(|&v| v < n),
-    };
-    Some(UVec3::new(
-        axis(origin.x, d.x, bricks.x)?,
-        axis(origin.y, d.y, bricks.y)?,
-        axis(origin.z, d.z, bricks.z)?,
-    ))
+/// `dst`: the smallest of each cell of `src` and its two neighbours `stride` apart, along an
+/// axis of `n` cells (the data a sequence of blocks of `n * stride` cells).
+fn min_along(src: &[u8], dst: &mut [u8], stride: usize, n: usize) {
+    for (src, dst) in src.chunks(stride * n).zip(dst.chunks_mut(stride * n)) {
+        for j in 0..n {
+            let lo = &src[j.saturating_sub(1) * stride..][..stride];
+            let mid = &src[j * stride..][..stride];
+            let hi = &src[(j + 1).min(n - 1) * stride..][..stride];
+            for (((d, &a), &b), &c) in dst[j * stride..][..stride]
+                .iter_mut()
+                .zip(lo)
+                .zip(mid)
+                .zip(hi)
+            {
+                *d = a.min(b).min(c);
+            }
+        }
+    }
 }
 
-/// The first bricks of the (up to) 8 blocks of half the size in the block at `origin` of
-/// `size` bricks per axis, inside a grid of `bricks` per axis.
-fn children(origin: UVec3, size: u32, bricks: UVec3) -> impl Iterator<Item = UVec3> {
-    (0..8u32)
-        .map(move |c| origin + UVec3::new(c & 1, (c >> 1) & 1, c >> 2) * (size / 2))
-        .filter(move |child| child.cmplt(bricks).all())
+/// log2 of a positive finite `x` (as [`f32::log2`] within 1e-6, relative past 1, tested), without a call: the
+/// exponent, and of the mantissa `m` in `[sqrt(1/2), sqrt(2))` the series
+/// `2 atanh(s) = ln m`, `s = (m - 1) / (m + 1)`, to `s^9`.
+fn fast_log2(x: f32) -> f32 {
+    let bits = x.to_bits();
+    let mut exponent = ((bits >> 23) & 0xff) as i32 - 127;
+    let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000);
+    let high = m > std::f32::consts::SQRT_2;
+    let m = if high { m * 0.5 } else { m };
+    exponent += i32::from(high);
+    let s = (m - 1.0) / (m + 1.0);
+    let s2 = s * s;
+    let series = 1.0 + s2 * (1.0 / 3.0 + s2 * (1.0 / 5.0 + s2 * (1.0 / 7.0 + s2 / 9.0)));
+    exponent as f32 + 2.0 * s * series * std::f32::consts::LOG2_E
+}
+
+/// The counts after a bucket's change.
+fn add_counts(counts: [u64; 3], delta: [i64; 3]) -> [u64; 3] {
+    std::array::from_fn(|c| counts[c].saturating_add_signed(delta[c]))
+}
+
+/// Calls `f(cell, linear index)` for every cell of a grid of `size` per axis, x fastest.
+fn for_each_cell(size: UVec3, mut f: impl FnMut(UVec3, usize)) {
+    let mut i = 0;
+    for z in 0..size.z {
+        for y in 0..size.y {
+            for x in 0..size.x {
+                f(UVec3::new(x, y, z), i);
+                i += 1;
+            }
+        }
+    }
+}
+
+/// The brick of linear index `i` in a grid of `bricks` per axis (x fastest).
+fn brick_at(bricks: UVec3, i: usize) -> UVec3 {
+    let (x, yz) = (i as u32 % bricks.x, i as u32 / bricks.x);
+    UVec3::new(x, yz % bricks.y, yz / bricks.y)
 }
 
 /// The linear index of `b` in a grid of `size` per axis (x fastest).
@@ -815,4 +1169,23 @@ fn bricks_in(first: UVec3, end: UVec3) -> impl Iterator<Item = UVec3> {
     (first.z..end.z).flat_map(move |z| {
         (first.y..end.y).flat_map(move |y| (first.x..end.x).map(move |x| UVec3::new(x, y, z)))
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fast_log2_is_log2() {
+        let mut worst = 0.0f32;
+        let mut x = 1e-12f32;
+        while x < 1e12 {
+            worst = worst.max((fast_log2(x) - x.log2()).abs() / x.log2().abs().max(1.0));
+            x *= 1.000_37;
+        }
+        for x in [1.0, 2.0, 0.5, std::f32::consts::SQRT_2, 3.0, 1e-30, 1e30] {
+            worst = worst.max((fast_log2(x) - x.log2()).abs() / x.log2().abs().max(1.0));
+        }
+        assert!(worst < 1e-6, "{worst}");
+    }
 }

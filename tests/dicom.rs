@@ -632,3 +632,53 @@ fn mutated_files_give_errors_not_panics() {
         assert!(errors > 0, "{name}: no mutation was refused");
     }
 }
+
+/// Issue 42, item 2 (review D2): a file of a series folder whose `DICM` magic is damaged, or
+/// which is empty, is named in an error instead of dropped (the series would load a slice
+/// short: at its end no spacing check can see the gap); the scheme of the names decides, so
+/// extensionless numbered files are covered too. A file that is not DICOM and not named like
+/// the slices (a README) is skipped, and the volume is the whole series.
+#[test]
+fn a_damaged_or_empty_slice_file_is_named_not_dropped() {
+    let original = load(&fixtures().join("mni_lps"));
+    let lost =
+        |dir: &Path| match dicom_error(load_volume_with_meta(dir), &dir.display().to_string()) {
+            DicomError::LostSlices {
+                files, dicom_files, ..
+            } => (files, dicom_files),
+            other => panic!("{}: {other}", dir.display()),
+        };
+    // The last slice's magic with one bit flipped ("DICM" -> "DHCM").
+    let damaged = fixtures().join("mni_lps_damaged_magic");
+    copy_renamed(&fixtures().join("mni_lps"), &damaged, |_, f| {
+        f.file_name().unwrap().to_string_lossy().into_owned()
+    });
+    let last = damaged.join("IM0188.dcm");
+    let mut bytes = std::fs::read(&last).unwrap();
+    assert_eq!(&bytes[128..132], b"DICM");
+    bytes[129] ^= 0x01;
+    std::fs::write(&last, &bytes).unwrap();
+    assert_eq!(lost(&damaged), (vec![last.clone()], 188));
+    let message = load_volume_with_meta(&damaged).err().unwrap().to_string();
+    assert!(
+        message.contains("IM0188.dcm") && message.contains("1 file named like"),
+        "{message}"
+    );
+    // A slice emptied, in a series of extensionless numbered files.
+    let numbered = fixtures().join("mni_lps_emptied");
+    copy_renamed(&fixtures().join("mni_lps"), &numbered, |i, _| {
+        format!("{i:05}")
+    });
+    let emptied = numbered.join("00100");
+    std::fs::write(&emptied, b"").unwrap();
+    assert_eq!(lost(&numbered), (vec![emptied], 188));
+    // A README beside the slices is skipped: the whole series loads.
+    let with_readme = fixtures().join("mni_lps_with_readme");
+    copy_renamed(&fixtures().join("mni_lps"), &with_readme, |_, f| {
+        f.file_name().unwrap().to_string_lossy().into_owned()
+    });
+    std::fs::write(with_readme.join("README.txt"), "exported by a scanner\n").unwrap();
+    let l = load(&with_readme);
+    assert!(l.volume == original.volume);
+    assert_eq!(l.meta, original.meta);
+}

@@ -192,3 +192,45 @@ fn convert_writes_a_dicom_series_as_the_store_of_the_same_volume_from_nifti() {
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--series applies to DICOM"));
 }
+
+/// Copies the files of `src` into a fresh `dst` under their names.
+fn copy_folder(src: &Path, dst: &Path) {
+    let _ = std::fs::remove_dir_all(dst);
+    std::fs::create_dir_all(dst).unwrap();
+    for f in std::fs::read_dir(src).unwrap() {
+        let f = f.unwrap().path();
+        std::fs::copy(&f, dst.join(f.file_name().unwrap())).unwrap();
+    }
+}
+
+/// Issue 42, item 2 (review D2): a file beside the slices that is not DICOM is skipped with a
+/// warning on stderr naming it and the count; an emptied slice file is an error naming it
+/// (exit 1), never a volume one slice short with exit 0.
+#[test]
+fn skipped_files_are_named_and_an_emptied_slice_is_refused() {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"));
+    let series = dir.join("mni_ct_with_readme");
+    copy_folder(&fixtures().join("mni_ct"), &series);
+    let slices = std::fs::read_dir(&series).unwrap().count();
+    std::fs::write(series.join("README.txt"), "exported by a scanner\n").unwrap();
+    let png = dir.join("mni_ct_with_readme.png");
+    let out = mixvol(&series, &png, &[]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let warning = format!(
+        "1 of {} files skipped, not DICOM (no \"DICM\" after a 128-byte preamble): README.txt; \
+         the series is read from the other {slices} files",
+        slices + 1
+    );
+    assert!(stderr.contains(&warning), "{stderr}");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains(&format!("x{slices} ")), "{stdout}");
+    std::fs::write(series.join("IM0007.dcm"), b"").unwrap();
+    let out = mixvol(&series, &png, &[]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("IM0007.dcm") && stderr.contains("1 file named like the series' files"),
+        "{stderr}"
+    );
+}

@@ -95,6 +95,58 @@ fn folder_files(folder: &Path) -> Result<Vec<PathBuf>, VolumeError> {
     Ok(files)
 }
 
+/// The extensions of DICOM files (compared without case).
+const DICOM_EXTENSIONS: [&str; 4] = ["dcm", "dicom", "dic", "ima"];
+
+/// A file name without its digits, in lower case: the naming scheme of a series' files
+/// (`IM0015.dcm` and `IM0001.dcm` give `im.dcm`, `1.2.840.5.15` gives `....`).
+fn name_scheme(file: &Path) -> String {
+    file.file_name()
+        .map(|n| n.to_string_lossy())
+        .unwrap_or_default()
+        .chars()
+        .filter(|c| !c.is_ascii_digit())
+        .flat_map(char::to_lowercase)
+        .collect()
+}
+
+/// The files of a series folder without the DICOM magic (issue 42, item 2): one with a DICOM
+/// extension, or named in the scheme of the DICOM files beside it, is a slice lost (damaged,
+/// cut short or emptied), an error naming it, since the series would load a slice short; any
+/// other (a README, a checksum list) is skipped with a warning that names it and the count.
+fn check_skipped(folder: &Path, dicom: &[PathBuf], skipped: &[PathBuf]) -> Result<(), VolumeError> {
+    if skipped.is_empty() {
+        return Ok(());
+    }
+    let schemes: std::collections::BTreeSet<String> =
+        dicom.iter().map(|f| name_scheme(f)).collect();
+    let (lost, others): (Vec<&PathBuf>, Vec<&PathBuf>) = skipped.iter().partition(|f| {
+        let extension = f
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase());
+        extension.is_some_and(|e| DICOM_EXTENSIONS.contains(&e.as_str()))
+            || schemes.contains(&name_scheme(f))
+    });
+    if !lost.is_empty() {
+        return Err(DicomError::LostSlices {
+            folder: folder.to_path_buf(),
+            files: lost.into_iter().cloned().collect(),
+            dicom_files: dicom.len(),
+        }
+        .into());
+    }
+    log::warn!(
+        "{}: {} of {} files skipped, not DICOM (no \"DICM\" after a 128-byte preamble): {}; \
+         the series is read from the other {} files",
+        folder.display(),
+        others.len(),
+        dicom.len() + others.len(),
+        super::error::names(others.iter().copied()),
+        dicom.len()
+    );
+    Ok(())
+}
+
 /// The files a DICOMDIR references (ReferencedFileID of its directory records, relative to its
 /// folder), sorted, without duplicates.
 fn dicomdir_files(dicomdir: &Path) -> Result<Vec<PathBuf>, VolumeError> {
@@ -147,11 +199,11 @@ fn input_files(input: &Path) -> Result<Vec<PathBuf>, VolumeError> {
         if let Some(dicomdir) = dicomdir_in(input) {
             return dicomdir_files(&dicomdir);
         }
-        let files = folder_files(input)?;
-        return Ok(files
+        let (dicom, skipped): (Vec<PathBuf>, Vec<PathBuf>) = folder_files(input)?
             .into_iter()
-            .filter(|f| file_has_dicom_magic(f))
-            .collect());
+            .partition(|f| file_has_dicom_magic(f));
+        check_skipped(input, &dicom, &skipped)?;
+        return Ok(dicom);
     }
     if is_dicomdir_name(input) {
         return dicomdir_files(input);

@@ -47,6 +47,31 @@ fn list(series: &[SeriesSummary]) -> String {
         .collect::<String>()
 }
 
+/// Up to eight file names (not their folders), comma-separated, and how many more.
+pub(super) fn names<'a>(files: impl IntoIterator<Item = &'a PathBuf>) -> String {
+    let files: Vec<&PathBuf> = files.into_iter().collect();
+    let mut text = files
+        .iter()
+        .take(8)
+        .map(|f| {
+            f.file_name()
+                .unwrap_or(f.as_os_str())
+                .to_string_lossy()
+                .into_owned()
+        })
+        .collect::<Vec<_>>()
+        .join(", ");
+    if files.len() > 8 {
+        text.push_str(&format!(" and {} more", files.len() - 8));
+    }
+    text
+}
+
+/// `n` and `what`, plural when `n` is not 1.
+fn count(n: usize, what: &str) -> String {
+    format!("{n} {what}{}", if n == 1 { "" } else { "s" })
+}
+
 /// Why a folder or DICOMDIR did not give one volume.
 #[derive(Debug, thiserror::Error)]
 pub enum DicomError {
@@ -74,6 +99,29 @@ pub enum DicomError {
         why: String,
         /// The series found.
         series: Vec<SeriesSummary>,
+    },
+    /// Files of the folder named like its DICOM files (or with a DICOM extension) that are
+    /// not DICOM files: slices damaged, cut short or emptied. Loading without them would give
+    /// a volume slices short, so nothing is loaded.
+    #[error(
+        "{folder}: {} named like the series' files {} no \"DICM\" after a 128-byte preamble \
+         (damaged, cut short or empty): {}; the series would load without {} and be short of \
+         slices, so it is refused ({dicom_files} DICOM files read): repair or restore {}, or \
+         move {} out of the folder",
+        count(files.len(), "file"),
+        if files.len() == 1 { "has" } else { "have" },
+        names(files),
+        if files.len() == 1 { "it" } else { "them" },
+        if files.len() == 1 { "it" } else { "them" },
+        if files.len() == 1 { "it" } else { "them" }
+    )]
+    LostSlices {
+        /// The folder.
+        folder: PathBuf,
+        /// The files without the magic.
+        files: Vec<PathBuf>,
+        /// The DICOM files beside them.
+        dicom_files: usize,
     },
     /// No DICOM file with pixel data.
     #[error(

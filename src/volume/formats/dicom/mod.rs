@@ -7,7 +7,12 @@
 //! [`load_dicom`] takes a folder, a DICOMDIR file or one DICOM file:
 //! - a folder holding a `DICOMDIR` is read through it (below); any other folder contributes
 //!   the regular files directly in it (not its subfolders) that start with the DICOM Part 10
-//!   preamble and `DICM`; other files are ignored;
+//!   preamble and `DICM`. A file without them that has a DICOM extension (`.dcm`, `.dicom`,
+//!   `.dic`, `.ima`) or is named in the scheme of the DICOM files beside it (the same name
+//!   with its digits taken out: `IM0015.dcm` beside `IM0001.dcm`) is a slice damaged, cut
+//!   short or emptied: the load is refused, naming it ([`DicomError::LostSlices`]), as the
+//!   series would load a slice short. Other files (a README) are skipped with a warning (the
+//!   `log` crate) that names them and the count;
 //! - a `DICOMDIR` file contributes every file its directory records reference
 //!   (ReferencedFileID, relative to its folder);
 //! - a single file (`.dcm`) is a one-slice series on its own (give the folder to load the whole

@@ -191,6 +191,19 @@ fn pydicom_test_files_load_to_pydicoms_pixel_arrays() {
     }
 }
 
+/// Asserts that decoding the file bytes `b` (of `p`) fails on PixelData with a message that
+/// holds `fragment`.
+fn refused_on_pixel_data(p: &Path, b: &[u8], fragment: &str) {
+    match decode_dicom_slice(p, b) {
+        Err(VolumeError::Format { field, message, .. }) => {
+            assert!(field.starts_with("PixelData"), "{fragment}: {field}");
+            assert!(message.contains(fragment), "{fragment}: {message}");
+        }
+        Err(e) => panic!("{fragment}: unexpected error {e}"),
+        Ok(_) => panic!("{fragment}: decoded"),
+    }
+}
+
 /// `bytes` with the JPEG-LS frame header (SOF55, FFF7) changed: `(i, value)` sets its byte `i`,
 /// counted from the segment's length (Lf: 0-1, P: 2, Y: 3-4, X: 5-6, Nf: 7).
 fn with_jpeg_ls_frame(bytes: &[u8], edits: &[(usize, u8)]) -> Vec<u8> {
@@ -226,15 +239,7 @@ fn jpeg_ls_frames_that_disagree_with_the_header_are_refused_before_decoding() {
         ("does not fit its 1 components", &[(1, 20)]),
     ];
     for (fragment, edits) in cases {
-        let b = with_jpeg_ls_frame(&bytes, edits);
-        match decode_dicom_slice(&p, &b) {
-            Err(VolumeError::Format { field, message, .. }) => {
-                assert!(field.starts_with("PixelData"), "{fragment}: {field}");
-                assert!(message.contains(fragment), "{fragment}: {message}");
-            }
-            Err(e) => panic!("{fragment}: unexpected error {e}"),
-            Ok(_) => panic!("{fragment}: decoded"),
-        }
+        refused_on_pixel_data(&p, &with_jpeg_ls_frame(&bytes, edits), fragment);
     }
 }
 
@@ -681,4 +686,47 @@ fn a_damaged_or_empty_slice_file_is_named_not_dropped() {
     let l = load(&with_readme);
     assert!(l.volume == original.volume);
     assert_eq!(l.meta, original.meta);
+}
+
+/// `bytes` with words of the RLE header of its one frame replaced: `(i, value)` sets the 32-bit
+/// word `i` (0: the segment count, 1-15: the segment offsets). The frame is the second item of
+/// the encapsulated PixelData (the first is the basic offset table).
+fn with_rle_header(bytes: &[u8], edits: &[(usize, u32)]) -> Vec<u8> {
+    let mut b = bytes.to_vec();
+    let tag = b
+        .windows(4)
+        .position(|w| w == [0xE0, 0x7F, 0x10, 0x00])
+        .expect("a PixelData element");
+    // Tag, "OB", 2 reserved bytes, undefined length; then the offset table's item.
+    let table = tag + 12;
+    assert_eq!(b[table..table + 4], [0xFE, 0xFF, 0x00, 0xE0]);
+    let table_len = u32::from_le_bytes(b[table + 4..table + 8].try_into().unwrap()) as usize;
+    let frame = table + 8 + table_len + 8;
+    for &(i, value) in edits {
+        b[frame + 4 * i..frame + 4 * i + 4].copy_from_slice(&value.to_le_bytes());
+    }
+    b
+}
+
+/// Issue 42, item 4 (review D5): an RLE frame whose header lists a garbage segment count (the
+/// adapter would size its table from it first: 13 GB for 300 bytes) or segments outside the
+/// frame is refused before it is decoded, with what was found; the intact file decodes to the
+/// values pydicom gives (tested above).
+#[test]
+fn rle_frames_with_damaged_headers_are_refused_before_decoding() {
+    let p = fixtures().join("pydicom/MR_small_RLE.dcm");
+    let bytes = std::fs::read(&p).unwrap();
+    let (s, values) = decode_dicom_slice(&p, &bytes).unwrap();
+    assert_eq!((s.columns, s.rows, s.bits_allocated), (64, 64, 16));
+    assert_eq!(values.len(), 64 * 64);
+    assert!(decode_dicom_slice(&p, &with_rle_header(&bytes, &[])).is_ok());
+    let cases: [(&str, &[(usize, u32)]); 4] = [
+        ("lists 3294898289 segments", &[(0, 3_294_898_289)]),
+        ("lists 3 segments", &[(0, 3)]),
+        ("segment 2 at byte 4294901760", &[(2, 0xFFFF_0000)]),
+        ("segment 1 at byte 0", &[(1, 0)]),
+    ];
+    for (fragment, edits) in cases {
+        refused_on_pixel_data(&p, &with_rle_header(&bytes, edits), fragment);
+    }
 }

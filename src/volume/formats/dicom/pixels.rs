@@ -1,9 +1,11 @@
 //! Pixel data: decoding one file's frame through dicom-pixeldata (native and the compressed
 //! transfer syntaxes its adapters handle: RLE, JPEG and JPEG 2000 in Rust, JPEG-LS through
-//! CharLS, whose frame header is checked first: [`jpegls`]), the stored values it holds
+//! CharLS, whose frame header is checked first: [`jpegls`]; an RLE frame's header is checked
+//! first too: [`rle`]), the stored values it holds
 //! (BitsStored masked or sign-extended, as pydicom does), and the series' value mapping into the
 //! volume.
 mod jpegls;
+mod rle;
 
 use super::slice::{object_from_bytes, slice_of, DicomSlice};
 use crate::volume::formats::read::format_err;
@@ -14,6 +16,28 @@ use dicom_object::DefaultDicomObject;
 use dicom_pixeldata::PixelDecoder;
 use dicom_transfer_syntax_registry::TransferSyntaxRegistry;
 use std::path::Path;
+
+/// The fragments of an object's encapsulated PixelData (`what`, e.g. "RLE", names the
+/// encoding in the errors, which are [`VolumeError::Format`] on `PixelData`).
+fn pixel_fragments<'a>(
+    path: &Path,
+    object: &'a DefaultDicomObject,
+    what: &str,
+) -> Result<&'a [Vec<u8>], VolumeError> {
+    let field = "PixelData (7FE0,0010)";
+    object
+        .element(dicom_dictionary_std::tags::PIXEL_DATA)
+        .map_err(|_| format_err(path, field, "no pixel data"))?
+        .value()
+        .fragments()
+        .ok_or_else(|| {
+            format_err(
+                path,
+                field,
+                format!("{what} pixel data that is not encapsulated (no fragments)"),
+            )
+        })
+}
 
 /// The transfer syntax's name (e.g. `JPEG-LS Lossless Image Compression`), else its UID.
 pub(super) fn transfer_syntax_name(uid: &str) -> String {
@@ -116,6 +140,9 @@ fn stored_values(
     check_loadable(path, s)?;
     if jpegls::is_jpeg_ls(&s.transfer_syntax) {
         jpegls::check_frame(path, object, s)?;
+    }
+    if rle::is_rle(&s.transfer_syntax) {
+        rle::check_frame(path, object, s)?;
     }
     // dicom-rs' decoders can panic on corrupt encapsulated data (an index out of bounds in its
     // RLE adapter, found by tests/dicom.rs' mutations): that is a corrupt file, not a crash.

@@ -5,7 +5,6 @@
 use super::super::slice::DicomSlice;
 use crate::volume::formats::read::format_err;
 use crate::volume::VolumeError;
-use dicom_dictionary_std::tags;
 use dicom_object::DefaultDicomObject;
 use std::path::Path;
 
@@ -130,12 +129,7 @@ pub fn check_frame(
 ) -> Result<(), VolumeError> {
     let field = "PixelData (7FE0,0010)";
     let err = |message: String| format_err(path, field, message);
-    let fragments = object
-        .element(tags::PIXEL_DATA)
-        .map_err(|_| err("no pixel data".into()))?
-        .value()
-        .fragments()
-        .ok_or_else(|| err("JPEG-LS pixel data that is not encapsulated (no fragments)".into()))?;
+    let fragments = super::pixel_fragments(path, object, "JPEG-LS")?;
     let header = frame_header(fragments.iter().flat_map(|f| f.iter().copied())).map_err(err)?;
     if (header.width, header.height) != (s.columns, s.rows) {
         return Err(err(format!(

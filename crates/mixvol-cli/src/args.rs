@@ -346,7 +346,8 @@ pub struct RenderArgs {
     /// Output PNG path (folders are created).
     #[arg(long, short, default_value = "out/render.png")]
     pub output: PathBuf,
-    /// Frames to render for timing (min / median / max are printed); the image is the last one.
+    /// Frames to render for timing (min / median / max are printed; 1 to 100,000); the image is
+    /// the last one.
     #[arg(long, default_value_t = 5)]
     pub frames: u32,
     /// Enable the Khronos validation layers (with synchronization validation).

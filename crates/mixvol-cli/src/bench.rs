@@ -50,9 +50,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
     {
         return crate::path_bench::bench_path(args);
     }
-    if r.frames == 0 {
-        return Err(Error::InvalidInput("--frames must be at least 1".into()));
-    }
+    crate::camera_path::check_frames("--frames", r.frames)?;
     if args.churn && r.mixed.levels.is_none() {
         return Err(Error::InvalidInput("--churn needs --levels".into()));
     }

@@ -50,7 +50,9 @@ struct Keyframe {
     fov: f32,
 }
 
-fn check_frames(flag: &str, frames: u32) -> Result<()> {
+/// Checks a frame count given by `flag` (`--orbit`, `--frames`, ...): 1 to [`MAX_PATH_FRAMES`],
+/// so that a typo is refused before any work instead of rendering for hours.
+pub fn check_frames(flag: &str, frames: u32) -> Result<()> {
     if frames == 0 || frames > MAX_PATH_FRAMES {
         return Err(Error::InvalidInput(format!(
             "{flag} {frames}: expected 1 to {MAX_PATH_FRAMES} frames"
@@ -130,6 +132,18 @@ pub fn dolly(base: &Camera, frames: u32, end_fraction: f32) -> Result<Vec<Camera
 /// kind, near and far, and the first keyframe's defaults.
 pub fn load_path(path: &Path, base: &Camera) -> Result<Vec<Camera>> {
     let what = |message: String| Error::InvalidInput(format!("{}: {message}", path.display()));
+    // The file type first: reading a FIFO would block until a writer comes (review D10).
+    let meta = std::fs::metadata(path).map_err(|e| what(format!("cannot read: {e}")))?;
+    if !meta.is_file() {
+        let kind = if meta.is_dir() {
+            "a folder"
+        } else {
+            "a FIFO, device or socket"
+        };
+        return Err(what(format!(
+            "not a regular file ({kind}); --path takes a camera path JSON file"
+        )));
+    }
     let text = std::fs::read_to_string(path).map_err(|e| what(format!("cannot read: {e}")))?;
     let json: PathJson = serde_json::from_str(&text).map_err(|e| what(e.to_string()))?;
     if json.keyframes.is_empty() {

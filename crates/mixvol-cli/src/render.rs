@@ -381,9 +381,7 @@ fn frame_row(
 
 /// Runs `mixvol render`.
 pub fn render(args: &RenderArgs) -> Result<()> {
-    if args.frames == 0 {
-        return Err(Error::InvalidInput("--frames must be at least 1".into()));
-    }
+    crate::camera_path::check_frames("--frames", args.frames)?;
     let cameras = views(args)?;
     let is_path = args.camera_path.is_path();
     if is_path && args.compare {

@@ -79,6 +79,13 @@ const CASES: &[Case] = &[
     Case { name: "the invalid-call hook needs validation", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--frames", "1"], env: INVALID_CALL, code: 0, fragments: &["wrote "], absent: &["VUID", "validation:"] },
     Case { name: "RUST_LOG reaches the library's log", args: &["render", "--volume", "ml", "--dims", "8,8,8"], env: &[("RUST_LOG", "info")], code: 0, fragments: &["[INFO mixvol::gpu::context] device: "], absent: &[] },
     Case { name: "--verbose logs at info", args: &["render", "--verbose", "--volume", "ml", "--dims", "8,8,8"], env: NO_ENV, code: 0, fragments: &["[INFO mixvol::gpu::context] device: "], absent: &[] },
+    // Issue 42, item 7 (review D10): nothing waits forever: a camera path on a FIFO is refused
+    // without being opened, and --frames has the bound --orbit has.
+    Case { name: "--path on a FIFO", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--path", "{d}/path.fifo"], env: NO_ENV, code: 1, fragments: &["path.fifo", "not a regular file (a FIFO, device or socket)", "camera path JSON file"], absent: &[] },
+    Case { name: "--path on a folder", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--path", "{d}/plain_folder"], env: NO_ENV, code: 1, fragments: &["plain_folder", "not a regular file (a folder)"], absent: &[] },
+    Case { name: "render --frames past the bound", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--frames", "4294967295"], env: NO_ENV, code: 1, fragments: &["--frames 4294967295: expected 1 to 100000 frames"], absent: &[] },
+    Case { name: "bench --frames past the bound", args: &["bench", "--volume", "ml", "--dims", "8,8,8", "--frames", "100001"], env: NO_ENV, code: 1, fragments: &["--frames 100001: expected 1 to 100000 frames"], absent: &[] },
+    Case { name: "render --frames 0", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--frames", "0"], env: NO_ENV, code: 1, fragments: &["--frames 0: expected 1 to 100000 frames"], absent: &[] },
     // Issue 42, item 3 (review D4): convert replaces only a regular file, even with --force.
     Case { name: "convert onto a FIFO with --force", args: &["convert", "ml", "{d}/store.fifo", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store.fifo", "not a regular file", "even with --force"], absent: &[] },
     Case { name: "convert onto a link with --force", args: &["convert", "ml", "{d}/store_link.mvbs", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store_link.mvbs", "symbolic link"], absent: &[] },
@@ -122,6 +129,7 @@ fn fixtures(d: &Path) {
     mkfifo(&d.join("data.fifo"));
     mkfifo(&d.join("pipe.nrrd"));
     mkfifo(&d.join("store.fifo"));
+    mkfifo(&d.join("path.fifo"));
     std::os::unix::fs::symlink(d.join("small.raw"), d.join("store_link.mvbs")).unwrap();
     std::fs::write(
         d.join("fifo_data.nhdr"),

@@ -40,6 +40,24 @@ pub fn convert(args: &ConvertArgs) -> Result<()> {
             )));
         }
     }
+    // A store is converted already (review D23): say so instead of "no known header".
+    if let Some(kind) = crate::input::store_kind(Path::new(&args.input)) {
+        return Err(Error::InvalidInput(format!(
+            "INPUT {} is a {kind} (mixvol's own format, converted already): render it with \
+             `mixvol render --volume {}`; convert reads volume files, DICOM series and Zarr",
+            args.input, args.input
+        )));
+    }
+    // The STORE's folder is created, as `render -o` creates the image's (review D24).
+    if let Some(parent) = store.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(|e| {
+            Error::InvalidInput(format!(
+                "cannot create the folder {} of STORE {}: {e}",
+                parent.display(),
+                store.display()
+            ))
+        })?;
+    }
     let budget = args.ram_budget_mb.checked_mul(1 << 20).ok_or_else(|| {
         Error::InvalidInput(format!(
             "--ram-budget-mb {} is too large",

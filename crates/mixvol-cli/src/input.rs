@@ -210,6 +210,16 @@ fn magic_of(path: &Path) -> Option<[u8; 8]> {
         .map(|()| magic)
 }
 
+/// What kind of mixvol store `path` is by its magic bytes ("brick store", "level store"),
+/// `None` for anything else (not a regular file, or another magic).
+pub fn store_kind(path: &Path) -> Option<&'static str> {
+    match magic_of(path)? {
+        MAGIC => Some("brick store"),
+        LEVEL_MAGIC => Some("level store"),
+        _ => None,
+    }
+}
+
 /// True when `path` is a regular file that starts with the brick store's magic bytes.
 pub fn is_brick_store(path: &Path) -> bool {
     magic_of(path) == Some(MAGIC)

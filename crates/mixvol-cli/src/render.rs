@@ -384,6 +384,14 @@ pub fn render(args: &RenderArgs) -> Result<()> {
     crate::camera_path::check_frames("--frames", args.frames)?;
     let cameras = views(args)?;
     let is_path = args.camera_path.is_path();
+    let frames_dir = &args.camera_path.frames_dir;
+    if is_path && frames_dir.exists() && !frames_dir.is_dir() {
+        // Checked before any work (review D20): the frames would fail to write at the end.
+        return Err(Error::InvalidInput(format!(
+            "--frames-dir {} is a file, not a folder",
+            frames_dir.display()
+        )));
+    }
     if is_path && args.compare {
         return Err(Error::InvalidInput(
             "--compare renders one view; drop --orbit / --dolly / --path".into(),

@@ -86,6 +86,11 @@ const CASES: &[Case] = &[
     Case { name: "render --frames past the bound", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--frames", "4294967295"], env: NO_ENV, code: 1, fragments: &["--frames 4294967295: expected 1 to 100000 frames"], absent: &[] },
     Case { name: "bench --frames past the bound", args: &["bench", "--volume", "ml", "--dims", "8,8,8", "--frames", "100001"], env: NO_ENV, code: 1, fragments: &["--frames 100001: expected 1 to 100000 frames"], absent: &[] },
     Case { name: "render --frames 0", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--frames", "0"], env: NO_ENV, code: 1, fragments: &["--frames 0: expected 1 to 100000 frames"], absent: &[] },
+    // Issue 42, item 8 (review D20, D23, D24): the real cause, or the folder made.
+    Case { name: "--frames-dir naming a file", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--orbit", "2", "--frames-dir", "{d}/small.raw"], env: NO_ENV, code: 1, fragments: &["--frames-dir", "small.raw is a file, not a folder"], absent: &["File exists"] },
+    Case { name: "convert a brick store", args: &["convert", "{d}/made.mvb", "{d}/again.mvb"], env: NO_ENV, code: 1, fragments: &["made.mvb is a brick store", "converted already", "mixvol render --volume"], absent: &["no known header"] },
+    Case { name: "convert a level store", args: &["convert", "{d}/made.mvl", "{d}/again.mvb"], env: NO_ENV, code: 1, fragments: &["made.mvl is a level store", "converted already"], absent: &["no known header"] },
+    Case { name: "convert into folders not made yet", args: &["convert", "ml", "{d}/nodir/sub/x.mvb", "--dims", "16,16,16"], env: NO_ENV, code: 0, fragments: &["nodir/sub/x.mvb (16x16x16 voxels"], absent: &[] },
     // Issue 42, item 3 (review D4): convert replaces only a regular file, even with --force.
     Case { name: "convert onto a FIFO with --force", args: &["convert", "ml", "{d}/store.fifo", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store.fifo", "not a regular file", "even with --force"], absent: &[] },
     Case { name: "convert onto a link with --force", args: &["convert", "ml", "{d}/store_link.mvbs", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store_link.mvbs", "symbolic link"], absent: &[] },
@@ -130,6 +135,9 @@ fn fixtures(d: &Path) {
     mkfifo(&d.join("pipe.nrrd"));
     mkfifo(&d.join("store.fifo"));
     mkfifo(&d.join("path.fifo"));
+    // Files that start like mixvol's stores (convert reads the magic only to refuse them).
+    std::fs::write(d.join("made.mvb"), b"MIXVOLBS and then not a store").unwrap();
+    std::fs::write(d.join("made.mvl"), b"MIXVOLLV and then not a store").unwrap();
     std::os::unix::fs::symlink(d.join("small.raw"), d.join("store_link.mvbs")).unwrap();
     std::fs::write(
         d.join("fifo_data.nhdr"),

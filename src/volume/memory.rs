@@ -7,15 +7,22 @@ use super::VolumeError;
 /// The environment variable that sets the host-memory limit in MiB.
 pub const HOST_MEMORY_ENV: &str = "MIXVOL_HOST_MEMORY_MB";
 
-/// The host-memory limit in bytes (see the module docs); `u64::MAX` when nothing says.
-pub fn host_memory_limit() -> u64 {
-    if let Some(mb) = std::env::var(HOST_MEMORY_ENV)
-        .ok()
-        .and_then(|v| v.trim().parse::<u64>().ok())
-    {
-        return mb.saturating_mul(1 << 20);
+/// The host-memory limit in bytes (see the module docs); `u64::MAX` when nothing says. A
+/// `MIXVOL_HOST_MEMORY_MB` that is not a whole number of MiB is an error
+/// ([`VolumeError::Environment`]), not ignored.
+pub fn host_memory_limit() -> Result<u64, VolumeError> {
+    if let Ok(text) = std::env::var(HOST_MEMORY_ENV) {
+        let mb = text
+            .trim()
+            .parse::<u64>()
+            .map_err(|_| VolumeError::Environment {
+                name: HOST_MEMORY_ENV.to_string(),
+                value: text.clone(),
+                expected: "expected a whole number of MiB".to_string(),
+            })?;
+        return Ok(mb.saturating_mul(1 << 20));
     }
-    available_memory().unwrap_or(u64::MAX)
+    Ok(available_memory().unwrap_or(u64::MAX))
 }
 
 /// `MemAvailable` from `/proc/meminfo`, in bytes.
@@ -28,7 +35,7 @@ fn available_memory() -> Option<u64> {
 
 /// Checks that `bytes` of `what` fit the host-memory limit before the work that needs them.
 pub fn check_host_bytes(what: &str, bytes: u64) -> Result<(), VolumeError> {
-    let limit = host_memory_limit();
+    let limit = host_memory_limit()?;
     if bytes > limit {
         return Err(VolumeError::TooLarge {
             what: what.to_string(),

@@ -238,9 +238,21 @@ pub enum VolumeError {
         /// The limit.
         limit: u64,
     },
-    /// A synthetic field parameter is out of range.
-    #[error("invalid synthetic field parameter: {0}")]
+    /// A parameter is out of range: of a synthetic field, a chunk or level request, an S3
+    /// setting (the message names which).
+    #[error("invalid parameter: {0}")]
     InvalidParameter(String),
+    /// An environment variable that sets an option (`MIXVOL_HOST_MEMORY_MB`,
+    /// `MIXVOL_REMOTE_*`) holds a value that cannot be used; never ignored.
+    #[error("environment variable {name}={value:?}: {expected}")]
+    Environment {
+        /// The variable.
+        name: String,
+        /// Its value.
+        value: String,
+        /// What it must hold.
+        expected: String,
+    },
     /// A slab was asked for that the reader cannot give: outside the volume, of the wrong size or
     /// scalar type, or backwards on a forward-only (gzip) reader.
     #[error("{path}: slab request: {message}")]

@@ -91,6 +91,11 @@ const CASES: &[Case] = &[
     Case { name: "convert a brick store", args: &["convert", "{d}/made.mvb", "{d}/again.mvb"], env: NO_ENV, code: 1, fragments: &["made.mvb is a brick store", "converted already", "mixvol render --volume"], absent: &["no known header"] },
     Case { name: "convert a level store", args: &["convert", "{d}/made.mvl", "{d}/again.mvb"], env: NO_ENV, code: 1, fragments: &["made.mvl is a level store", "converted already"], absent: &["no known header"] },
     Case { name: "convert into folders not made yet", args: &["convert", "ml", "{d}/nodir/sub/x.mvb", "--dims", "16,16,16"], env: NO_ENV, code: 0, fragments: &["nodir/sub/x.mvb (16x16x16 voxels"], absent: &[] },
+    // Issue 42, item 8 (review D17, D29): option variables are checked by name, never ignored,
+    // and not called synthetic-field parameters.
+    Case { name: "MIXVOL_HOST_MEMORY_MB not a number", args: &["render", "--volume", "ml", "--dims", "8,8,8"], env: &[("MIXVOL_HOST_MEMORY_MB", "abc")], code: 1, fragments: &["environment variable MIXVOL_HOST_MEMORY_MB=\"abc\": expected a whole number of MiB"], absent: &[] },
+    Case { name: "MIXVOL_REMOTE_TIMEOUT_MS zero", args: &["render", "--volume", "http://127.0.0.1:9/img.zarr"], env: &[("MIXVOL_REMOTE_TIMEOUT_MS", "0")], code: 1, fragments: &["environment variable MIXVOL_REMOTE_TIMEOUT_MS=\"0\": a timeout must be at least 1 ms"], absent: &["synthetic field"] },
+    Case { name: "MIXVOL_REMOTE_RETRIES not a number", args: &["render", "--volume", "http://127.0.0.1:9/img.zarr"], env: &[("MIXVOL_REMOTE_RETRIES", "abc")], code: 1, fragments: &["environment variable MIXVOL_REMOTE_RETRIES=\"abc\": expected a whole number"], absent: &["synthetic field"] },
     // Issue 42, item 3 (review D4): convert replaces only a regular file, even with --force.
     Case { name: "convert onto a FIFO with --force", args: &["convert", "ml", "{d}/store.fifo", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store.fifo", "not a regular file", "even with --force"], absent: &[] },
     Case { name: "convert onto a link with --force", args: &["convert", "ml", "{d}/store_link.mvbs", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store_link.mvbs", "symbolic link"], absent: &[] },
@@ -198,6 +203,8 @@ fn run(args: &[String], env: &[(&str, &str)], deadline: Duration) -> Option<(i32
         .stderr(Stdio::piped())
         .env_remove("MIXVOL_HOST_MEMORY_MB")
         .env_remove("MIXVOL_TEST_INVALID_VULKAN_CALL")
+        .env_remove("MIXVOL_REMOTE_TIMEOUT_MS")
+        .env_remove("MIXVOL_REMOTE_RETRIES")
         .env_remove("RUST_LOG");
     for (k, v) in env {
         cmd.env(k, v);

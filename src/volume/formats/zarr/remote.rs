@@ -82,24 +82,27 @@ impl RemoteOptions {
     /// The defaults, with `timeout`, `connect_timeout` and `max_retries` taken from
     /// `MIXVOL_REMOTE_TIMEOUT_MS`, `MIXVOL_REMOTE_CONNECT_TIMEOUT_MS` and `MIXVOL_REMOTE_RETRIES`
     /// where set. A value that is not a whole number (or a zero timeout) is a
-    /// [`VolumeError::InvalidParameter`] naming the variable.
+    /// [`VolumeError::Environment`] naming the variable.
     pub fn from_env() -> Result<Self, VolumeError> {
         let mut options = Self::default();
+        let refuse = |name: &str, value: String, expected: &str| VolumeError::Environment {
+            name: name.to_string(),
+            value,
+            expected: expected.to_string(),
+        };
         let var = |name: &str| -> Result<Option<u64>, VolumeError> {
             match std::env::var(name) {
                 Err(_) => Ok(None),
-                Ok(text) => text.trim().parse::<u64>().map(Some).map_err(|_| {
-                    VolumeError::InvalidParameter(format!(
-                        "{name}={text:?}: expected a whole number"
-                    ))
-                }),
+                Ok(text) => text
+                    .trim()
+                    .parse::<u64>()
+                    .map(Some)
+                    .map_err(|_| refuse(name, text, "expected a whole number")),
             }
         };
         let millis = |name: &str| -> Result<Option<Duration>, VolumeError> {
             match var(name)? {
-                Some(0) => Err(VolumeError::InvalidParameter(format!(
-                    "{name}=0: a timeout must be at least 1 ms"
-                ))),
+                Some(0) => Err(refuse(name, "0".into(), "a timeout must be at least 1 ms")),
                 v => Ok(v.map(Duration::from_millis)),
             }
         };

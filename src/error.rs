@@ -115,6 +115,17 @@ pub enum Error {
     /// Streaming an OME-Zarr image failed (opening it, its configuration).
     #[error(transparent)]
     Stream(#[from] crate::stream::StreamError),
+    /// A file other than an image (a JSON or CSV output) could not be written: `what` names
+    /// it ("the stats JSON").
+    #[error("cannot write {what} {path}: {message}")]
+    FileWrite {
+        /// What the file is, for the message.
+        what: String,
+        /// Destination path.
+        path: std::path::PathBuf,
+        /// What failed.
+        message: String,
+    },
     /// An image could not be written.
     #[error("cannot write image {path}: {message}")]
     ImageWrite {

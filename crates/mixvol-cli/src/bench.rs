@@ -155,7 +155,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
             volume: &r.volume,
             passes,
         };
-        crate::files::write_json(path, &json)?;
+        crate::files::write_json("the results JSON", path, &json)?;
     }
     drop(renderer);
     drop(ctx);

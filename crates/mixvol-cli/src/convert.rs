@@ -400,7 +400,7 @@ fn report(
             "plan_bytes": plan.map(|p| p.total_bytes),
             "slab_planes": plan.map(|p| p.planes),
         });
-        crate::files::write_text(path, &format!("{stats:#}\n"))?;
+        crate::files::write_text("the stats JSON", path, &format!("{stats:#}\n"))?;
     }
     Ok(())
 }

@@ -148,7 +148,7 @@ fn report(
             "peak_rss_bytes": peak,
             "ram_budget_bytes": args.ram_budget_mb * (1 << 20),
         });
-        crate::files::write_text(path, &format!("{stats:#}\n"))?;
+        crate::files::write_text("the stats JSON", path, &format!("{stats:#}\n"))?;
     }
     Ok(())
 }

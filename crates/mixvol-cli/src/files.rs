@@ -15,17 +15,22 @@ pub fn create_parent(path: &Path) -> Result<()> {
 }
 
 /// Writes `text` to `path` (creating its folder) atomically ([`mixvol::output`]: a failed
-/// write leaves any previous file intact), naming the path on failure.
-pub fn write_text(path: &Path, text: &str) -> Result<()> {
-    create_parent(path)?;
-    mixvol::output::write_file_atomically(path, text.as_bytes()).map_err(|e| Error::ImageWrite {
+/// write leaves any previous file intact), naming `what` it is and the path on failure.
+pub fn write_text(what: &str, path: &Path, text: &str) -> Result<()> {
+    let fail = |e: &dyn std::fmt::Display| Error::FileWrite {
+        what: what.to_string(),
         path: path.to_path_buf(),
         message: e.to_string(),
-    })
+    };
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| fail(&e))?;
+    }
+    mixvol::output::write_file_atomically(path, text.as_bytes()).map_err(|e| fail(&e))
 }
 
-/// Writes `value` as one line of JSON to `path`, or to standard output for `-`.
-pub fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
+/// Writes `value` (`what` it is, for messages) as one line of JSON to `path`, or to standard
+/// output for `-`.
+pub fn write_json(what: &str, path: &Path, value: &impl serde::Serialize) -> Result<()> {
     let text = serde_json::to_string(value)
         .map_err(|e| Error::InvalidInput(format!("results as JSON: {e}")))?
         + "\n";
@@ -33,7 +38,7 @@ pub fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
         print!("{text}");
         Ok(())
     } else {
-        write_text(path, &text)
+        write_text(what, path, &text)
     }
 }
 

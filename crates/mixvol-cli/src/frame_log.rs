@@ -189,12 +189,14 @@ pub fn to_csv(rows: &[FrameRow]) -> String {
 
 /// Writes the rows as `csv_path` and, next to it, the same stem with `.json`.
 pub fn write_log(csv_path: &Path, rows: &[FrameRow]) -> Result<()> {
-    write_text(csv_path, &to_csv(rows))?;
-    let json = serde_json::to_string_pretty(rows).map_err(|e| Error::ImageWrite {
-        path: csv_path.with_extension("json"),
+    write_text("the frame log", csv_path, &to_csv(rows))?;
+    let json_path = csv_path.with_extension("json");
+    let json = serde_json::to_string_pretty(rows).map_err(|e| Error::FileWrite {
+        what: "the frame log".into(),
+        path: json_path.clone(),
         message: e.to_string(),
     })?;
-    write_text(&csv_path.with_extension("json"), &json)
+    write_text("the frame log", &json_path, &json)
 }
 
 #[cfg(test)]

@@ -227,7 +227,7 @@ pub fn bench_path(args: &BenchArgs) -> Result<()> {
             path_frames: cameras.len(),
             transitions: out,
         };
-        crate::files::write_json(path, &json)?;
+        crate::files::write_json("the results JSON", path, &json)?;
     }
     drop(runs);
     drop(ctx);

@@ -456,20 +456,20 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
     println!("{}", curve_line("GPU allocated", &gpu));
     println!("live GPU allocations at shutdown: {live}");
     let csv = &args.soak_log;
-    write_text(csv, &to_csv(&samples))?;
+    write_text("the soak log", csv, &to_csv(&samples))?;
     let json = serde_json::to_string_pretty(&SoakJson {
         summary: &summary,
         samples: &samples,
     })
     .map_err(|e| Error::InvalidInput(format!("soak results as JSON: {e}")))?;
-    write_text(&csv.with_extension("json"), &json)?;
+    write_text("the soak log", &csv.with_extension("json"), &json)?;
     println!(
         "wrote {} and {}",
         csv.display(),
         csv.with_extension("json").display()
     );
     if let Some(path) = &args.json {
-        crate::files::write_json(path, &summary)?;
+        crate::files::write_json("the soak summary JSON", path, &summary)?;
     }
     crate::files::note_cpu_device(&info);
     validation.finish()?;

@@ -1,6 +1,6 @@
 //! The command line: subcommands, their flags, and the parsers of flag values.
 
-use crate::parse::{parse_floats, parse_scalar, parse_tf, parse_uvec3, parse_vec3};
+use crate::parse::{parse_colour, parse_floats, parse_scalar, parse_tf, parse_uvec3, parse_vec3};
 use clap::{Args, ValueEnum};
 use glam::{UVec3, Vec3};
 use mixvol::optics::{SamplingModel, TfPreset};
@@ -341,7 +341,7 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = mixvol::scene::DEFAULT_EARLY_TERMINATION)]
     pub early_termination: f32,
     /// Background colour r,g,b in [0,1] the image is composited over.
-    #[arg(long, default_value = "0.08,0.08,0.1", value_parser = parse_vec3)]
+    #[arg(long, default_value = "0.08,0.08,0.1", value_parser = parse_colour)]
     pub background: Vec3,
     /// Output PNG path (folders are created).
     #[arg(long, short, default_value = "out/render.png")]

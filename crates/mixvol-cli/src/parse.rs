@@ -21,6 +21,16 @@ pub fn parse_vec3(s: &str) -> std::result::Result<Vec3, String> {
     parse_floats::<3>(s).map(Vec3::from_array)
 }
 
+/// A colour `r,g,b`, each a number in [0, 1] (NaN and values past 1 were taken silently and
+/// gave black or white: review D29).
+pub fn parse_colour(s: &str) -> std::result::Result<Vec3, String> {
+    let rgb = parse_floats::<3>(s)?;
+    if rgb.iter().any(|c| !(0.0..=1.0).contains(c)) {
+        return Err(format!("expected r,g,b each in [0, 1], got '{s}'"));
+    }
+    Ok(Vec3::from_array(rgb))
+}
+
 pub fn parse_uvec3(s: &str) -> std::result::Result<UVec3, String> {
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();
     if parts.len() != 3 {

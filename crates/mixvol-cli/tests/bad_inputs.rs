@@ -101,6 +101,10 @@ const CASES: &[Case] = &[
     Case { name: "--stats-json on a full device", args: &["convert", "ml", "{d}/stats.mvb", "--dims", "16,16,16", "--stats-json", "/dev/full"], env: NO_ENV, code: 1, fragments: &["cannot write the stats JSON /dev/full"], absent: &["image"] },
     Case { name: "bench --json on a full device", args: &["bench", "--volume", "ml", "--dims", "8,8,8", "--frames", "1", "--width", "16", "--height", "16", "--json", "/dev/full"], env: NO_ENV, code: 1, fragments: &["cannot write the results JSON /dev/full"], absent: &["cannot write image"] },
     Case { name: "the frame log on a full device", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--width", "16", "--height", "16", "--frame-log", "/dev/full"], env: NO_ENV, code: 1, fragments: &["cannot write the frame log /dev/full"], absent: &["cannot write image"] },
+    // Issue 42, item 8 (review D29): a background colour outside [0, 1] is refused (NaN gave
+    // black, 5 gave white, without a word).
+    Case { name: "--background NaN", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--background", "NaN,0,0"], env: NO_ENV, code: 2, fragments: &["--background", "expected r,g,b each in [0, 1], got 'NaN,0,0'"], absent: &[] },
+    Case { name: "--background past 1", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--background", "5,5,5"], env: NO_ENV, code: 2, fragments: &["expected r,g,b each in [0, 1], got '5,5,5'"], absent: &[] },
     // Issue 42, item 3 (review D4): convert replaces only a regular file, even with --force.
     Case { name: "convert onto a FIFO with --force", args: &["convert", "ml", "{d}/store.fifo", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store.fifo", "not a regular file", "even with --force"], absent: &[] },
     Case { name: "convert onto a link with --force", args: &["convert", "ml", "{d}/store_link.mvbs", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store_link.mvbs", "symbolic link"], absent: &[] },

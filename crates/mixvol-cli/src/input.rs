@@ -266,6 +266,16 @@ pub fn open_input_with_meta(args: &RenderArgs) -> Result<(Input, Option<VolumeMe
     let magic = (!ZarrLocation::is_url(&args.volume))
         .then(|| magic_of(path))
         .flatten();
+    if let Some(m) = magic.filter(|m| m.starts_with(b"MIXVOL") && *m != MAGIC && *m != LEVEL_MAGIC)
+    {
+        // Not read as headerless raw data (review D22).
+        return Err(Error::InvalidInput(format!(
+            "{}: starts with \"{}\", the mark of mixvol's stores, but is neither a brick store \
+             (MIXVOLBS) nor a level store (MIXVOLLV): a damaged store, or one a newer mixvol wrote",
+            args.volume,
+            String::from_utf8_lossy(&m)
+        )));
+    }
     if magic == Some(MAGIC) || magic == Some(LEVEL_MAGIC) {
         if args.zarr_level.is_some() {
             return Err(Error::InvalidInput(format!(

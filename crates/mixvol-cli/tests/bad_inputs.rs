@@ -105,6 +105,8 @@ const CASES: &[Case] = &[
     // black, 5 gave white, without a word).
     Case { name: "--background NaN", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--background", "NaN,0,0"], env: NO_ENV, code: 2, fragments: &["--background", "expected r,g,b each in [0, 1], got 'NaN,0,0'"], absent: &[] },
     Case { name: "--background past 1", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--background", "5,5,5"], env: NO_ENV, code: 2, fragments: &["expected r,g,b each in [0, 1], got '5,5,5'"], absent: &[] },
+    // Issue 42, item 8 (review D22): a store whose magic is damaged is not read as raw data.
+    Case { name: "a store with a damaged magic", args: &["render", "--volume", "{d}/damaged.mvb"], env: NO_ENV, code: 1, fragments: &["damaged.mvb", "\"MIXVOLBX\"", "neither a brick store (MIXVOLBS) nor a level store"], absent: &["headerless raw"] },
     // Issue 42, item 3 (review D4): convert replaces only a regular file, even with --force.
     Case { name: "convert onto a FIFO with --force", args: &["convert", "ml", "{d}/store.fifo", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store.fifo", "not a regular file", "even with --force"], absent: &[] },
     Case { name: "convert onto a link with --force", args: &["convert", "ml", "{d}/store_link.mvbs", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store_link.mvbs", "symbolic link"], absent: &[] },
@@ -152,6 +154,7 @@ fn fixtures(d: &Path) {
     // Files that start like mixvol's stores (convert reads the magic only to refuse them).
     std::fs::write(d.join("made.mvb"), b"MIXVOLBS and then not a store").unwrap();
     std::fs::write(d.join("made.mvl"), b"MIXVOLLV and then not a store").unwrap();
+    std::fs::write(d.join("damaged.mvb"), b"MIXVOLBX and then a store's bytes").unwrap();
     std::os::unix::fs::symlink(d.join("small.raw"), d.join("store_link.mvbs")).unwrap();
     std::fs::write(
         d.join("fifo_data.nhdr"),

@@ -107,6 +107,8 @@ const CASES: &[Case] = &[
     Case { name: "--background past 1", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--background", "5,5,5"], env: NO_ENV, code: 2, fragments: &["expected r,g,b each in [0, 1], got '5,5,5'"], absent: &[] },
     // Issue 42, item 8 (review D22): a store whose magic is damaged is not read as raw data.
     Case { name: "a store with a damaged magic", args: &["render", "--volume", "{d}/damaged.mvb"], env: NO_ENV, code: 1, fragments: &["damaged.mvb", "\"MIXVOLBX\"", "neither a brick store (MIXVOLBS) nor a level store"], absent: &["headerless raw"] },
+    // Issue 42, item 8 (review D26): an empty chunk file is named as such, not blamed on a field.
+    Case { name: "an empty Zarr chunk file", args: &["render", "--volume", "{d}/empty_chunk.zarr"], env: NO_ENV, code: 1, fragments: &["empty_chunk.zarr/0.0.0", "is empty (0 bytes), where 64 bytes decoded are expected"], absent: &["chunk_grid", "`chunks`"] },
     // Issue 42, item 3 (review D4): convert replaces only a regular file, even with --force.
     Case { name: "convert onto a FIFO with --force", args: &["convert", "ml", "{d}/store.fifo", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store.fifo", "not a regular file", "even with --force"], absent: &[] },
     Case { name: "convert onto a link with --force", args: &["convert", "ml", "{d}/store_link.mvbs", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store_link.mvbs", "symbolic link"], absent: &[] },
@@ -144,6 +146,19 @@ fn nrrd_header(ty: &str, sizes: &str, encoding: &str, data_file: Option<&str>) -
     h.into_bytes()
 }
 
+/// Makes the folder of a Zarr v2 array of u8 (raw chunks, fill value 0) of `shape` in chunks of
+/// `chunks` (JSON arrays), with no chunk written.
+fn zarr_u8(dir: &Path, shape: &str, chunks: &str) {
+    std::fs::create_dir(dir).unwrap();
+    std::fs::write(
+        dir.join(".zarray"),
+        format!(
+            r#"{{"zarr_format":2,"shape":{shape},"chunks":{chunks},"dtype":"|u1","compressor":null,"fill_value":0,"order":"C","filters":null}}"#
+        ),
+    )
+    .unwrap();
+}
+
 /// Writes every fixture the table names into `d`.
 fn fixtures(d: &Path) {
     mkfifo(&d.join("vol.fifo"));
@@ -170,14 +185,11 @@ fn fixtures(d: &Path) {
     )
     .unwrap();
     // A Zarr v2 array of 4 MiB with no chunk written (all fill value).
-    let zarr = d.join("big.zarr");
-    std::fs::create_dir(&zarr).unwrap();
-    std::fs::write(
-        zarr.join(".zarray"),
-        r#"{"zarr_format":2,"shape":[256,128,128],"chunks":[64,128,128],"dtype":"|u1","compressor":null,"fill_value":0,"order":"C","filters":null}"#,
-    )
-    .unwrap();
+    zarr_u8(&d.join("big.zarr"), "[256,128,128]", "[64,128,128]");
     std::fs::write(d.join("small.raw"), [0u8; 64]).unwrap();
+    // A Zarr v2 array of one 4x4x4 raw chunk whose file is empty.
+    zarr_u8(&d.join("empty_chunk.zarr"), "[4,4,4]", "[4,4,4]");
+    std::fs::write(d.join("empty_chunk.zarr/0.0.0"), b"").unwrap();
     // A gzip stream of 65 bytes whose CRC is wrong: it decodes past the 64 bytes described
     // and then fails its checksum (the data is corrupt, not longer).
     let mut corrupt = gzip(&[7u8; 65]);

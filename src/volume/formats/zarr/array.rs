@@ -441,6 +441,18 @@ impl ZarrLevel {
         decoded_bytes: u64,
         outer: OuterCodec,
     ) -> Result<Vec<T>, VolumeError> {
+        if encoded.is_empty() && decoded_bytes > 0 {
+            // Named as what it is, not as a field of the metadata (review D26).
+            return Err(format_err(
+                &self.chunk_path(indices),
+                "chunk data",
+                format!(
+                    "chunk {indices:?} is empty (0 bytes), where {decoded_bytes} bytes decoded \
+                     are expected: a chunk written cut short (a missing chunk has no file and \
+                     reads as the fill value)"
+                ),
+            ));
+        }
         outer.check(&encoded, decoded_bytes).map_err(|m| {
             format_err(
                 &self.chunk_path(indices),

@@ -131,12 +131,16 @@ use targets::{targets, Bricks, Changes, Counts};
 pub use frame::{
     cull_params, upload_bytes, FrameInput, FramePlan, PlanBudget, PlanOptions, PlanReport,
 };
-pub use level_steps::{admit_by_budget, next_target, step_towards};
-pub use levels::{
-    choose_levels, choose_levels_near, level_margin, LevelChoice, LevelChoiceError, LevelChooser,
+pub use level_choice::{
+    choose_levels, choose_levels_near, level_margin, LevelChoice, LevelChoiceError,
 };
+pub use level_steps::{admit_by_budget, next_target, step_towards};
+pub use levels::LevelChooser;
 
+mod brick_headroom;
 mod frame;
+mod level_choice;
+mod level_rule;
 mod level_steps;
 mod levels;
 mod loaded;

@@ -32,7 +32,14 @@ fn main() -> mixvol::Result<()> {
         std::process::id()
     ));
     let volume = SyntheticField::MarschnerLobb.generate(UVec3::splat(256), ScalarType::U8)?;
-    write_level_store(&path, &volume, brick_size, None, &mut |_, _| {})?;
+    write_level_store(
+        &path,
+        &volume,
+        brick_size,
+        None,
+        DownsampleFilter::Mean2,
+        &mut |_, _| {},
+    )?;
     drop(volume);
     let store = Arc::new(LevelStore::open(&path)?);
     let config = MixedConfig {

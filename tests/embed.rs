@@ -15,6 +15,7 @@ use gpu_allocator::vulkan::{
 };
 use gpu_allocator::MemoryLocation;
 use mixvol::bricks::BrickGrid;
+use mixvol::bricks::DownsampleFilter;
 use mixvol::bricks::Level;
 use mixvol::cache::SlotGeometry;
 use mixvol::embed::{MixedConfig, PassDesc, PassTarget, TargetLoad, VolumePass, VolumeSource};
@@ -552,7 +553,8 @@ fn frames_in_flight(source: InFlightSource) {
                     let levels = pass.brick_levels().unwrap();
                     let grid = BrickGrid::new(volume.dims(), config.brick_size).unwrap();
                     let deepest = levels.iter().flatten().max().copied().unwrap_or(0);
-                    let grids = LevelGrid::vertex_pyramid(&volume, deepest + 1);
+                    let grids =
+                        LevelGrid::vertex_pyramid(&volume, deepest + 1, DownsampleFilter::Mean2);
                     let field = LevelField::new(&grid, &grids, levels).unwrap();
                     let geometry =
                         SlotGeometry::new(config.brick_size, 3, UVec3::splat(256)).unwrap();

@@ -35,7 +35,10 @@ const LEVELS: u32 = 5;
 fn setup(rng: &mut Rng, bricks: UVec3, levels: u32) -> (BrickGrid, Vec<LevelGrid>) {
     let volume = textured_volume(rng, bricks * N);
     let grid = BrickGrid::new(volume.dims(), N).unwrap();
-    (grid, LevelGrid::vertex_pyramid(&volume, levels))
+    (
+        grid,
+        LevelGrid::vertex_pyramid(&volume, levels, DownsampleFilter::Mean2),
+    )
 }
 
 /// Checks the smooth field (both formulations) is Lipschitz at every probe point and, when
@@ -139,7 +142,7 @@ fn random_plans_over_five_levels_are_continuous_on_awkward_dims() {
     let dims = UVec3::new(11 * N + 5, 6 * N + 3, 9 * N - 3);
     let volume = textured_volume(&mut rng, dims);
     let grid = BrickGrid::new(dims, N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS, DownsampleFilter::Mean2);
     for plan in 0..6 {
         let shift = plan % 3 - 1;
         let mut levels = staircase_plan(grid.bricks_per_axis(), shift, LEVELS);
@@ -215,7 +218,7 @@ fn each_level_alone_is_the_trilinear_field_of_its_own_samples() {
     let dims = UVec3::new(2 * N + 3, N + 5, 2 * N);
     let volume = textured_volume(&mut rng, dims);
     let grid = BrickGrid::new(dims, N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS, DownsampleFilter::Mean2);
     let points = probe_points(&mut rng, dims, N, LEVELS, 2000);
     for level in 0..LEVELS {
         let levels = vec![Some(level); grid.brick_count()];
@@ -258,7 +261,7 @@ fn each_level_alone_is_the_trilinear_field_of_its_own_samples() {
         })
         .collect();
     let ramp = Volume::new(dims, Vec3::ONE, VoxelData::F32(data)).unwrap();
-    let ramp_grids = LevelGrid::vertex_pyramid(&ramp, LEVELS);
+    let ramp_grids = LevelGrid::vertex_pyramid(&ramp, LEVELS, DownsampleFilter::Mean2);
     let margin = (1 << LEVELS) as f32;
     for _ in 0..2000 {
         let p = Vec3::new(rng.unit(), rng.unit(), rng.unit()) * (dims.as_vec3() - 2.0 * margin)
@@ -275,18 +278,89 @@ fn each_level_alone_is_the_trilinear_field_of_its_own_samples() {
     }
 }
 
+/// Level 1 is the chosen filter over the voxels around each vertex, written out here from the
+/// filters' definitions (not from the library's tap tables): per axis, Mean2 averages voxels
+/// `2j-1, 2j`, LaMar takes voxel `2j`, Box4 averages `2j-2 ..= 2j+1`, BSpline4 weighs them
+/// `13, 19, 19, 13` / 64, each index clamped to the volume; every coarser level does not
+/// depend on the filter but through level 1.
+#[test]
+fn level_one_is_the_chosen_filter_around_each_vertex() {
+    let mut rng = Rng(0x1e7e_1f1e_1d00_000a);
+    let dims = UVec3::new(2 * N + 3, N + 5, N + 2);
+    let volume = textured_volume(&mut rng, dims);
+    let voxel = |v: IVec3| {
+        let c = v
+            .clamp(IVec3::ZERO, dims.as_ivec3() - IVec3::ONE)
+            .as_uvec3();
+        volume
+            .data()
+            .normalized((c.x + dims.x * (c.y + dims.y * c.z)) as usize) as f64
+    };
+    let axis_weights = |filter: DownsampleFilter| -> Vec<(i32, f64)> {
+        match filter {
+            DownsampleFilter::Mean2 => vec![(-1, 0.5), (0, 0.5)],
+            DownsampleFilter::LaMarSubsample => vec![(0, 1.0)],
+            DownsampleFilter::Box4 => vec![(-2, 0.25), (-1, 0.25), (0, 0.25), (1, 0.25)],
+            DownsampleFilter::BSpline4 => vec![
+                (-2, 13.0 / 64.0),
+                (-1, 19.0 / 64.0),
+                (0, 19.0 / 64.0),
+                (1, 13.0 / 64.0),
+            ],
+        }
+    };
+    let mean2 = LevelGrid::vertex_pyramid(&volume, 3, DownsampleFilter::Mean2);
+    for filter in DownsampleFilter::ALL {
+        let grids = LevelGrid::vertex_pyramid(&volume, 3, filter);
+        let level1 = &grids[1];
+        assert_eq!(level1.dims(), (dims + UVec3::ONE) / 2 + UVec3::ONE);
+        let w = axis_weights(filter);
+        for z in 0..level1.dims().z as i32 {
+            for y in 0..level1.dims().y as i32 {
+                for x in 0..level1.dims().x as i32 {
+                    let mut expected = 0.0f64;
+                    for &(oz, wz) in &w {
+                        for &(oy, wy) in &w {
+                            for &(ox, wx) in &w {
+                                let v = IVec3::new(2 * x + ox, 2 * y + oy, 2 * z + oz);
+                                expected += wx * wy * wz * voxel(v);
+                            }
+                        }
+                    }
+                    let got = level1.value(IVec3::new(x, y, z));
+                    assert!(
+                        (f64::from(got) - expected).abs() < 1e-6,
+                        "{filter:?} sample ({x}, {y}, {z}): {got} vs {expected}"
+                    );
+                }
+            }
+        }
+        let differs = level1
+            .values()
+            .iter()
+            .zip(mean2[1].values())
+            .any(|(a, b)| a != b);
+        assert_eq!(differs, filter != DownsampleFilter::Mean2, "{filter:?}");
+        // Level 2 is the tent over level 1, whatever built level 1.
+        let tent = level1.downsampled(SamplePlacement::Vertex, dims, DownsampleFilter::Box4);
+        assert_eq!(grids[2], tent, "{filter:?}: level 2 from level 1");
+    }
+}
+
 /// With two levels the field is the brick cache's (`reference::mixed`): the same values, smooth
-/// and discontinuous, for random plans with undrawn bricks; the coarser bits are the 26
-/// neighbour bits.
+/// and discontinuous, for random plans with undrawn bricks and every downsampling filter; the
+/// coarser bits are the 26 neighbour bits.
 #[test]
 fn two_levels_equal_the_brick_cache_field() {
     let mut rng = Rng(0x1e7e_1f1e_1d00_0006);
     let dims = UVec3::new(3 * N + 3, 2 * N + 5, 2 * N + 1);
     let volume = textured_volume(&mut rng, dims);
     let grid = BrickGrid::new(dims, N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, 2);
     let geometry = CacheGeometry::choose(N, 4, 1 << 30, 4096, grid.brick_count() as u32).unwrap();
-    for plan in 0..6 {
+    // Every level-0-to-1 filter: level 1 is the brick cache's low-res level of that filter.
+    for (plan, filter) in (0..8).zip(DownsampleFilter::ALL.iter().cycle()) {
+        let filter = *filter;
+        let grids = LevelGrid::vertex_pyramid(&volume, 2, filter);
         let levels: Vec<Level> = (0..grid.brick_count())
             .map(|_| match rng.below(7) {
                 0 => Level::Absent,
@@ -312,14 +386,9 @@ fn two_levels_equal_the_brick_cache_field() {
         let mut cache = BrickCache::new(grid, geometry).unwrap();
         cache.update(&levels).unwrap();
         for transition in [Transition::Smooth, Transition::Discontinuous] {
-            let reference = ReferenceCache::build(
-                &volume,
-                DownsampleFilter::Mean2,
-                &cache,
-                ScalarType::F32,
-                transition,
-            )
-            .unwrap();
+            let reference =
+                ReferenceCache::build(&volume, filter, &cache, ScalarType::F32, transition)
+                    .unwrap();
             let view = reference.view();
             for p in probe_points(&mut rng, dims, N, LEVELS, 3000) {
                 let from_cache = sample_mixed(&view, p, transition);
@@ -327,7 +396,7 @@ fn two_levels_equal_the_brick_cache_field() {
                 match (from_cache, from_levels) {
                     (Some(a), Some(b)) => assert!(
                         (a - b).abs() < 2e-5,
-                        "plan {plan} {transition:?} at {p}: cache {a}, levels {b}"
+                        "plan {plan} {filter:?} {transition:?} at {p}: cache {a}, levels {b}"
                     ),
                     (a, b) => assert_eq!(a, b, "plan {plan} at {p}: drawn in one, not the other"),
                 }
@@ -341,7 +410,7 @@ fn bad_level_inputs_are_refused_with_what_was_expected() {
     let mut rng = Rng(0x1e7e_1f1e_1d00_0007);
     let volume = textured_volume(&mut rng, UVec3::new(3 * N, 2 * N, 2 * N));
     let grid = BrickGrid::new(volume.dims(), N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS, DownsampleFilter::Mean2);
     let row = |levels: [Option<u32>; 3]| {
         // The first row of bricks as given, the rest as the brick below in x.
         per_brick(grid.bricks_per_axis(), |b| levels[b.x as usize])
@@ -458,7 +527,7 @@ fn levels_two_and_up_are_the_tent_over_the_level_below() {
         })
         .collect();
     let volume = Volume::new(dims, Vec3::ONE, VoxelData::F32(data)).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, 5);
+    let grids = LevelGrid::vertex_pyramid(&volume, 5, DownsampleFilter::Mean2);
     let mut c = 0.25f64;
     for (k, g) in grids.iter().enumerate().skip(1) {
         if k >= 2 {
@@ -487,7 +556,7 @@ fn levels_two_and_up_are_the_tent_over_the_level_below() {
     // (2) A random volume, every sample, written-out tent with clamp-to-edge.
     let mut rng = Rng(0x7e47_0000_0000_0004);
     let volume = textured_volume(&mut rng, UVec3::new(37, 29, 21));
-    let grids = LevelGrid::vertex_pyramid(&volume, 5);
+    let grids = LevelGrid::vertex_pyramid(&volume, 5, DownsampleFilter::Mean2);
     for k in 2..grids.len() {
         let (below, g) = (&grids[k - 1], &grids[k]);
         let last = below.dims().as_ivec3() - IVec3::ONE;

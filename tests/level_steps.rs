@@ -207,7 +207,7 @@ fn a_budgeted_source_reaches_the_wanted_levels_in_steps() {
             })
             .unwrap();
         let levels = mixvol::cache::pyramid_levels(N, grid.bricks_per_axis());
-        let grids = LevelGrid::vertex_pyramid(&volume, levels);
+        let grids = LevelGrid::vertex_pyramid(&volume, levels, DownsampleFilter::Mean2);
         let geometry = SlotGeometry::new(N, 3, UVec3::splat(128)).unwrap();
         let mut steps = 0;
         let mut waiting = Vec::new();

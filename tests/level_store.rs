@@ -8,6 +8,7 @@ use common::levels::textured_volume;
 use common::Rng;
 use glam::{UVec3, Vec3};
 use mixvol::bricks::BrickGrid;
+use mixvol::bricks::DownsampleFilter;
 use mixvol::cache::{block_bricks, stored_brick_edge, stored_bricks_per_axis};
 use mixvol::pyramid::LevelGrid;
 use mixvol::store::{write_level_store, LevelStore, StoreError};
@@ -25,8 +26,17 @@ fn temp_dir(name: &str) -> PathBuf {
 }
 
 fn write(path: &Path, volume: &Volume, levels: Option<u32>) -> mixvol::store::LevelWriteSummary {
+    write_filtered(path, volume, levels, DownsampleFilter::Mean2)
+}
+
+fn write_filtered(
+    path: &Path,
+    volume: &Volume,
+    levels: Option<u32>,
+    filter: DownsampleFilter,
+) -> mixvol::store::LevelWriteSummary {
     let mut calls = Vec::new();
-    let summary = write_level_store(path, volume, N, levels, &mut |done, total| {
+    let summary = write_level_store(path, volume, N, levels, filter, &mut |done, total| {
         calls.push((done, total))
     })
     .unwrap();
@@ -58,7 +68,9 @@ fn stored_bricks(grid: &BrickGrid, levels: u32) -> Vec<(u32, UVec3)> {
 
 /// An f32 volume's store holds every level of its vertex pyramid exactly: each stored brick
 /// equals the pyramid's texels for it (any brick of a block reads the block's), the grids put
-/// back together equal the pyramid, and each recorded range is its brick's texel range.
+/// back together equal the pyramid, and each recorded range is its brick's texel range. The
+/// level-0-to-1 filter is the writer's choice and the store records it: a store built with
+/// `BSpline4` holds that filter's pyramid, and says so.
 #[test]
 fn an_f32_store_holds_every_level_of_the_vertex_pyramid() {
     let dir = temp_dir("f32");
@@ -66,15 +78,24 @@ fn an_f32_store_holds_every_level_of_the_vertex_pyramid() {
     // 5 x 4 x 3 bricks, the last ones clipped: default levels 0..6 (a block of 8 bricks covers
     // the longest axis).
     let volume = textured_volume(&mut rng, UVec3::new(37, 29, 20));
-    let path = dir.join("v.mvl");
-    let summary = write(&path, &volume, None);
+    for filter in [DownsampleFilter::Mean2, DownsampleFilter::BSpline4] {
+        let path = dir.join("v.mvl");
+        let _ = std::fs::remove_file(&path);
+        f32_store_holds_the_pyramid(&dir, &path, &volume, filter);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn f32_store_holds_the_pyramid(dir: &Path, path: &Path, volume: &Volume, filter: DownsampleFilter) {
+    let summary = write_filtered(path, volume, None, filter);
     assert!(!dir.join("v.mvl.partial").exists());
-    let store = LevelStore::open(&path).unwrap();
+    let store = LevelStore::open(path).unwrap();
     assert_eq!(store.level_count(), 6);
     assert_eq!(summary.header, *store.header());
+    assert_eq!(store.filter(), filter);
     let grid = store.grid();
     assert_eq!(grid.bricks_per_axis(), UVec3::new(5, 4, 3));
-    let pyramid = LevelGrid::vertex_pyramid(&volume, store.level_count());
+    let pyramid = LevelGrid::vertex_pyramid(volume, store.level_count(), filter);
     let stored = stored_bricks(&grid, store.level_count());
     assert_eq!(stored.len() as u64, store.header().stored_count);
     for &(level, first) in &stored {
@@ -100,7 +121,6 @@ fn an_f32_store_holds_every_level_of_the_vertex_pyramid() {
         store.read_stored(0, UVec3::new(5, 0, 0)),
         Err(StoreError::LevelOutOfRange { .. })
     ));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A u8 volume's store keeps u8 texels (a quarter of f32): every level within half a step of
@@ -136,7 +156,7 @@ fn a_u8_store_rounds_each_level_to_the_nearest_step() {
         u8_size * 3 < f32_size,
         "u8 store {u8_size} bytes, f32 store {f32_size} bytes"
     );
-    let pyramid = LevelGrid::vertex_pyramid(&volume, 4);
+    let pyramid = LevelGrid::vertex_pyramid(&volume, 4, DownsampleFilter::Mean2);
     let grids = store.read_grids().unwrap();
     for (level, (got, want)) in grids.iter().zip(&pyramid).enumerate() {
         let worst = got
@@ -205,6 +225,11 @@ fn a_damaged_store_is_an_error_naming_what_is_wrong() {
     let mut levels = good.clone();
     levels[32] = 32;
     assert_eq!(field_of(&levels), "levels");
+    // The level-0-to-1 filter: 0-3 (a store written before the field holds 0, Mean2).
+    assert_eq!(u32::from_le_bytes(good[92..96].try_into().unwrap()), 0);
+    let mut filter = good.clone();
+    filter[92] = 4;
+    assert_eq!(field_of(&filter), "filter");
     assert_eq!(field_of(&good[..40]), "header_size");
     // A folder is not a store.
     assert!(matches!(
@@ -222,23 +247,43 @@ fn the_writer_refuses_bad_requests_and_leaves_nothing() {
     let mut rng = Rng(0x1e7e_1570_0003);
     let volume = textured_volume(&mut rng, UVec3::new(16, 16, 8));
     let path = dir.join("v.mvl");
-    let levels_err =
-        |levels| match write_level_store(&path, &volume, N, Some(levels), &mut |_, _| {}) {
-            Err(StoreError::InvalidDesc { field, .. }) => field,
-            other => panic!("expected a refusal, got {other:?}"),
-        };
+    let levels_err = |levels| match write_level_store(
+        &path,
+        &volume,
+        N,
+        Some(levels),
+        DownsampleFilter::Mean2,
+        &mut |_, _| {},
+    ) {
+        Err(StoreError::InvalidDesc { field, .. }) => field,
+        other => panic!("expected a refusal, got {other:?}"),
+    };
     assert_eq!(levels_err(0), "levels");
     assert_eq!(levels_err(32), "levels");
     // Four levels need bricks of 8; bricks of 4 take three.
     assert!(matches!(
-        write_level_store(&path, &volume, 4, Some(4), &mut |_, _| {}),
+        write_level_store(
+            &path,
+            &volume,
+            4,
+            Some(4),
+            DownsampleFilter::Mean2,
+            &mut |_, _| {}
+        ),
         Err(StoreError::InvalidDesc {
             field: "levels",
             ..
         })
     ));
     assert!(matches!(
-        write_level_store(&path, &volume, 6, None, &mut |_, _| {}),
+        write_level_store(
+            &path,
+            &volume,
+            6,
+            None,
+            DownsampleFilter::Mean2,
+            &mut |_, _| {}
+        ),
         Err(StoreError::InvalidDesc {
             field: "brick_size",
             ..
@@ -246,7 +291,14 @@ fn the_writer_refuses_bad_requests_and_leaves_nothing() {
     ));
     let missing = dir.join("no-such-dir").join("v.mvl");
     assert!(matches!(
-        write_level_store(&missing, &volume, N, None, &mut |_, _| {}),
+        write_level_store(
+            &missing,
+            &volume,
+            N,
+            None,
+            DownsampleFilter::Mean2,
+            &mut |_, _| {}
+        ),
         Err(StoreError::Io {
             action: "create",
             ..
@@ -278,10 +330,39 @@ fn the_slab_writer_writes_the_same_bytes_as_the_volume_writer() {
     use mixvol::store::{level_slab_bytes, write_level_store_from_slabs};
     use mixvol::volume::{open_raw_slabs, save_raw, RawDescriptor, ScalarType, SyntheticField};
     let dir = temp_dir("slabs");
-    for (dims, scalar, levels) in [
-        (UVec3::new(37, 29, 21), ScalarType::F32, None),
-        (UVec3::new(40, 17, 33), ScalarType::U8, None),
-        (UVec3::new(24, 24, 26), ScalarType::U16, Some(3)),
+    for (dims, scalar, levels, filter) in [
+        (
+            UVec3::new(37, 29, 21),
+            ScalarType::F32,
+            None,
+            DownsampleFilter::Mean2,
+        ),
+        (
+            UVec3::new(40, 17, 33),
+            ScalarType::U8,
+            None,
+            DownsampleFilter::Mean2,
+        ),
+        (
+            UVec3::new(24, 24, 26),
+            ScalarType::U16,
+            Some(3),
+            DownsampleFilter::Mean2,
+        ),
+        // The wider filters read two voxels on each side of a vertex: planes the window must
+        // still hold.
+        (
+            UVec3::new(37, 29, 21),
+            ScalarType::F32,
+            None,
+            DownsampleFilter::BSpline4,
+        ),
+        (
+            UVec3::new(24, 17, 26),
+            ScalarType::U16,
+            Some(3),
+            DownsampleFilter::LaMarSubsample,
+        ),
     ] {
         let volume = SyntheticField::MarschnerLobb
             .generate(dims, scalar)
@@ -289,7 +370,7 @@ fn the_slab_writer_writes_the_same_bytes_as_the_volume_writer() {
         let raw = dir.join("v.raw");
         save_raw(&volume, &raw).unwrap();
         let from_volume = dir.join("volume.mvl");
-        write_level_store(&from_volume, &volume, N, levels, &mut |_, _| {}).unwrap();
+        write_level_store(&from_volume, &volume, N, levels, filter, &mut |_, _| {}).unwrap();
         let desc = RawDescriptor {
             dims,
             scalar,
@@ -305,6 +386,7 @@ fn the_slab_writer_writes_the_same_bytes_as_the_volume_writer() {
             &mut *reader,
             N,
             levels,
+            filter,
             64 << 20,
             &mut |_, _| calls += 1,
         )
@@ -312,7 +394,7 @@ fn the_slab_writer_writes_the_same_bytes_as_the_volume_writer() {
         assert_eq!(calls, summary.header.stored_count);
         assert!(
             std::fs::read(&from_slabs).unwrap() == std::fs::read(&from_volume).unwrap(),
-            "{dims} {scalar:?}: the slab writer's bytes differ"
+            "{dims} {scalar:?} {filter:?}: the slab writer's bytes differ"
         );
         assert_eq!(
             temporary_files(&dir),
@@ -329,6 +411,7 @@ fn the_slab_writer_writes_the_same_bytes_as_the_volume_writer() {
                 &mut *reader,
                 N,
                 levels,
+                filter,
                 needed - 1,
                 &mut |_, _| {}
             ),
@@ -351,9 +434,16 @@ fn the_slab_writer_writes_the_same_bytes_as_the_volume_writer() {
         Err(e) => assert!(e.to_string().contains("short.raw"), "{e}"),
         Ok(mut reader) => {
             let out = dir.join("cut.mvl");
-            let err =
-                write_level_store_from_slabs(&out, &mut *reader, N, None, 64 << 20, &mut |_, _| {})
-                    .unwrap_err();
+            let err = write_level_store_from_slabs(
+                &out,
+                &mut *reader,
+                N,
+                None,
+                DownsampleFilter::Mean2,
+                64 << 20,
+                &mut |_, _| {},
+            )
+            .unwrap_err();
             assert!(matches!(err, StoreError::Input(_)), "{err}");
             assert!(!out.exists() && !dir.join("cut.mvl.partial").exists());
             assert_eq!(temporary_files(&dir), Vec::<String>::new());

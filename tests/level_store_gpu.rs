@@ -121,7 +121,15 @@ fn a_level_store_draws_as_the_volume_in_ram() {
         let mut rng = Rng(0x1e7e_1570_6900_0001);
         let volume = textured_volume(&mut rng, UVec3::new(4 * N, 4 * N, 3 * N));
         let path = temp_path("f32");
-        write_level_store(&path, &volume, N, None, &mut |_, _| {}).unwrap();
+        write_level_store(
+            &path,
+            &volume,
+            N,
+            None,
+            DownsampleFilter::Mean2,
+            &mut |_, _| {},
+        )
+        .unwrap();
         let store = Arc::new(LevelStore::open(&path).unwrap());
         assert_eq!(store.level_count(), 5);
         let bricks = store.grid().bricks_per_axis();
@@ -188,7 +196,15 @@ fn a_u8_level_store_matches_the_reference_of_its_levels() {
             .generate(UVec3::new(4 * N, 3 * N, 4 * N), ScalarType::U8)
             .unwrap();
         let path = temp_path("u8");
-        write_level_store(&path, &volume, N, None, &mut |_, _| {}).unwrap();
+        write_level_store(
+            &path,
+            &volume,
+            N,
+            None,
+            DownsampleFilter::Mean2,
+            &mut |_, _| {},
+        )
+        .unwrap();
         let store = Arc::new(LevelStore::open(&path).unwrap());
         let bricks = store.grid().bricks_per_axis();
         let levels = staircase_plan(bricks, 0, store.level_count());
@@ -247,7 +263,15 @@ fn an_unreadable_stored_brick_falls_back_and_is_counted() {
         let mut rng = Rng(0x1e7e_1570_6900_0009);
         let volume = textured_volume(&mut rng, UVec3::new(4 * N, 4 * N, 3 * N));
         let path = temp_path("damaged");
-        write_level_store(&path, &volume, N, None, &mut |_, _| {}).unwrap();
+        write_level_store(
+            &path,
+            &volume,
+            N,
+            None,
+            DownsampleFilter::Mean2,
+            &mut |_, _| {},
+        )
+        .unwrap();
         let data_offset = LevelStore::open(&path).unwrap().header().data_offset as usize;
         // A texel of the first stored brick: level 0, brick 0.
         let mut bytes = std::fs::read(&path).unwrap();
@@ -298,7 +322,8 @@ fn an_unreadable_stored_brick_falls_back_and_is_counted() {
         assert!(level0 >= 4, "the rest refines: {level0} bricks at level 0");
 
         let frame = renderer.render(&camera, &settings(), W, W).unwrap();
-        let grids = LevelGrid::vertex_pyramid(&volume, store.level_count());
+        let grids =
+            LevelGrid::vertex_pyramid(&volume, store.level_count(), DownsampleFilter::Mean2);
         let field = LevelField::new(&store.grid(), &grids, &drawn).unwrap();
         let geometry = SlotGeometry::new(N, 3, UVec3::splat(128)).unwrap();
         let cpu = LevelReferenceCache::build(&field, &geometry, Transition::Smooth).unwrap();
@@ -317,7 +342,7 @@ fn an_unreadable_stored_brick_falls_back_and_is_counted() {
 /// not, draws every brick at level 0. Its frames, at level 0 everywhere and at a checker of
 /// levels 0 and 1, match the CPU reference over the store's levels (mirrored with two
 /// classes) and the two-level cache's frames of the same volume (`VolumeSource::Mixed`,
-/// `Hi`/`Lo`); a store of five levels in the same budget cannot draw every brick at level 0.
+/// `Hi`/`Lo`), level 1 built by `Mean2` or by `Box4`; a store of five levels in the same budget cannot draw every brick at level 0.
 #[test]
 fn two_levels_take_the_two_level_caches_slots() {
     let ctx = common::validated_context();
@@ -333,62 +358,78 @@ fn two_levels_take_the_two_level_caches_slots() {
         let two_classes = SlotGeometry::choose(N, 2, 4, budget, 4096, count).unwrap();
         assert_eq!(two_classes.slot_count(), two.slot_count());
 
-        let path = temp_path("two-levels");
-        write_level_store(&path, &volume, N, Some(2), &mut |_, _| {}).unwrap();
-        let store = Arc::new(LevelStore::open(&path).unwrap());
-        assert_eq!(store.level_count(), 2);
-        let bricks = store.grid().bricks_per_axis();
-        let finest = vec![Some(0); count as usize];
-        let checker: Vec<Option<u32>> = (0..count)
-            .map(|i| {
-                let b = UVec3::new(
-                    i % bricks.x,
-                    (i / bricks.x) % bricks.y,
-                    i / (bricks.x * bricks.y),
-                );
-                Some((b.x + b.y + b.z) % 2)
-            })
-            .collect();
-        let mut from_store = renderer_for(
-            &ctx,
-            VolumeSource::LevelStore {
-                store: store.clone(),
-                levels: &finest,
-                config: config(budget),
-            },
-        );
-        let mut two_level = renderer_for(
-            &ctx,
-            VolumeSource::Mixed {
-                volume: Arc::new(volume.clone()),
-                config: config(budget),
-            },
-        );
-        for (name, levels) in [
-            ("level 0", &finest),
-            ("checker of levels 0 and 1", &checker),
-        ] {
-            from_store.set_brick_levels(levels).unwrap();
-            let hi_lo: Vec<Level> = levels
-                .iter()
-                .map(|l| if *l == Some(0) { Level::Hi } else { Level::Lo })
+        // Level 1 by the default filter and by a wider one, recorded in the store.
+        for filter in [DownsampleFilter::Mean2, DownsampleFilter::Box4] {
+            let path = temp_path("two-levels");
+            write_level_store(&path, &volume, N, Some(2), filter, &mut |_, _| {}).unwrap();
+            let store = Arc::new(LevelStore::open(&path).unwrap());
+            assert_eq!(store.filter(), filter);
+            assert_eq!(store.level_count(), 2);
+            let bricks = store.grid().bricks_per_axis();
+            let finest = vec![Some(0); count as usize];
+            let checker: Vec<Option<u32>> = (0..count)
+                .map(|i| {
+                    let b = UVec3::new(
+                        i % bricks.x,
+                        (i / bricks.x) % bricks.y,
+                        i / (bricks.x * bricks.y),
+                    );
+                    Some((b.x + b.y + b.z) % 2)
+                })
                 .collect();
-            two_level.set_levels(&hi_lo).unwrap();
-            let a = from_store.render(&camera(), &settings(), W, W).unwrap();
-            let b = two_level.render(&camera(), &settings(), W, W).unwrap();
-            assert_matches(name, &a, &reference_frame(&from_store, &store));
-            let d = common::diff(&a.pixels, &b.pixels, 1.0 / 255.0);
-            assert!(
-                d.max < 1e-4,
-                "{name}: the one system and the two-level cache draw the same frame: {d:?}"
+            let mut from_store = renderer_for(
+                &ctx,
+                VolumeSource::LevelStore {
+                    store: store.clone(),
+                    levels: &finest,
+                    config: config(budget),
+                },
             );
+            let mut two_level = renderer_for(
+                &ctx,
+                VolumeSource::Mixed {
+                    volume: Arc::new(volume.clone()),
+                    config: MixedConfig {
+                        filter,
+                        ..config(budget)
+                    },
+                },
+            );
+            for (name, levels) in [
+                ("level 0", &finest),
+                ("checker of levels 0 and 1", &checker),
+            ] {
+                from_store.set_brick_levels(levels).unwrap();
+                let hi_lo: Vec<Level> = levels
+                    .iter()
+                    .map(|l| if *l == Some(0) { Level::Hi } else { Level::Lo })
+                    .collect();
+                two_level.set_levels(&hi_lo).unwrap();
+                let a = from_store.render(&camera(), &settings(), W, W).unwrap();
+                let b = two_level.render(&camera(), &settings(), W, W).unwrap();
+                assert_matches(name, &a, &reference_frame(&from_store, &store));
+                let d = common::diff(&a.pixels, &b.pixels, 1.0 / 255.0);
+                assert!(
+                    d.max < 1e-4,
+                    "{name} ({filter:?}): the one system and the two-level cache draw the same \
+                 frame: {d:?}"
+                );
+            }
+            drop((from_store, two_level));
+            let _ = std::fs::remove_file(&path);
         }
-        drop((from_store, two_level));
-        let _ = std::fs::remove_file(&path);
 
         // Five levels in the same budget: slots of 12^3, too few for every brick at level 0.
         let path = temp_path("five-levels");
-        write_level_store(&path, &volume, N, None, &mut |_, _| {}).unwrap();
+        write_level_store(
+            &path,
+            &volume,
+            N,
+            None,
+            DownsampleFilter::Mean2,
+            &mut |_, _| {},
+        )
+        .unwrap();
         let store = Arc::new(LevelStore::open(&path).unwrap());
         let coarsest = vec![Some(store.level_count() - 1); count as usize];
         let mut five = renderer_for(
@@ -399,7 +440,10 @@ fn two_levels_take_the_two_level_caches_slots() {
                 config: config(budget),
             },
         );
-        let err = five.set_brick_levels(&finest).unwrap_err().to_string();
+        let err = five
+            .set_brick_levels(&vec![Some(0); count as usize])
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("slots"), "{err}");
         drop(five);
         let _ = std::fs::remove_file(&path);

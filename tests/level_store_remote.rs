@@ -7,6 +7,7 @@
 mod remote_util;
 
 use glam::UVec3;
+use mixvol::bricks::DownsampleFilter;
 use mixvol::cache::{block_bricks, stored_bricks_per_axis};
 use mixvol::store::{write_level_store, LevelStore, StoreError};
 use mixvol::volume::formats::RemoteOptions;
@@ -54,7 +55,15 @@ fn a_remote_level_store_reads_as_the_local_file() {
         .generate(UVec3::new(40, 24, 32), ScalarType::U16)
         .unwrap();
     let path = dir.0.join("v.mvl");
-    write_level_store(&path, &volume, N, None, &mut |_, _| {}).unwrap();
+    write_level_store(
+        &path,
+        &volume,
+        N,
+        None,
+        DownsampleFilter::Mean2,
+        &mut |_, _| {},
+    )
+    .unwrap();
     let local = LevelStore::open(&path).unwrap();
 
     // Over HTTP with range requests.

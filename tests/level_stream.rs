@@ -34,7 +34,15 @@ fn temp_path(name: &str) -> PathBuf {
 /// A textured f32 store of `dims` at `path`.
 fn write_store(path: &PathBuf, dims: UVec3, seed: u64) -> Arc<LevelStore> {
     let volume = textured_volume(&mut Rng(seed), dims);
-    write_level_store(path, &volume, N, None, &mut |_, _| {}).unwrap();
+    write_level_store(
+        path,
+        &volume,
+        N,
+        None,
+        DownsampleFilter::Mean2,
+        &mut |_, _| {},
+    )
+    .unwrap();
     Arc::new(LevelStore::open(path).unwrap())
 }
 

@@ -9,6 +9,7 @@ use common::levels::textured_volume;
 use common::Rng;
 use glam::{UVec3, Vec3};
 use mixvol::bricks::BrickGrid;
+use mixvol::bricks::DownsampleFilter;
 use mixvol::cache::{block_bricks, block_origin, slots_for_plan};
 use mixvol::lod::{BrickGeometry, LodView};
 use mixvol::plan::{
@@ -87,7 +88,7 @@ fn chosen_plans_keep_the_rule_and_the_blocks_and_meet_their_target() {
     let geometry = geometry(bricks);
     let grid = *geometry.grid();
     let volume = textured_volume(&mut rng, bricks * N);
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS, DownsampleFilter::Mean2);
     let active = vec![true; grid.brick_count()];
     let mut levels_seen = [false; LEVELS as usize];
     for round in 0..24 {
@@ -328,7 +329,7 @@ fn the_slots_left_by_the_bias_are_filled() {
     let grid = *geometry.grid();
     let mut rng = Rng(0x91a4_0005);
     let volume = textured_volume(&mut rng, bricks * N);
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS, DownsampleFilter::Mean2);
     let active = vec![true; grid.brick_count()];
     let camera = Camera::orthographic(Vec3::new(0.3, 0.2, 6.0), Vec3::ZERO, 1.6);
     let view = LodView::new(&camera, 256, 256).unwrap();
@@ -439,7 +440,7 @@ fn a_cache_too_small_drops_the_least_important_blocks() {
     let volume = textured_volume(&mut rng, bricks * N);
     let active = vec![true; grid.brick_count()];
     for (levels, slots) in [(2u32, 3u64), (2, 1), (3, 1), (1, 50), (2, 0)] {
-        let grids = LevelGrid::vertex_pyramid(&volume, levels);
+        let grids = LevelGrid::vertex_pyramid(&volume, levels, DownsampleFilter::Mean2);
         for round in 0..6 {
             let camera = random_camera(&mut rng);
             let view = LodView::new(&camera, 96, 96).unwrap();

@@ -798,8 +798,16 @@ fn store_writes_never_open_what_was_beside_the_target() {
         let write = |store: &Path| {
             let mut reader = open_slabs(&path, None).unwrap();
             if level_store {
-                write_level_store_from_slabs(store, &mut *reader, 8, None, BUDGET, &mut |_, _| {})
-                    .map(|_| ())
+                write_level_store_from_slabs(
+                    store,
+                    &mut *reader,
+                    8,
+                    None,
+                    DownsampleFilter::Mean2,
+                    BUDGET,
+                    &mut |_, _| {},
+                )
+                .map(|_| ())
             } else {
                 let desc = slab_store_desc(&*reader, 8, DownsampleFilter::Mean2);
                 write_store_from_slabs(store, desc, &mut *reader, BUDGET, &mut |_, _| {})

@@ -13,6 +13,7 @@ use common::levels::{
 };
 use common::Rng;
 use glam::{IVec3, UVec3, Vec3};
+use mixvol::bricks::DownsampleFilter;
 use mixvol::bricks::{BrickGrid, Level};
 use mixvol::cache::block_origin;
 use mixvol::cache::{BrickCache, CacheError, CacheGeometry, SlotGeometry};
@@ -60,7 +61,7 @@ fn address_translation_reads_each_level_on_its_own_grid() {
     let mut rng = Rng(0x3_1e7e_0001);
     let volume = textured_volume(&mut rng, UVec3::new(4 * N, 3 * N, 2 * N));
     let grid = BrickGrid::new(volume.dims(), N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS, DownsampleFilter::Mean2);
     let geometry = roomy_geometry(&grid);
     for level in 0..LEVELS {
         // Every brick but the first at `level`: the first is left undrawn.
@@ -108,7 +109,7 @@ fn the_fixed_up_cache_draws_the_level_field() {
     let mut rng = Rng(0x3_1e7e_0002);
     let volume = textured_volume(&mut rng, UVec3::splat(3 * N));
     let grid = BrickGrid::new(volume.dims(), N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS, DownsampleFilter::Mean2);
     let points = probe_points(&mut rng, grid.dims(), N, LEVELS, 4000);
     let classes = boundary_classes();
     for level in 0..LEVELS - 1 {
@@ -130,7 +131,7 @@ fn the_fixed_up_cache_draws_the_level_field() {
     let dims = UVec3::new(4 * N + 3, 3 * N + 5, 3 * N - 3);
     let volume = textured_volume(&mut rng, dims);
     let grid = BrickGrid::new(dims, N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS, DownsampleFilter::Mean2);
     let bricks = grid.bricks_per_axis();
     let points = probe_points(&mut rng, dims, N, LEVELS, 4000);
     for plan in 0..6 {
@@ -156,7 +157,7 @@ fn the_three_level_cache_is_continuous_and_its_baseline_jumps() {
     let mut rng = Rng(0x3_1e7e_0003);
     let volume = textured_volume(&mut rng, UVec3::splat(3 * N));
     let grid = BrickGrid::new(volume.dims(), N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS, DownsampleFilter::Mean2);
     let levels = per_brick(UVec3::splat(3), |b| Some(b.max_element()));
     let field = LevelField::new(&grid, &grids, &levels).unwrap();
     let geometry = roomy_geometry(&grid);
@@ -208,7 +209,7 @@ fn a_volume_too_big_for_two_levels_is_drawn_whole_with_three() {
     // face (1 slot), the 17 bricks around it at level 1 (3 slots), 238 at level 2 (4 slots).
     let three_level = SlotGeometry::new(N, 3, extent).unwrap();
     assert_eq!(three_level.slot_count(), 8);
-    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+    let grids = LevelGrid::vertex_pyramid(&volume, LEVELS, DownsampleFilter::Mean2);
     let levels = distance_plan(grid.bricks_per_axis(), IVec3::new(0, 4, 1), 0, LEVELS);
     let field = LevelField::new(&grid, &grids, &levels).unwrap();
     let cache = LevelReferenceCache::build(&field, &three_level, Transition::Smooth).unwrap();
@@ -250,7 +251,7 @@ fn block_levels_share_one_stored_brick_and_draw_the_level_field() {
     let dims = UVec3::splat(16 * N);
     let volume = textured_volume(&mut rng, dims);
     let grid = BrickGrid::new(dims, N).unwrap();
-    let grids = LevelGrid::vertex_pyramid(&volume, 5);
+    let grids = LevelGrid::vertex_pyramid(&volume, 5, DownsampleFilter::Mean2);
     let levels = staircase_plan(grid.bricks_per_axis(), 0, 5);
     let field = LevelField::new(&grid, &grids, &levels).unwrap();
     let geometry = SlotGeometry::new(N, 3, UVec3::splat(32)).unwrap();
@@ -313,7 +314,7 @@ fn fields_the_packing_cannot_hold_are_refused() {
     let grid = BrickGrid::new(volume.dims(), N).unwrap();
     let geometry = roomy_geometry(&grid);
     let levels = [Some(0), Some(1)];
-    let pyramid = LevelGrid::vertex_pyramid(&volume, 2);
+    let pyramid = LevelGrid::vertex_pyramid(&volume, 2, DownsampleFilter::Mean2);
     let other = SlotGeometry::new(2 * N, 3, UVec3::splat(32)).unwrap();
     let field = LevelField::new(&grid, &pyramid, &levels).unwrap();
     assert_eq!(
@@ -326,7 +327,11 @@ fn fields_the_packing_cannot_hold_are_refused() {
     // A cell-centred level 1 is not what the packing stores.
     let cell_centred = [
         pyramid[0].clone(),
-        pyramid[0].downsampled(SamplePlacement::CellCentred, volume.dims()),
+        pyramid[0].downsampled(
+            SamplePlacement::CellCentred,
+            volume.dims(),
+            DownsampleFilter::Mean2,
+        ),
     ];
     let field = LevelField::new(&grid, &cell_centred, &levels).unwrap();
     assert_eq!(

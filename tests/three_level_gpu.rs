@@ -167,7 +167,7 @@ fn the_gpu_three_level_cache_matches_its_cpu_mirror() {
         let dims = UVec3::new(4 * N, 3 * N, 3 * N);
         let volume = textured_volume(&mut rng, dims);
         let grid = BrickGrid::new(dims, N).unwrap();
-        let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+        let grids = LevelGrid::vertex_pyramid(&volume, LEVELS, DownsampleFilter::Mean2);
         // 2 x 2 x 2 slots of (n+4)^3 = 12^3 texels: fewer than the 36 bricks, so the plans must
         // use the coarser levels.
         let geometry = SlotGeometry::new(N, 3, UVec3::new(32, 32, 32)).unwrap();
@@ -181,7 +181,7 @@ fn the_gpu_three_level_cache_matches_its_cpu_mirror() {
         let dims = UVec3::splat(16 * N);
         let volume = textured_volume(&mut rng, dims);
         let grid = BrickGrid::new(dims, N).unwrap();
-        let grids = LevelGrid::vertex_pyramid(&volume, 5);
+        let grids = LevelGrid::vertex_pyramid(&volume, 5, DownsampleFilter::Mean2);
         let levels = staircase_plan(grid.bricks_per_axis(), 0, 5);
         let field = LevelField::new(&grid, &grids, &levels).unwrap();
         check_gpu_cache(&ctx, &mut rng, "five levels", &field, &geometry, 5);
@@ -200,7 +200,7 @@ fn render_levels(
 ) -> (Frame, Vec<Vec4>) {
     let grid = BrickGrid::new(volume.dims(), N).unwrap();
     let deepest = levels.iter().flatten().max().copied().unwrap_or(0);
-    let grids = LevelGrid::vertex_pyramid(volume, deepest + 1);
+    let grids = LevelGrid::vertex_pyramid(volume, deepest + 1, DownsampleFilter::Mean2);
     let field = LevelField::new(&grid, &grids, levels).unwrap();
     let tf = TransferFunction::preset(TfPreset::Bands);
     let camera = Camera::perspective(Vec3::new(1.0, 0.8, 1.5), Vec3::ZERO, 40.0);
@@ -366,7 +366,7 @@ fn residency_changes_across_three_levels_stay_clean() {
             .unwrap();
         let grid = BrickGrid::new(volume.dims(), N).unwrap();
         let bricks = grid.bricks_per_axis();
-        let grids = LevelGrid::vertex_pyramid(&volume, LEVELS);
+        let grids = LevelGrid::vertex_pyramid(&volume, LEVELS, DownsampleFilter::Mean2);
         let tf = TransferFunction::preset(TfPreset::Bands);
         let camera = Camera::perspective(Vec3::new(1.2, 0.9, 1.4), Vec3::ZERO, 40.0);
         let settings = RenderSettings::default();

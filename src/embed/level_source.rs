@@ -263,6 +263,7 @@ impl VolumePass {
         let grids = LevelGrid::vertex_pyramid(
             volume,
             crate::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis()),
+            config.filter,
         );
         let facts = LevelSourceFacts {
             grid,

@@ -66,7 +66,8 @@ pub enum VolumeSource<'a> {
     /// the level whose block covers the grid's longest axis.
     /// The cache holds texels of the volume's scalar type (u8 / u16 UNORM: transitions between
     /// vertex levels then jump by at most half a step, `docs/cache-layout.md`; f32: C0
-    /// everywhere); `config.filter` is not used (the levels are the vertex pyramid). The
+    /// everywhere); `config.filter` builds level 1 from level 0 (the two-level cache's low-res
+    /// samples of that filter), every coarser level is the pyramid's tent or mean. The
     /// two-level planner does not drive it; `VolumePass::plan_brick_levels` chooses levels
     /// from a camera, else renders draw these levels until the next `set_brick_levels` or
     /// `set_source`.
@@ -82,7 +83,8 @@ pub enum VolumeSource<'a> {
     /// draws a volume: every drawn brick is read from the file (one positioned read, CRC-checked)
     /// and packed straight into its slot, so the volume never sits in RAM. `levels` as for
     /// [`VolumeSource::Levels`], out of the store's levels (empty: every brick at the coarsest);
-    /// `config.brick_size` must be the store's, `config.filter` is not used.
+    /// `config.brick_size` must be the store's, `config.filter` is not used (the store's level 1
+    /// was built by its own, [`LevelStore::filter`]).
     LevelStore {
         /// The open store.
         store: Arc<LevelStore>,

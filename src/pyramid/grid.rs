@@ -6,6 +6,7 @@
 //! (sample `j` at `s_k * j`, as the low-res samples of the two-level cache). The cache keeps
 //! level 0 cell-centred and every coarser level on vertices (`docs/cache-layout.md`).
 
+use crate::bricks::DownsampleFilter;
 use glam::{IVec3, UVec3};
 
 /// Where a level's samples sit in its cells.
@@ -167,11 +168,17 @@ impl LevelGrid {
 
     /// The levels `0..levels` of `volume` as the cache builds them (module docs): level 0 its
     /// voxels, each coarser level on vertices, downsampled from the one before
-    /// ([`LevelGrid::downsampled`]; level 1 is the `Mean2` low-res level). `levels` is at least 1.
-    pub fn vertex_pyramid(volume: &crate::volume::Volume, levels: u32) -> Vec<Self> {
+    /// ([`LevelGrid::downsampled`]; level 1 by `filter`, the two-level cache's low-res level of
+    /// that filter). `levels` is at least 1.
+    pub fn vertex_pyramid(
+        volume: &crate::volume::Volume,
+        levels: u32,
+        filter: DownsampleFilter,
+    ) -> Vec<Self> {
         let mut grids = vec![Self::from_volume(volume)];
         for _ in 1..levels.max(1) {
-            let next = grids[grids.len() - 1].downsampled(SamplePlacement::Vertex, volume.dims());
+            let next =
+                grids[grids.len() - 1].downsampled(SamplePlacement::Vertex, volume.dims(), filter);
             grids.push(next);
         }
         grids
@@ -224,13 +231,29 @@ impl LevelGrid {
     /// hi-res voxels: per axis, a new sample that coincides with one of this level's samples is
     /// the tent `1/4, 1/2, 1/4` over it and its two neighbours, one that lies halfway between two
     /// of them their mean (the paper's average of the eight finer samples around a cell centre),
-    /// separably, clamp-to-edge. Both reproduce a linear function exactly.
-    pub fn downsampled(&self, placement: SamplePlacement, volume_dims: UVec3) -> Self {
+    /// separably, clamp-to-edge. Both reproduce a linear function exactly. Level 1 on vertices
+    /// from level 0 is the exception: `filter`'s taps ([`level_one_taps`]; `Mean2` is the mean
+    /// above), which every other step ignores.
+    pub fn downsampled(
+        &self,
+        placement: SamplePlacement,
+        volume_dims: UVec3,
+        filter: DownsampleFilter,
+    ) -> Self {
         let next_level = self.level + 1;
         let dims = Self::covering_dims(next_level, placement, volume_dims);
         let s = self.spacing();
+        let level_one = self.level == 0
+            && self.placement == SamplePlacement::CellCentred
+            && placement == SamplePlacement::Vertex;
         // Per axis and new index: (this level's index, weight) taps.
-        let taps = |j: i32| downsample_taps(s, self.placement, placement, j);
+        let taps = |j: i32| {
+            if level_one {
+                level_one_taps(filter, j)
+            } else {
+                downsample_taps(s, self.placement, placement, j)
+            }
+        };
         let taps_x: Vec<Vec<(i32, f32)>> = (0..dims.x as i32).map(taps).collect();
         let mut values = Vec::with_capacity(dims.x as usize * dims.y as usize * dims.z as usize);
         for z in 0..dims.z as i32 {
@@ -290,6 +313,19 @@ pub fn downsample_taps(
         let c = u.floor() as i32;
         vec![(c, 0.5), (c + 1, 0.5)]
     }
+}
+
+/// The taps `(voxel index, weight)` along one axis of the level-1 (vertex) sample `j` over
+/// level 0's voxels for the level-0-to-1 `filter`: its taps around voxel `2j`
+/// ([`DownsampleFilter::taps`]), exactly the voxels the two-level cache's low-res sample `j`
+/// of that filter reads. `Mean2` gives what [`downsample_taps`] gives for that step. Indices
+/// may fall outside the volume (clamp-to-edge is the reader's).
+pub fn level_one_taps(filter: DownsampleFilter, j: i32) -> Vec<(i32, f32)> {
+    filter
+        .taps()
+        .iter()
+        .map(|&(offset, weight)| (2 * j + offset as i32, weight))
+        .collect()
 }
 
 /// One sample of the next coarser level from its taps per axis (`downsample_taps`) over the

@@ -9,7 +9,8 @@ mod packing;
 mod plan;
 
 pub use grid::{
-    box_values, downsample_sum, downsample_taps, LevelGrid, PyramidError, SamplePlacement,
+    box_values, downsample_sum, downsample_taps, level_one_taps, LevelGrid, PyramidError,
+    SamplePlacement,
 };
 pub use packing::{LevelPacking, PackingError};
 pub use plan::LevelPlan;

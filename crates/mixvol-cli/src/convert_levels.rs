@@ -30,7 +30,14 @@ pub fn convert_levels(args: &ConvertArgs, budget: u64) -> Result<()> {
     let mut tick = |done, total| update(&bar, done, total);
     let levels = args.level_count;
     let (summary, what) = if let Some((volume, what)) = read_whole_input(args, budget)? {
-        let summary = write_level_store(store, &volume, args.brick_size, levels, &mut tick)?;
+        let summary = write_level_store(
+            store,
+            &volume,
+            args.brick_size,
+            levels,
+            args.filter,
+            &mut tick,
+        )?;
         (summary, what)
     } else {
         let mut reader = open_input(args)?;
@@ -40,6 +47,7 @@ pub fn convert_levels(args: &ConvertArgs, budget: u64) -> Result<()> {
             &mut *reader,
             args.brick_size,
             levels,
+            args.filter,
             budget,
             &mut tick,
         )?;
@@ -117,7 +125,8 @@ fn report(
     let peak = peak_rss_bytes();
     println!("input: {what}");
     println!(
-        "level store: {} ({}x{}x{} voxels, {:?}, bricks of {}): {} levels, {} stored bricks, {:.1} MiB",
+        "level store: {} ({}x{}x{} voxels, {:?}, bricks of {}): {} levels (level 1 by {:?}), {} \
+         stored bricks, {:.1} MiB",
         summary.path.display(),
         h.dims.x,
         h.dims.y,
@@ -125,6 +134,7 @@ fn report(
         h.scalar,
         h.brick_size,
         h.levels,
+        h.filter,
         h.stored_count,
         mib(h.file_size)
     );
@@ -142,6 +152,7 @@ fn report(
             "scalar": format!("{:?}", h.scalar),
             "brick_size": h.brick_size,
             "levels": h.levels,
+            "filter": format!("{:?}", h.filter),
             "stored_bricks": h.stored_count,
             "store_bytes": h.file_size,
             "seconds": seconds,

@@ -780,7 +780,7 @@ fn compare(
                 }
                 (None, Some(volume)) => (
                     BrickGrid::new(volume.dims(), config.brick_size)?,
-                    LevelGrid::vertex_pyramid(volume, deepest + 1),
+                    LevelGrid::vertex_pyramid(volume, deepest + 1, config.filter),
                     volume.scalar_type(),
                 ),
                 (None, None) => return Err(no_volume()),

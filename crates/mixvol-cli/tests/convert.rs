@@ -334,7 +334,7 @@ fn converted_stores_equal_the_in_memory_path_for_every_format() {
 
 /// `convert --all-levels` of every format (a forward-only gzip stream and an OME-Zarr image
 /// included) writes, read in slabs under a small RAM budget, the very level store
-/// `write_level_store` writes from the loaded volume.
+/// `write_level_store` writes from the loaded volume; `--filter` builds its level 1.
 #[test]
 fn converted_level_stores_equal_the_in_memory_path_for_every_format() {
     let dir = TempDir::new("level-formats");
@@ -348,7 +348,23 @@ fn converted_level_stores_equal_the_in_memory_path_for_every_format() {
         let out = convert(input, &ours, &args);
         assert!(out.status.success(), "{tag}: {}", text(&out));
         assert!(text(&out).contains("level store:"), "{}", text(&out));
-        write_level_store(&theirs, volume, 8, None, &mut |_, _| {}).unwrap();
+        // --filter builds level 1 (Mean2 by default), and the store and the summary say which.
+        let filter = extra
+            .iter()
+            .position(|a| *a == "--filter")
+            .map_or(DownsampleFilter::Mean2, |i| {
+                DownsampleFilter::parse(extra[i + 1]).unwrap()
+            });
+        assert!(
+            text(&out).contains(&format!("level 1 by {filter:?}")),
+            "{tag}: {}",
+            text(&out)
+        );
+        assert_eq!(
+            mixvol::store::LevelStore::open(&ours).unwrap().filter(),
+            filter
+        );
+        write_level_store(&theirs, volume, 8, None, filter, &mut |_, _| {}).unwrap();
         assert!(
             std::fs::read(&ours).unwrap() == std::fs::read(&theirs).unwrap(),
             "{tag}: the converted level store differs from the in-memory one"
@@ -371,6 +387,13 @@ fn converted_level_stores_equal_the_in_memory_path_for_every_format() {
         "1,1,2",
     ];
     check("raw", &raw, &load_raw(&raw, &desc).unwrap(), &raw_args);
+    let bspline = [&raw_args[..], &["--filter", "bspline4"]].concat();
+    check(
+        "raw-bspline4",
+        &raw,
+        &load_raw(&raw, &desc).unwrap(),
+        &bspline,
+    );
     let mut nrrd_gz = nrrd_header("ushort", dims, "gzip");
     nrrd_gz.extend(gzip(&data));
     let path = dir.write("v-gz.nrrd", &nrrd_gz);

@@ -21,10 +21,11 @@
 //! field at fault in [`StoreError::Format`]; they never panic on any input.
 
 use super::super::format::{
-    format_error, le_f32, le_u32, le_u64, scalar_from_id, scalar_id, Fnv1a,
+    filter_from_id, filter_id, format_error, le_f32, le_u32, le_u64, scalar_from_id, scalar_id,
+    Fnv1a,
 };
 use super::super::StoreError;
-use crate::bricks::{BrickGrid, ValueRange, MAX_BRICK_SIZE};
+use crate::bricks::{BrickGrid, DownsampleFilter, ValueRange, MAX_BRICK_SIZE};
 use crate::cache::{min_brick_size_for_levels, stored_brick_edge, stored_bricks_per_axis};
 use crate::volume::ScalarType;
 use glam::{UVec3, Vec3};
@@ -63,6 +64,10 @@ pub struct LevelStoreHeader {
     pub spacing: Vec3,
     /// Smallest and largest normalised voxel value of the volume.
     pub value_range: ValueRange,
+    /// The filter that built level 1 from level 0 (every coarser level is the pyramid's tent
+    /// or mean, `crate::pyramid::LevelGrid::downsampled`). Bytes `[92, 96)`, zero (`Mean2`)
+    /// in every store written before the field existed.
+    pub filter: DownsampleFilter,
     /// Stored bricks over all levels.
     pub stored_count: u64,
     /// Absolute offset of the first stored brick's texels.
@@ -102,6 +107,7 @@ pub fn canonical_level_header(
     scalar: ScalarType,
     spacing: Vec3,
     value_range: ValueRange,
+    filter: DownsampleFilter,
 ) -> Option<LevelStoreHeader> {
     let per_level = stored_per_level(grid, levels);
     let stored_count = per_level.iter().try_fold(0u64, |a, &c| a.checked_add(c))?;
@@ -115,6 +121,7 @@ pub fn canonical_level_header(
         scalar,
         spacing,
         value_range,
+        filter,
         stored_count,
         data_offset,
         file_size: 0,
@@ -160,7 +167,8 @@ pub fn encode_level_header(h: &LevelStoreHeader) -> [u8; LEVEL_HEADER_SIZE] {
     out.extend_from_slice(&(LEVEL_HEADER_SIZE as u64).to_le_bytes());
     out.extend_from_slice(&h.data_offset.to_le_bytes());
     out.extend_from_slice(&h.file_size.to_le_bytes());
-    debug_assert_eq!(out.len(), 92);
+    out.extend_from_slice(&filter_id(h.filter).to_le_bytes());
+    debug_assert_eq!(out.len(), 96);
     out.resize(LEVEL_HEADER_SIZE, 0);
     let mut bytes = [0u8; LEVEL_HEADER_SIZE];
     bytes.copy_from_slice(&out);
@@ -198,7 +206,7 @@ pub fn finish_level_checksum(header: &mut [u8; LEVEL_HEADER_SIZE], table: &[u8])
 ///
 /// Checks, in order (each failure names its field): `magic`, `version`, `header_size`, `dims`,
 /// `brick_size`, `levels`, `scalar`, `spacing`, `value_range`, `stored_count`, `table_offset`,
-/// `data_offset`, `file_size`. The checksum is checked with the table ([`parse_table`]).
+/// `data_offset`, `file_size`, `filter`. The checksum is checked with the table ([`parse_table`]).
 pub fn parse_header(
     bytes: &[u8],
     actual_len: u64,
@@ -293,7 +301,18 @@ pub fn parse_header(
     }
     let grid =
         BrickGrid::new(dims, brick_size).map_err(|e| err("dims", format!("cannot brick: {e}")))?;
-    let Some(expected) = canonical_level_header(&grid, levels, scalar, spacing, value_range) else {
+    let filter_raw = le_u32(bytes, 92);
+    let filter = filter_from_id(filter_raw).ok_or_else(|| {
+        err(
+            "filter",
+            format!(
+                "unknown filter id {filter_raw} (0 = mean2, 1 = lamar, 2 = box4, 3 = bspline4)"
+            ),
+        )
+    })?;
+    let Some(expected) =
+        canonical_level_header(&grid, levels, scalar, spacing, value_range, filter)
+    else {
         return Err(err(
             "dims",
             format!(
@@ -350,6 +369,7 @@ pub fn parse_header(
         scalar,
         spacing,
         value_range,
+        filter,
         stored_count,
         data_offset,
         file_size,

@@ -126,6 +126,12 @@ impl LevelStore {
         self.header.levels
     }
 
+    /// The filter that built level 1 from level 0 (`Mean2` for stores written before the
+    /// header recorded it).
+    pub fn filter(&self) -> crate::bricks::DownsampleFilter {
+        self.header.filter
+    }
+
     /// The table entry of the stored brick of `level` holding brick `brick` (any brick of its
     /// block).
     fn entry(&self, level: u32, brick: UVec3) -> Result<(usize, &LevelEntry), StoreError> {

@@ -7,8 +7,8 @@
 //! planes. The temporary files are removed as soon as the next level is built (and on error).
 //!
 //! The bytes equal those [`super::write_level_store`] writes from the loaded volume: level 1's
-//! samples are the same sums in the same order as [`LevelGrid::downsampled`] (the mean of the
-//! eight voxels around a vertex, clamped to the volume), and every coarser level the very sums
+//! samples are the same sums in the same order as [`LevelGrid::downsampled`] (the level-0-to-1
+//! filter's taps around each vertex, clamped to the volume), and every coarser level the very sums
 //! of [`LevelGrid::downsampled`], in its order.
 //!
 //! RAM: the window (`n + 4` planes as f32), one slab of raw planes, and a few planes of the
@@ -17,9 +17,10 @@
 
 use super::plane_file::{downsample_file, PlaneFile, PlaneFileWriter, PlaneWindow};
 use super::writer::{assemble_level_store, check_level_desc, LevelWriteSummary, TexelSink};
+use crate::bricks::DownsampleFilter;
 use crate::bricks::{BrickGrid, ValueRange};
 use crate::cache::{block_bricks, stored_brick_edge, stored_bricks_per_axis, stored_first_sample};
-use crate::pyramid::{box_values, downsample_sum, downsample_taps, LevelGrid, SamplePlacement};
+use crate::pyramid::{box_values, downsample_sum, level_one_taps, LevelGrid, SamplePlacement};
 use crate::store::StoreError;
 use crate::volume::{SlabMut, SlabReader, VoxelData};
 use glam::{IVec3, UVec3};
@@ -54,12 +55,19 @@ pub fn write_level_store_from_slabs(
     reader: &mut dyn SlabReader,
     brick_size: u32,
     levels: Option<u32>,
+    filter: DownsampleFilter,
     ram_budget: u64,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<LevelWriteSummary, StoreError> {
     let dims = reader.dims();
-    let (grid, header) =
-        check_level_desc(dims, brick_size, levels, reader.scalar(), reader.spacing())?;
+    let (grid, header) = check_level_desc(
+        dims,
+        brick_size,
+        levels,
+        reader.scalar(),
+        reader.spacing(),
+        filter,
+    )?;
     let needed = level_slab_bytes(
         dims,
         reader.scalar().size_bytes() as u64,
@@ -84,7 +92,7 @@ pub fn write_level_store_from_slabs(
         header,
         &mut |sink| {
             let mut planes = Planes::new(&mut *reader, dims);
-            let mut level1 = LevelOne::new(dims, level_temp(path, 1))?;
+            let mut level1 = LevelOne::new(dims, filter, level_temp(path, 1))?;
             let n = brick_size;
             let bricks = grid.bricks_per_axis();
             // Level 0, one row of bricks along z at a time.
@@ -208,6 +216,8 @@ impl<'a> Planes<'a> {
 /// Level 1 (vertex samples every 2 voxels) built plane by plane into its temporary file.
 struct LevelOne {
     volume: UVec3,
+    /// The level-0-to-1 filter.
+    filter: DownsampleFilter,
     dims: UVec3,
     out: PlaneFileWriter,
     /// The next level-1 plane to build.
@@ -215,10 +225,11 @@ struct LevelOne {
 }
 
 impl LevelOne {
-    fn new(volume: UVec3, path: PathBuf) -> Result<Self, StoreError> {
+    fn new(volume: UVec3, filter: DownsampleFilter, path: PathBuf) -> Result<Self, StoreError> {
         let dims = LevelGrid::covering_dims(1, SamplePlacement::Vertex, volume);
         Ok(Self {
             volume,
+            filter,
             dims,
             out: PlaneFileWriter::create(path, 1, dims)?,
             next: 0,
@@ -229,7 +240,7 @@ impl LevelOne {
     fn plane_ready(&mut self, p: u32, planes: &Planes<'_>) -> Result<(), StoreError> {
         let last = self.volume.z as i32 - 1;
         while self.next < self.dims.z {
-            let needs = taps(self.next as i32)
+            let needs = level_one_taps(self.filter, self.next as i32)
                 .iter()
                 .map(|&(k, _)| k)
                 .max()
@@ -245,8 +256,9 @@ impl LevelOne {
     }
 
     /// Level-1 plane `jz`: per sample the sum [`LevelGrid::downsampled`] forms over the voxels
-    /// (`downsample_sum`, the voxels clamped to the volume).
+    /// (`downsample_sum` of the filter's taps, the voxels clamped to the volume).
     fn build_plane(&self, jz: u32, planes: &Planes<'_>) -> Vec<f32> {
+        let taps = |j: i32| level_one_taps(self.filter, j);
         let tz = taps(jz as i32);
         let taps_x: Vec<Vec<(i32, f32)>> = (0..self.dims.x as i32).map(taps).collect();
         let mut plane = Vec::with_capacity(self.dims.x as usize * self.dims.y as usize);
@@ -262,17 +274,6 @@ impl LevelOne {
     fn finish(self) -> Result<PlaneFile, StoreError> {
         self.out.finish()
     }
-}
-
-/// The taps along one axis of level-1 sample `j` over the cell-centred voxels: the mean of
-/// voxels `2j - 1` and `2j` (unclamped).
-fn taps(j: i32) -> Vec<(i32, f32)> {
-    downsample_taps(
-        1.0,
-        SamplePlacement::CellCentred,
-        SamplePlacement::Vertex,
-        j,
-    )
 }
 
 /// A fresh name for the temporary file of `level`'s samples while the store at `path` is

@@ -8,7 +8,7 @@ use super::format::{
     canonical_level_header, encode_level_header, encode_level_table, finish_level_checksum,
     stored_per_level, LevelEntry, LevelStoreHeader,
 };
-use crate::bricks::{dequantize, quantize_to, BrickGrid, ValueRange};
+use crate::bricks::{dequantize, quantize_to, BrickGrid, DownsampleFilter, ValueRange};
 use crate::cache::{
     block_bricks, min_brick_size_for_levels, pyramid_levels, stored_bricks_per_axis,
 };
@@ -59,6 +59,7 @@ pub(super) fn check_level_desc(
     levels: Option<u32>,
     scalar: ScalarType,
     spacing: Vec3,
+    filter: DownsampleFilter,
 ) -> Result<(BrickGrid, LevelStoreHeader), StoreError> {
     let grid = brick_grid(dims, brick_size)?;
     let levels = levels.unwrap_or(pyramid_levels(brick_size, grid.bricks_per_axis()));
@@ -72,7 +73,7 @@ pub(super) fn check_level_desc(
             ),
         });
     }
-    let header = canonical_level_header(&grid, levels, scalar, spacing, ValueRange::EMPTY)
+    let header = canonical_level_header(&grid, levels, scalar, spacing, ValueRange::EMPTY, filter)
         .ok_or_else(|| StoreError::InvalidDesc {
             field: "dims",
             message: format!(
@@ -85,7 +86,8 @@ pub(super) fn check_level_desc(
 
 /// Writes every level of `volume` (levels `0..levels`; `None`: [`default_store_levels`]) as a
 /// level store at `path`: level 0 its normalised voxels, each coarser level the vertex level
-/// downsampled from the one before ([`LevelGrid::downsampled`]), every stored brick exactly the
+/// downsampled from the one before ([`LevelGrid::downsampled`]; level 1 by `filter`, recorded
+/// in the header), every stored brick exactly the
 /// texels [`LevelGrid::stored_brick`] gives, in the volume's scalar type. `progress(done,
 /// total)` is called after every stored brick.
 ///
@@ -102,6 +104,7 @@ pub fn write_level_store(
     volume: &Volume,
     brick_size: u32,
     levels: Option<u32>,
+    filter: DownsampleFilter,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<LevelWriteSummary, StoreError> {
     let (grid, header) = check_level_desc(
@@ -110,6 +113,7 @@ pub fn write_level_store(
         levels,
         volume.scalar_type(),
         volume.spacing(),
+        filter,
     )?;
     let (min, max) = volume.value_range();
     assemble_level_store(
@@ -119,7 +123,8 @@ pub fn write_level_store(
             let mut level_grid = LevelGrid::from_volume(volume);
             for level in 0..header.levels {
                 if level > 0 {
-                    level_grid = level_grid.downsampled(SamplePlacement::Vertex, volume.dims());
+                    level_grid =
+                        level_grid.downsampled(SamplePlacement::Vertex, volume.dims(), filter);
                 }
                 sink.write_level(&grid, &level_grid)?;
             }

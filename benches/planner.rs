@@ -46,7 +46,8 @@ use mixvol::cache::pyramid_levels;
 use mixvol::lod::{cull_bricks, BrickGeometry, CullParams, LodView, TfCullTable};
 use mixvol::optics::{TransferFunction, TF_SIZE};
 use mixvol::plan::{
-    level_margin, upload_bytes, FrameInput, LevelChooser, PlanBudget, PlanOptions, ResidencyPlanner,
+    level_margin, upload_bytes, FrameInput, LevelChooser, LevelRequest, PlanBudget, PlanOptions,
+    ResidencyPlanner,
 };
 use mixvol::scene::Camera;
 use std::hint::black_box;
@@ -383,9 +384,17 @@ fn level_rows(
             let view = LodView::new(&path.camera(start, f), WIDTH, HEIGHT).expect("view");
             let cpu = thread_cpu_ms();
             let choice = chooser
-                .choose(
-                    geometry, &view, &active, levels, slots, 1.0, &previous, margin,
-                )
+                .choose(&LevelRequest {
+                    geometry,
+                    view: &view,
+                    active: &active,
+                    value_ranges: &[],
+                    levels,
+                    slots,
+                    target_pixels: 1.0,
+                    previous: &previous,
+                    margin,
+                })
                 .expect("choice");
             let ms = thread_cpu_ms() - cpu;
             if f >= settle {

@@ -8,12 +8,12 @@ mod common;
 use common::levels::textured_volume;
 use common::Rng;
 use glam::{UVec3, Vec3};
-use mixvol::bricks::BrickGrid;
 use mixvol::bricks::DownsampleFilter;
+use mixvol::bricks::{BrickGrid, ValueRange};
 use mixvol::cache::{block_bricks, block_origin, slots_for_plan};
 use mixvol::lod::{BrickGeometry, LodView};
 use mixvol::plan::{
-    choose_levels, choose_levels_near, level_margin, LevelChoiceError, LevelChooser, PlanOptions,
+    choose_levels, level_margin, LevelChoiceError, LevelChooser, LevelRequest, PlanOptions,
 };
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
@@ -260,10 +260,20 @@ fn hysteresis_keeps_a_plan_while_the_camera_hovers_at_a_boundary() {
     let choose_with = |distance: f32, previous: &[Option<u32>], margin: f32| {
         let camera = Camera::perspective(Vec3::new(0.0, 0.2, distance), Vec3::ZERO, 70.0);
         let view = LodView::new(&camera, 160, 160).unwrap();
-        choose_levels_near(
-            &geometry, &view, &active, LEVELS, 1_000_000, 1.0, previous, margin,
-        )
-        .unwrap()
+        LevelChooser::new()
+            .choose(&LevelRequest {
+                geometry: &geometry,
+                view: &view,
+                active: &active,
+                value_ranges: &[],
+                levels: LEVELS,
+                slots: 1_000_000,
+                target_pixels: 1.0,
+                previous,
+                margin,
+            })
+            .cloned()
+            .unwrap()
     };
     // The default margin: the two-level planner's 10 %, 0.1375 levels.
     let margin = level_margin(PlanOptions::default().hysteresis);
@@ -312,7 +322,19 @@ fn hysteresis_keeps_a_plan_while_the_camera_hovers_at_a_boundary() {
     let view = LodView::new(&camera, 160, 160).unwrap();
     for bad in [-0.1, f32::NAN, f32::INFINITY] {
         assert!(matches!(
-            choose_levels_near(&geometry, &view, &active, LEVELS, 100, 1.0, &[], bad),
+            LevelChooser::new()
+                .choose(&LevelRequest {
+                    geometry: &geometry,
+                    view: &view,
+                    active: &active,
+                    value_ranges: &[],
+                    levels: LEVELS,
+                    slots: 100,
+                    target_pixels: 1.0,
+                    previous: &[],
+                    margin: bad
+                })
+                .cloned(),
             Err(LevelChoiceError::Hysteresis(_))
         ));
     }
@@ -546,20 +568,46 @@ fn a_kept_chooser_chooses_as_a_fresh_one() {
         }
         let camera = random_camera(&mut rng);
         let view = LodView::new(&camera, 120, 90).unwrap();
-        let fresh = choose_levels_near(
-            &geometry, &view, &active, levels, slots, 1.5, &previous, margin,
-        )
-        .unwrap();
+        let fresh = LevelChooser::new()
+            .choose(&LevelRequest {
+                geometry: &geometry,
+                view: &view,
+                active: &active,
+                value_ranges: &[],
+                levels,
+                slots,
+                target_pixels: 1.5,
+                previous: &previous,
+                margin,
+            })
+            .cloned()
+            .unwrap();
         let kept = chooser
-            .choose(
-                &geometry, &view, &active, levels, slots, 1.5, &previous, margin,
-            )
+            .choose(&LevelRequest {
+                geometry: &geometry,
+                view: &view,
+                active: &active,
+                value_ranges: &[],
+                levels,
+                slots,
+                target_pixels: 1.5,
+                previous: &previous,
+                margin,
+            })
             .unwrap();
         assert_eq!(*kept, fresh, "round {round}");
         let again = chooser
-            .choose(
-                &geometry, &view, &active, levels, slots, 1.5, &previous, margin,
-            )
+            .choose(&LevelRequest {
+                geometry: &geometry,
+                view: &view,
+                active: &active,
+                value_ranges: &[],
+                levels,
+                slots,
+                target_pixels: 1.5,
+                previous: &previous,
+                margin,
+            })
             .unwrap();
         assert_eq!(*again, fresh, "round {round}: the same inputs again");
         previous = fresh.levels;
@@ -590,9 +638,17 @@ fn a_kept_chooser_allocates_nothing_in_steady_state() {
         let before = allocations();
         for view in &views {
             let choice = chooser
-                .choose(
-                    &geometry, view, &active, LEVELS, 600, 1.0, &previous, margin,
-                )
+                .choose(&LevelRequest {
+                    geometry: &geometry,
+                    view,
+                    active: &active,
+                    value_ranges: &[],
+                    levels: LEVELS,
+                    slots: 600,
+                    target_pixels: 1.0,
+                    previous: &previous,
+                    margin,
+                })
                 .unwrap();
             if pass == 0 {
                 slots_used.push(choice.slots);
@@ -606,5 +662,115 @@ fn a_kept_chooser_allocates_nothing_in_steady_state() {
     assert!(
         slots_used.iter().all(|&s| s > 500 && s <= 600),
         "the budget binds: {slots_used:?}"
+    );
+}
+
+/// The screen-space error weighs by value (the two-level planner's metric at any level count):
+/// bricks whose ranges are all a quarter wide get the plan an unweighted choice makes for a
+/// target four times larger; a narrower range never refines a brick, in any budget; a brick of
+/// one value is refined only where the rule forces it (a neighbour one level finer); ranges of
+/// another length are refused.
+#[test]
+fn value_ranges_weigh_the_screen_space_error() {
+    let mut rng = Rng(0x91a4_0009);
+    let bricks = UVec3::new(12, 10, 8);
+    let geometry = geometry(bricks);
+    let grid = *geometry.grid();
+    let count = grid.brick_count();
+    let active = vec![true; count];
+    let quarter = vec![
+        ValueRange {
+            min: 0.5,
+            max: 0.75
+        };
+        count
+    ];
+    // Random widths, a third of the bricks of one value (every level with bricks of 8 is
+    // reachable with three levels: no block levels, so a brick's level is its own).
+    let levels = 3;
+    let mixed: Vec<ValueRange> = (0..count)
+        .map(|_| match rng.below(3) {
+            0 => ValueRange { min: 0.3, max: 0.3 },
+            _ => {
+                let min = 0.5 * rng.unit();
+                ValueRange {
+                    min,
+                    max: min + 0.5 * rng.unit(),
+                }
+            }
+        })
+        .collect();
+    let choose = |view: &LodView, ranges: &[ValueRange], levels: u32, slots: u64, target: f32| {
+        LevelChooser::new()
+            .choose(&LevelRequest {
+                geometry: &geometry,
+                view,
+                active: &active,
+                value_ranges: ranges,
+                levels,
+                slots,
+                target_pixels: target,
+                previous: &[],
+                margin: 0.0,
+            })
+            .cloned()
+            .unwrap()
+    };
+    let mut refined_somewhere = false;
+    for round in 0..8 {
+        let camera = random_camera(&mut rng);
+        let view = LodView::new(&camera, 128, 96).unwrap();
+        let weighted = choose(&view, &quarter, LEVELS, 1_000_000, 0.5);
+        let scaled = choose(&view, &[], LEVELS, 1_000_000, 2.0);
+        assert_eq!(weighted.levels, scaled.levels, "round {round}");
+        for slots in [40, 1_000_000] {
+            let plain = choose(&view, &[], levels, slots, 0.5);
+            let by_value = choose(&view, &mixed, levels, slots, 0.5);
+            for (i, b) in grid.bricks().enumerate() {
+                let (p, v) = (plain.levels[i].unwrap(), by_value.levels[i].unwrap());
+                if slots == 1_000_000 {
+                    assert!(v >= p, "round {round} brick {b}: {p} -> {v} by value");
+                }
+                let width = mixed[i].max - mixed[i].min;
+                if width == 0.0 && v < levels - 1 {
+                    let forced = grid
+                        .bricks()
+                        .enumerate()
+                        .filter(|(_, n)| {
+                            let d = n.as_ivec3() - b.as_ivec3();
+                            *n != b && d.abs().max_element() <= 1
+                        })
+                        .any(|(j, _)| by_value.levels[j] == Some(v - 1));
+                    assert!(forced, "round {round} brick {b} of one value at {v}");
+                    refined_somewhere = true;
+                }
+            }
+        }
+    }
+    assert!(
+        refined_somewhere,
+        "the rule refined a brick of one value in some view"
+    );
+    let camera = random_camera(&mut rng);
+    let view = LodView::new(&camera, 128, 96).unwrap();
+    let err = LevelChooser::new()
+        .choose(&LevelRequest {
+            geometry: &geometry,
+            view: &view,
+            active: &active,
+            value_ranges: &quarter[1..],
+            levels,
+            slots: 100,
+            target_pixels: 1.0,
+            previous: &[],
+            margin: 0.0,
+        })
+        .unwrap_err();
+    assert_eq!(
+        err,
+        LevelChoiceError::ActiveCount {
+            given: count - 1,
+            bricks: count
+        }
     );
 }

@@ -54,6 +54,10 @@ pub(crate) struct LevelState {
     pub(super) last_update: Option<LevelUpdateReport>,
     /// Per brick, the range culling tests (`crate::levels::conservative_ranges`).
     pub(super) cull_ranges: Vec<crate::bricks::ValueRange>,
+    /// Per brick, the range that weighs its screen-space error
+    /// ([`crate::plan::LevelRequest::value_ranges`]): its culling range as a fraction of the
+    /// volume's value range, so that the camera's target means the same for any data range.
+    pub(super) error_ranges: Vec<crate::bricks::ValueRange>,
     /// Stored bricks `(level, first brick)` whose read failed: kept out of every later step
     /// (their region keeps the level it draws) for as long as the source is attached.
     pub(super) failed: HashSet<(u32, usize)>,
@@ -251,6 +255,22 @@ impl LevelState {
     }
 }
 
+/// Each brick's range of `ranges` as a fraction of the volume's `value_range` (`[0, 1]` for the
+/// volume's own extremes; a volume of one value gives every brick width 0).
+fn error_ranges(
+    ranges: &[crate::bricks::ValueRange],
+    (min, max): (f32, f32),
+) -> Vec<crate::bricks::ValueRange> {
+    let scale = if max > min { 1.0 / (max - min) } else { 0.0 };
+    ranges
+        .iter()
+        .map(|r| crate::bricks::ValueRange {
+            min: (r.min - min) * scale,
+            max: (r.max - min) * scale,
+        })
+        .collect()
+}
+
 impl VolumePass {
     /// Draws `volume` at `levels` through a new three-level cache ([`VolumeSource::Levels`](super::VolumeSource::Levels)).
     pub(super) fn attach_levels(
@@ -349,6 +369,7 @@ impl VolumePass {
                 })?
             }
         };
+        let error_ranges = error_ranges(&cull_ranges, facts.value_range);
         // Free the old source's GPU memory before allocating the new cache.
         self.source = Source::None;
         let gpu = new_three_level_cache(
@@ -383,6 +404,7 @@ impl VolumePass {
             chooser: crate::plan::LevelChooser::new(),
             last_update: None,
             cull_ranges,
+            error_ranges,
             failed: HashSet::new(),
             last_failed_read: None,
         };

@@ -28,7 +28,7 @@ use crate::error::{Error, Result};
 use crate::lod::{cull_bricks, CullParams, LodView, ValueCulling};
 use crate::plan::{
     admit_by_budget, cull_params, level_margin, next_target, step_towards, FrameInput, FramePlan,
-    LevelChoice, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
+    LevelChoice, LevelRequest, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
 };
 use crate::scene::{Camera, RenderSettings};
 use crate::volume::ScalarType;
@@ -53,15 +53,23 @@ pub struct ResidencyConfig {
     pub ram_bytes: Option<u64>,
     /// Planner tuning (error threshold, hysteresis).
     pub options: PlanOptions,
+    /// Level sources ([`VolumePass::plan_brick_levels`]): weigh each brick's on-screen voxel
+    /// size by its value-range width as a fraction of the volume's (the two-level planner's
+    /// screen-space error, which it always uses): a brick of narrow range is drawn
+    /// `log2(1 / width)` levels coarser for the same target, one of a single value only as
+    /// fine as the rule forces. Off: the voxel size alone.
+    pub weigh_by_value: bool,
 }
 
 impl Default for ResidencyConfig {
-    /// 64 MiB of uploads per frame, no RAM cut, the planner's default options.
+    /// 64 MiB of uploads per frame, no RAM cut, the planner's default options, level sources
+    /// by voxel size alone.
     fn default() -> Self {
         Self {
             upload_bytes_per_frame: 64 << 20,
             ram_bytes: None,
             options: PlanOptions::default(),
+            weigh_by_value: false,
         }
     }
 }
@@ -240,8 +248,9 @@ impl VolumePass {
     /// Chooses the level of every brick of a three-level source ([`VolumeSource::Levels`],
     /// [`VolumeSource::LevelStore`]) for a frame of `camera` (world space) with `settings` at
     /// `width` x `height` pixels, with drawn voxels at most `target_pixels` on screen where the
-    /// cache allows ([`crate::plan::LevelChooser`], with hysteresis against the last
-    /// choice), and stages a step towards it (the next
+    /// cache allows (each voxel's size weighted by its brick's value range with
+    /// [`ResidencyConfig::weigh_by_value`]) ([`crate::plan::LevelChooser`], with hysteresis
+    /// against the last choice), and stages a step towards it (the next
     /// [`VolumePass::record`] uploads what changed): the step refines at most one level per brick
     /// and uploads at most [`ResidencyConfig::upload_bytes_per_frame`] bytes, counting every
     /// stored brick it uploads (new ones, kept ones whose coarser neighbours changed, ones moved
@@ -303,16 +312,21 @@ impl VolumePass {
         let (levels, slots) = (state.level_count(), state.slot_count());
         let mut choice = state
             .chooser
-            .choose(
-                &state.bricks,
-                &view,
-                &active,
+            .choose(&LevelRequest {
+                geometry: &state.bricks,
+                view: &view,
+                active: &active,
+                value_ranges: if self.residency.weigh_by_value {
+                    &state.error_ranges
+                } else {
+                    &[]
+                },
                 levels,
                 slots,
                 target_pixels,
-                &state.wanted,
-                level_margin(self.residency.options.hysteresis),
-            )?
+                previous: &state.wanted,
+                margin: level_margin(self.residency.options.hysteresis),
+            })?
             .clone();
         // A stored brick whose read fails is kept out and the step planned again without it
         // (its region keeps the level it draws), at most a few times a call.

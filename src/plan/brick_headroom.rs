@@ -3,6 +3,7 @@
 //! nearest point, infinite outside the frustum; the box tests and distances are summed in the
 //! order [`crate::lod::LodView::box_outside_frustum`] and a box's distance take them, a row of
 //! bricks at a time on vector lanes.
+use crate::bricks::ValueRange;
 use crate::lod::{BrickGeometry, LodView, ViewProjection};
 use glam::UVec3;
 
@@ -92,6 +93,20 @@ impl HeadroomTerms {
     }
 }
 
+/// What a brick's value range adds to its headroom ([`super::LevelRequest::value_ranges`]):
+/// `log2(1 / w)` levels for a range `w` wide (the screen-space error is the voxel's size times
+/// `w`), infinite for a range of one value, none for a range 1 or more wide or NaN.
+pub(super) fn value_headroom(range: ValueRange) -> f32 {
+    let width = range.max - range.min;
+    if width.is_nan() || width >= 1.0 {
+        0.0
+    } else if width > 0.0 {
+        -fast_log2(width)
+    } else {
+        f32::INFINITY
+    }
+}
+
 /// log2 of a positive finite `x` (as [`f32::log2`] within 1e-6, relative past 1, tested), without a call: the
 /// exponent, and of the mantissa `m` in `[sqrt(1/2), sqrt(2))` the series
 /// `2 atanh(s) = ln m`, `s = (m - 1) / (m + 1)`, to `s^9`.
@@ -124,5 +139,17 @@ mod tests {
             worst = worst.max((fast_log2(x) - x.log2()).abs() / x.log2().abs().max(1.0));
         }
         assert!(worst < 1e-6, "{worst}");
+    }
+
+    #[test]
+    fn a_value_range_adds_log2_of_its_inverse_width() {
+        let range = |min: f32, max: f32| ValueRange { min, max };
+        assert!((value_headroom(range(0.25, 0.5)) - 2.0).abs() < 1e-6);
+        assert!((value_headroom(range(0.0, 0.1)) - 10f32.log2()).abs() < 1e-5);
+        assert_eq!(value_headroom(range(0.0, 1.0)), 0.0);
+        assert_eq!(value_headroom(range(-1.0, 2.0)), 0.0);
+        assert_eq!(value_headroom(range(f32::NAN, 1.0)), 0.0);
+        assert_eq!(value_headroom(range(0.5, 0.5)), f32::INFINITY);
+        assert_eq!(value_headroom(ValueRange::EMPTY), f32::INFINITY);
     }
 }

@@ -1,15 +1,19 @@
 //! What a level choice is (issue 19, item 4; issue 36, item 4): the level of every brick for
 //! one view ([`LevelChoice`]), why a choice is refused ([`LevelChoiceError`]), the hysteresis
-//! margin in levels, and the one-call forms of [`LevelChooser::choose`] (the chooser and its
-//! method: `super::levels`).
+//! margin in levels, what a choice is made from ([`LevelRequest`]) and the one-call form of
+//! [`LevelChooser::choose`] (the chooser and its method: `super::levels`).
 use super::levels::LevelChooser;
+use crate::bricks::ValueRange;
 use crate::lod::{BrickGeometry, LodView};
 
 /// Why [`choose_levels`] cannot choose.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum LevelChoiceError {
-    /// The culling result does not have one entry per brick.
-    #[error("{given} culling flags for a grid of {bricks} bricks")]
+    /// The culling result, the value ranges or the previous choice do not have one entry per
+    /// brick.
+    #[error(
+        "{given} culling flags, value ranges or previous levels for a grid of {bricks} bricks"
+    )]
     ActiveCount {
         /// Entries given.
         given: usize,
@@ -59,10 +63,41 @@ pub struct LevelChoice {
     pub failed_reads: usize,
 }
 
+/// What one level choice is made from ([`LevelChooser::choose`]; module docs of
+/// `super::levels`).
+#[derive(Clone, Copy, Debug)]
+pub struct LevelRequest<'a> {
+    /// The brick grid in world space.
+    pub geometry: &'a BrickGeometry,
+    /// The camera and viewport.
+    pub view: &'a LodView,
+    /// Per brick (linear index): false for a culled brick.
+    pub active: &'a [bool],
+    /// Per brick, the normalised value range its error is weighted by (the two-level planner's
+    /// screen-space error: [`crate::lod::screen_space_error`]): a brick whose range is `w`
+    /// wide wants a level `log2(1 / w)` coarser than its voxels' size on screen alone asks
+    /// for, a brick of one value (`w = 0`) is refined only where the rule forces it. Widths
+    /// past 1 or NaN count as 1. Empty: no weighting (every brick as if `w = 1`).
+    pub value_ranges: &'a [ValueRange],
+    /// Levels there are (`0..levels`).
+    pub levels: u32,
+    /// The cache's slots.
+    pub slots: u64,
+    /// The largest screen-space error wanted: the on-screen size of a drawn voxel in pixels,
+    /// times its brick's value-range width when `value_ranges` is given.
+    pub target_pixels: f32,
+    /// The last choice, one entry per brick, or empty for none (hysteresis).
+    pub previous: &'a [Option<u32>],
+    /// The hysteresis in levels ([`level_margin`] of the two-level planner's relative margin;
+    /// 0 for none).
+    pub margin: f32,
+}
+
 /// Chooses the level of every brick of `geometry` for `view` among `levels` levels (module
 /// docs): `active[i]` false for a culled brick, `slots` the cache's slots, `target_pixels` the
-/// largest on-screen size of a drawn voxel wanted. A fresh [`LevelChooser`]'s choice; a host
-/// that chooses every frame keeps one.
+/// largest on-screen size of a drawn voxel wanted; no value weighting, no hysteresis. A fresh
+/// [`LevelChooser`]'s choice of that [`LevelRequest`]; a host that chooses every frame keeps
+/// one.
 ///
 /// Errors: a culling result of another length, 0 levels (or more than 31, or more than 3 with
 /// bricks below 8 voxels), or a target that is not a positive number. A cache too small for
@@ -75,16 +110,19 @@ pub fn choose_levels(
     slots: u64,
     target_pixels: f32,
 ) -> Result<LevelChoice, LevelChoiceError> {
-    choose_levels_near(
-        geometry,
-        view,
-        active,
-        levels,
-        slots,
-        target_pixels,
-        &[],
-        0.0,
-    )
+    LevelChooser::default()
+        .choose(&LevelRequest {
+            geometry,
+            view,
+            active,
+            value_ranges: &[],
+            levels,
+            slots,
+            target_pixels,
+            previous: &[],
+            margin: 0.0,
+        })
+        .cloned()
 }
 
 /// The hysteresis margin in levels (the log2 scale of the on-screen voxel size) of a relative
@@ -93,31 +131,4 @@ pub fn choose_levels(
 /// `log2(1 + m)` levels (0.1375 for the default 10 %).
 pub fn level_margin(relative: f32) -> f32 {
     (1.0 + relative.max(0.0)).log2()
-}
-
-/// [`choose_levels`] with hysteresis against `previous` (module docs): a fresh
-/// [`LevelChooser`]'s [`LevelChooser::choose`].
-#[allow(clippy::too_many_arguments)] // reason: the view's inputs; folded into one planner input by the one residency system (issue 36).
-pub fn choose_levels_near(
-    geometry: &BrickGeometry,
-    view: &LodView,
-    active: &[bool],
-    levels: u32,
-    slots: u64,
-    target_pixels: f32,
-    previous: &[Option<u32>],
-    margin: f32,
-) -> Result<LevelChoice, LevelChoiceError> {
-    LevelChooser::default()
-        .choose(
-            geometry,
-            view,
-            active,
-            levels,
-            slots,
-            target_pixels,
-            previous,
-            margin,
-        )
-        .cloned()
 }

@@ -13,7 +13,9 @@
 //!    ([`LevelChoice::dropped`] counts them). Never an error.
 //! 1. **Priority** of refining a node of level `k`: `k - headroom`, the headroom being log2 of
 //!    the target over the projected size of a hi-res voxel at the nearest point of the node's
-//!    nearest active brick in view: by how many levels its voxels are too large on screen. A
+//!    nearest active brick in view (times the brick's value-range width when the request
+//!    weighs by value, as the two-level planner's screen-space error does): by how many levels
+//!    its voxels are too large on screen. A
 //!    node with no active brick in view has none: it is refined only when the rule forces it.
 //!    A node's priority is capped by its parent's (a node is reached only once its parent is
 //!    split), so the refinements wanted at a priority above any threshold form a cut.
@@ -43,7 +45,7 @@
 //! a call with the inputs of the last one (a still camera) returns its plan without choosing
 //! again.
 //!
-//! Hysteresis ([`LevelChooser::choose`]'s `previous` and `margin`): a node that the last plan
+//! Hysteresis ([`LevelRequest::previous`] and [`LevelRequest::margin`]): a node that the last plan
 //! refined stays refined until its priority falls `margin` levels below zero, and a node the
 //! last plan drew whole is refined only once its priority is `margin` above zero, so a camera
 //! that hovers at a boundary does not move bricks back and forth.
@@ -52,9 +54,10 @@
 //! cache towards its choice under the per-frame upload budget ([`super::step_towards`]) and, for
 //! a streamed source, onto the stored bricks its [`crate::store::LevelStreamer`] holds in RAM.
 
-use super::brick_headroom::{headroom_row, AxisTerms, HeadroomTerms};
-use super::level_choice::{LevelChoice, LevelChoiceError};
+use super::brick_headroom::{headroom_row, value_headroom, AxisTerms, HeadroomTerms};
+use super::level_choice::{LevelChoice, LevelChoiceError, LevelRequest};
 use super::level_rule::{bricks_in, linear, RuleKeeper};
+use crate::bricks::ValueRange;
 use crate::cache::{block_bricks, slots_for_classes};
 use crate::lod::{BrickGeometry, LodView};
 use glam::{UVec3, Vec3};
@@ -75,6 +78,8 @@ pub struct LevelChooser {
     tree: Vec<(UVec3, Vec<u8>)>,
     /// The `previous` of the last choice (compared for reuse).
     previous: Vec<Option<u32>>,
+    /// The `value_ranges` of the last choice (compared for reuse).
+    value_ranges: Vec<ValueRange>,
     /// Per root (block of the coarsest level, x fastest): dropped to fit (step 0).
     dropped: Vec<bool>,
     /// The roots in the order they are dropped (reused buffer).
@@ -168,6 +173,7 @@ struct Inputs<'a> {
     geometry: &'a BrickGeometry,
     view: &'a LodView,
     active: &'a [bool],
+    value_ranges: &'a [ValueRange],
     previous: &'a [Option<u32>],
     bricks: UVec3,
     root: u32,
@@ -213,36 +219,35 @@ impl LevelChooser {
         Self::default()
     }
 
-    /// Chooses the level of every brick of `geometry` for `view` among `levels` levels
-    /// (module docs): `active[i]` false for a culled brick, `slots` the cache's slots,
-    /// `target_pixels` the largest on-screen size of a drawn voxel wanted, `previous` the last
-    /// choice (one entry per brick, or empty for none) and `margin` the hysteresis in levels
-    /// ([`super::level_margin`] of the two-level planner's relative margin; 0 for none).
+    /// Chooses the level of every brick of `request.geometry` for `request.view` among
+    /// `request.levels` levels (module docs; the fields: [`LevelRequest`]).
     ///
-    /// Errors: a culling result or a `previous` of another length than the bricks (reported as
-    /// [`LevelChoiceError::ActiveCount`]), 0 levels (or more than 31, or more than 3 with bricks
-    /// below 8 voxels), a target that is not a positive number, a margin that is negative or
-    /// not finite. A cache too small for the coarsest plan is no error: the least important
-    /// bricks are dropped (module docs, step 0).
-    #[allow(clippy::too_many_arguments)] // reason: the view's inputs; folded into one planner input by the one residency system (issue 36).
-    pub fn choose(
-        &mut self,
-        geometry: &BrickGeometry,
-        view: &LodView,
-        active: &[bool],
-        levels: u32,
-        slots: u64,
-        target_pixels: f32,
-        previous: &[Option<u32>],
-        margin: f32,
-    ) -> Result<&LevelChoice, LevelChoiceError> {
+    /// Errors: a culling result, value ranges (when given) or a `previous` (when given) of
+    /// another length than the bricks (reported as [`LevelChoiceError::ActiveCount`]), 0 levels
+    /// (or more than 31, or more than 3 with bricks below 8 voxels), a target that is not a
+    /// positive number, a margin that is negative or not finite. A cache too small for the
+    /// coarsest plan is no error: the least important bricks are dropped (module docs, step 0).
+    pub fn choose(&mut self, request: &LevelRequest<'_>) -> Result<&LevelChoice, LevelChoiceError> {
+        let LevelRequest {
+            geometry,
+            view,
+            active,
+            value_ranges,
+            levels,
+            slots,
+            target_pixels,
+            previous,
+            margin,
+        } = *request;
         let grid = geometry.grid();
         let count = grid.brick_count();
-        if !previous.is_empty() && previous.len() != count {
-            return Err(LevelChoiceError::ActiveCount {
-                given: previous.len(),
-                bricks: count,
-            });
+        for given in [previous.len(), value_ranges.len()] {
+            if given != 0 && given != count {
+                return Err(LevelChoiceError::ActiveCount {
+                    given,
+                    bricks: count,
+                });
+            }
         }
         if active.len() != count {
             return Err(LevelChoiceError::ActiveCount {
@@ -277,7 +282,11 @@ impl LevelChooser {
             margin,
         };
         // A still camera: the same inputs give the same plan.
-        if self.last == Some(inputs) && self.active == active && self.previous == previous {
+        if self.last == Some(inputs)
+            && self.active == active
+            && self.previous == previous
+            && self.value_ranges == value_ranges
+        {
             return Ok(&self.choice);
         }
         self.last = None;
@@ -286,10 +295,13 @@ impl LevelChooser {
         }
         self.previous.clear();
         self.previous.extend_from_slice(previous);
+        self.value_ranges.clear();
+        self.value_ranges.extend_from_slice(value_ranges);
         let input = Inputs {
             geometry,
             view,
             active,
+            value_ranges,
             previous,
             bricks,
             root: levels - 1,
@@ -586,8 +598,8 @@ impl LevelChooser {
         dropped
     }
 
-    /// Step 1 per brick: every brick's headroom into `self.headroom`, infinite for one that is
-    /// culled, in a dropped root or outside the frustum. The box tests and distances are
+    /// Step 1 per brick: every brick's headroom into `self.headroom` (plus its value range's,
+    /// when given), infinite for one that is culled, in a dropped root or outside the frustum. The box tests and distances are
     /// summed from per-axis terms, in the order [`LodView::box_outside_frustum`] and a box's
     /// distance take them, a row at a time on vector lanes ([`super::brick_headroom`]).
     fn brick_headrooms(&mut self, input: &Inputs<'_>) {
@@ -617,6 +629,11 @@ impl LevelChooser {
                 for (h, &active) in headrooms.iter_mut().zip(active) {
                     if !active {
                         *h = f32::INFINITY;
+                    }
+                }
+                if let Some(ranges) = input.value_ranges.get(row..row + nx) {
+                    for (h, range) in headrooms.iter_mut().zip(ranges) {
+                        *h += value_headroom(*range);
                     }
                 }
                 if any_dropped {

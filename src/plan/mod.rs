@@ -131,9 +131,7 @@ use targets::{targets, Bricks, Changes, Counts};
 pub use frame::{
     cull_params, upload_bytes, FrameInput, FramePlan, PlanBudget, PlanOptions, PlanReport,
 };
-pub use level_choice::{
-    choose_levels, choose_levels_near, level_margin, LevelChoice, LevelChoiceError,
-};
+pub use level_choice::{choose_levels, level_margin, LevelChoice, LevelChoiceError, LevelRequest};
 pub use level_steps::{admit_by_budget, next_target, step_towards};
 pub use levels::LevelChooser;
 

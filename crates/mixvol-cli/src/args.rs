@@ -142,6 +142,12 @@ pub struct ResidencyArgs {
     /// budget).
     #[arg(long)]
     pub upload_mb: Option<f64>,
+    /// Levels chosen from the camera: weigh each brick's on-screen voxel size by the width of
+    /// its value range (a fraction of the volume's), so bricks of narrow range are drawn
+    /// coarser and bricks of one value only as fine as their neighbours force (two-level
+    /// residency always weighs by value).
+    #[arg(long)]
+    pub weigh_by_value: bool,
     /// MiB of RAM for the bricks a brick store streams in.
     #[arg(long, default_value_t = 512.0)]
     pub ram_budget_mb: f64,

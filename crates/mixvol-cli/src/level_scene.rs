@@ -99,7 +99,7 @@ pub fn level_upload_budget(args: &RenderArgs) -> u64 {
 }
 
 /// `--upload-mb` as the per-step upload budget of a three-level scene whose levels come from
-/// the camera (without it, the default of `ResidencyConfig`).
+/// the camera (without it, the default of `ResidencyConfig`), and `--weigh-by-value`.
 pub fn set_level_upload_budget(renderer: &mut Renderer, args: &RenderArgs) -> Result<()> {
     if let Some(mb) = args.residency.upload_mb {
         if !(mb.is_finite() && mb > 0.0) {
@@ -107,11 +107,12 @@ pub fn set_level_upload_budget(renderer: &mut Renderer, args: &RenderArgs) -> Re
                 "--upload-mb {mb}: expected a positive number of MiB"
             )));
         }
-        renderer.set_residency_config(ResidencyConfig {
-            upload_bytes_per_frame: level_upload_budget(args),
-            ..ResidencyConfig::default()
-        });
     }
+    renderer.set_residency_config(ResidencyConfig {
+        upload_bytes_per_frame: level_upload_budget(args),
+        weigh_by_value: args.residency.weigh_by_value,
+        ..ResidencyConfig::default()
+    });
     Ok(())
 }
 

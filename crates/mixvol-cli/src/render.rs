@@ -143,6 +143,7 @@ pub fn set_up_scene(
                 upload_bytes_per_frame: upload,
                 ram_bytes: Some(ram / 2),
                 options,
+                ..ResidencyConfig::default()
             };
             planned_scene(renderer, streamer, config, residency, ram)
         }
@@ -174,6 +175,7 @@ pub fn set_up_scene(
                 upload_bytes_per_frame: upload,
                 ram_bytes: Some(ram),
                 options,
+                ..ResidencyConfig::default()
             };
             planned_scene(renderer, streamer, config, residency, ram)
         }
@@ -201,6 +203,7 @@ pub fn set_up_scene(
                     upload_bytes_per_frame: upload,
                     ram_bytes: None,
                     options,
+                    ..ResidencyConfig::default()
                 });
                 renderer.set_source(VolumeSource::Mixed {
                     volume: volume.clone(),

@@ -182,6 +182,70 @@ fn a_staircase_of_five_levels_renders_through_the_three_level_cache() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `--weigh-by-value` weighs each brick's voxel size on screen by its value range (the
+/// two-level planner's error): in a cache large enough for the one-pixel target, the same view
+/// draws fewer bricks at level 0 (Marschner-Lobb's bricks span a fraction of its range), the
+/// same bricks in all, and still matches the CPU reference.
+#[test]
+fn weighing_by_value_draws_narrow_bricks_coarser() {
+    let dir = temp_dir("weigh_by_value");
+    let per_level = |weigh: bool| {
+        let png = dir.join(format!("w{weigh}.png"));
+        let mut args = vec![
+            "render",
+            "--dims",
+            "64,64,64",
+            "--scalar",
+            "f32",
+            "--brick-size",
+            "8",
+            "--levels",
+            "camera",
+            "--cache-mb",
+            "64",
+            "--width",
+            "64",
+            "--height",
+            "64",
+            "--compare",
+            "--validation",
+            "-o",
+            png.to_str().unwrap(),
+        ];
+        if weigh {
+            args.push("--weigh-by-value");
+        }
+        let (out, text) = run(&args);
+        assert!(out.status.success(), "{text}");
+        assert_matches_reference(&text, &png);
+        let line = text
+            .lines()
+            .find_map(|l| l.strip_prefix("levels from the camera: ["))
+            .unwrap_or_else(|| panic!("no levels line in:\n{text}"));
+        let counts: Vec<u64> = line[..line.find(']').unwrap()]
+            .split(", ")
+            .map(|c| c.parse().unwrap())
+            .collect();
+        counts
+    };
+    let plain = per_level(false);
+    let weighed = per_level(true);
+    assert_eq!(
+        plain.iter().sum::<u64>(),
+        weighed.iter().sum::<u64>(),
+        "{plain:?} {weighed:?}"
+    );
+    assert!(
+        plain[0] > 0,
+        "the one-pixel target draws level 0: {plain:?}"
+    );
+    assert!(
+        weighed[0] < plain[0],
+        "weighed by value, fewer bricks at level 0: {plain:?} -> {weighed:?}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn levels_chosen_from_the_camera_fit_the_cache_and_match_the_cpu_reference() {
     let dir = temp_dir("camera_levels");

@@ -192,10 +192,19 @@ impl Renderer {
     /// brick-cache source starts with nothing resident; from then on every
     /// [`Renderer::render`] plans its residency from the camera ([`VolumePass::update`], under
     /// [`Renderer::set_residency_config`]) until [`Renderer::set_levels`] or
-    /// [`Renderer::stage_levels`] takes over (for tests and fixed patterns).
+    /// [`Renderer::stage_levels`] takes over (for tests and fixed patterns). A level source
+    /// given no levels (an empty slice) is planned alike, inside each render's submission (its
+    /// uploads and fixups in the frame's timing), until [`Renderer::set_brick_levels`] or
+    /// [`Renderer::plan_brick_levels`] takes over; one given its levels draws them.
     pub fn set_source(&mut self, source: VolumeSource<'_>) -> Result<()> {
         self.probe = None;
-        self.planned = true;
+        // A level source given its levels draws them; one given none is planned.
+        self.planned = match &source {
+            VolumeSource::Levels { levels, .. }
+            | VolumeSource::LevelStore { levels, .. }
+            | VolumeSource::LevelStream { levels, .. } => levels.is_empty(),
+            _ => true,
+        };
         let upload_now = matches!(source, VolumeSource::Volume(_));
         self.pass.set_source(source)?;
         if upload_now {
@@ -225,11 +234,14 @@ impl Renderer {
     /// Moves a three-level source ([`VolumeSource::Levels`], [`VolumeSource::LevelStore`],
     /// [`VolumeSource::LevelStream`]) to `levels` (see [`VolumePass::set_brick_levels`]):
     /// uploads the stored bricks that changed (a streamed source reads those not in RAM on this
-    /// thread), rewrites the tables, runs the fixups of the uploaded bricks and waits.
+    /// thread), rewrites the tables, runs the fixups of the uploaded bricks and waits. Renders
+    /// no longer plan residency from the camera (until the next [`Renderer::set_source`] or
+    /// [`Renderer::set_planned`]).
     pub fn set_brick_levels(
         &mut self,
         levels: &[Option<u32>],
     ) -> Result<crate::levels::LevelUpdateReport> {
+        self.planned = false;
         let report = self.pass.set_brick_levels(levels)?;
         self.flush()?;
         Ok(report)
@@ -245,7 +257,8 @@ impl Renderer {
     /// (culling what the transfer function leaves empty; see
     /// [`VolumePass::plan_brick_levels`]), uploads what changed, runs the fixups, and waits. A
     /// streamed source ([`VolumeSource::LevelStream`]) steps only onto stored bricks in RAM and
-    /// never waits for its reader.
+    /// never waits for its reader. Renders no longer plan residency themselves (the caller
+    /// does; until the next [`Renderer::set_source`] or [`Renderer::set_planned`]).
     pub fn plan_brick_levels(
         &mut self,
         camera: &Camera,
@@ -254,6 +267,7 @@ impl Renderer {
         height: u32,
         target_pixels: f32,
     ) -> Result<crate::plan::LevelChoice> {
+        self.planned = false;
         let choice = self
             .pass
             .plan_brick_levels(camera, settings, width, height, target_pixels)?;
@@ -288,7 +302,7 @@ impl Renderer {
 
     /// Whether renders plan residency from the camera (see [`Renderer::set_planned`]).
     pub fn is_planned(&self) -> bool {
-        self.planned && self.pass.brick_cache().is_some()
+        self.planned && (self.pass.brick_cache().is_some() || self.pass.brick_levels().is_some())
     }
 
     /// Budgets and tuning of camera-driven residency (see [`VolumePass::set_residency_config`]).

@@ -14,7 +14,7 @@ use mixvol::bricks::Level;
 use mixvol::cache::{classes_for_levels, CacheGeometry, SlotGeometry};
 use mixvol::pyramid::LevelGrid;
 use mixvol::reference::{self, LevelField, LevelReferenceCache};
-use mixvol::renderer::{Frame, MixedConfig, Renderer, TargetFormat, VolumeSource};
+use mixvol::renderer::{Frame, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Transition};
 use mixvol::store::{write_level_store, LevelStore};
 use mixvol::volume::{ScalarType, SyntheticField, Volume};
@@ -446,6 +446,109 @@ fn two_levels_take_the_two_level_caches_slots() {
             .to_string();
         assert!(err.contains("slots"), "{err}");
         drop(five);
+        let _ = std::fs::remove_file(&path);
+    }
+    common::finish(ctx);
+}
+
+/// A level store given no levels is planned by every render, as a two-level source is
+/// (`VolumePass::update` inside the render's own submission): with the default options the slots
+/// decide (50 slots for 144 bricks: a quarter at level 0), each frame uploads at most the
+/// per-frame cap (and the frame's GPU timing covers that upload), the report counts bricks per
+/// level and those still waiting, the frames converge (nothing waits, nothing uploads) to a
+/// plan that fills the slots and draws what the CPU reference draws for its levels; the same
+/// step a caller takes with `plan_brick_levels` stops the renders' own planning.
+#[test]
+fn a_level_store_given_no_levels_is_planned_by_every_render() {
+    let ctx = common::validated_context();
+    {
+        let mut rng = Rng(0x1e7e_1570_6900_0005);
+        let volume = textured_volume(&mut rng, UVec3::new(6 * N, 6 * N, 4 * N));
+        let path = temp_path("planned");
+        write_level_store(
+            &path,
+            &volume,
+            N,
+            None,
+            DownsampleFilter::Mean2,
+            &mut |_, _| {},
+        )
+        .unwrap();
+        let store = Arc::new(LevelStore::open(&path).unwrap());
+        let count = store.grid().brick_count();
+        // About 80 slots of 12^3 f32 texels for 144 bricks (the image holds 50).
+        let budget = 80 * 12 * 12 * 12 * 4;
+        let mut renderer = renderer_for(
+            &ctx,
+            VolumeSource::LevelStore {
+                store: store.clone(),
+                levels: &[],
+                config: config(budget),
+            },
+        );
+        assert!(renderer.is_planned());
+        let cap = 27 * 12 * 12 * 12 * 4;
+        renderer.set_residency_config(ResidencyConfig {
+            upload_bytes_per_frame: cap,
+            ..ResidencyConfig::default()
+        });
+        let slots = renderer.level_slot_count().unwrap();
+        let mut settled = None;
+        for frame in 0..40 {
+            let f = renderer.render(&camera(), &settings(), W, W).unwrap();
+            let report = f.residency.clone().expect("a planned frame reports");
+            assert!(
+                report.residency.uploaded_bytes as u64 <= cap,
+                "frame {frame}: {} bytes over the cap {cap}",
+                report.residency.uploaded_bytes
+            );
+            if report.residency.uploaded_bytes > 0 {
+                assert!(
+                    f.timing.gpu_upload_ms.is_some(),
+                    "frame {frame}: upload timed"
+                );
+            }
+            assert_eq!(report.per_level.len(), store.level_count() as usize);
+            let drawn = renderer.brick_levels().unwrap().to_vec();
+            for (level, counts) in report.per_level.iter().enumerate() {
+                let at = drawn.iter().filter(|l| **l == Some(level as u32)).count();
+                assert_eq!(counts.drawn, at, "frame {frame} level {level}");
+            }
+            let wanted: usize = report.per_level.iter().map(|c| c.wanted).sum();
+            assert_eq!(wanted + report.plan.culled + report.plan.dropped, count);
+            assert!(report.plan.slots_used as u64 <= slots);
+            if report.waiting == 0 && report.residency.uploaded_bytes == 0 {
+                settled = Some((frame, report, f));
+                break;
+            }
+        }
+        let (frame, report, f) = settled.expect("the planned renders converge");
+        assert!(
+            frame >= 2,
+            "the cap spreads the uploads over frames: {frame}"
+        );
+        assert!(
+            report.per_level[0].drawn > 0 && report.per_level[0].drawn < count,
+            "the slots decide how much is drawn at level 0: {:?}",
+            report.per_level
+        );
+        // Budget-driven: one more level-0 brick would not fit (a slot holds one level-0 brick).
+        assert!(
+            report.plan.slots_used as u64 + 1 > slots - 8,
+            "the plan fills the slots: {} of {slots}",
+            report.plan.slots_used
+        );
+        assert_matches("converged", &f, &reference_frame(&renderer, &store));
+        // A caller's own step takes over: renders draw what it staged.
+        renderer
+            .plan_brick_levels(&camera(), &settings(), W, W, 4.0)
+            .unwrap();
+        assert!(!renderer.is_planned());
+        let before = renderer.brick_levels().unwrap().to_vec();
+        let f = renderer.render(&camera(), &settings(), W, W).unwrap();
+        assert!(f.residency.is_none());
+        assert_eq!(renderer.brick_levels().unwrap(), &before[..]);
+        drop(renderer);
         let _ = std::fs::remove_file(&path);
     }
     common::finish(ctx);

@@ -339,6 +339,29 @@ fn camera_path_over_a_store_matches_the_reference_every_frame() {
                 report.residency.hi_bricks + report.residency.lo_bricks,
                 levels.iter().filter(|l| l.is_resident()).count()
             );
+            // Per level, as level sources report it: 0 hi-res, 1 low-res.
+            let at = |level: Level| levels.iter().filter(|l| **l == level).count();
+            let wanted = |level: Level| plan.wanted.iter().filter(|l| **l == level).count();
+            let counts: Vec<(usize, usize)> = report
+                .per_level
+                .iter()
+                .map(|c| (c.wanted, c.drawn))
+                .collect();
+            assert_eq!(
+                counts,
+                [
+                    (wanted(Level::Hi), at(Level::Hi)),
+                    (wanted(Level::Lo), at(Level::Lo))
+                ],
+                "frame {f}"
+            );
+            let differ = plan
+                .wanted
+                .iter()
+                .zip(&levels)
+                .filter(|(w, d)| **w != Level::Absent && w != d)
+                .count();
+            assert_eq!(report.waiting, differ, "frame {f}");
             assert!(
                 report.plan.culled > 0,
                 "the ball leaves the corner bricks culled"

@@ -18,6 +18,16 @@ pub enum Level {
 }
 
 impl Level {
+    /// The level's number in the one level system (levels counted from the finest): `Hi` 0, `Lo` 1,
+    /// `Absent` none.
+    pub fn number(self) -> Option<u32> {
+        match self {
+            Level::Hi => Some(0),
+            Level::Lo => Some(1),
+            Level::Absent => None,
+        }
+    }
+
     /// True for `Hi` and `Lo`.
     pub fn is_resident(self) -> bool {
         self != Level::Absent

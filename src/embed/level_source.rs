@@ -218,6 +218,11 @@ impl LevelState {
         u64::from(self.geometry.slot_count())
     }
 
+    /// Bytes of the cache image.
+    pub(super) fn cache_bytes(&self) -> u64 {
+        self.geometry.extent().as_u64vec3().element_product() * self.scalar.size_bytes() as u64
+    }
+
     /// Bytes of one stored brick of `level` in the cache.
     pub(super) fn stored_bytes(&self, level: u32) -> u64 {
         u64::from(self.geometry.stored_edge(level)).pow(3) * self.scalar.size_bytes() as u64

@@ -70,7 +70,9 @@ mod source;
 mod tables;
 
 pub use frames::PassTimings;
-pub use residency::{FrameReport, ResidencyConfig, MIN_STEP_BRICKS};
+pub use residency::{
+    FrameReport, LevelCounts, ResidencyConfig, BUDGET_DRIVEN_TARGET_PIXELS, MIN_STEP_BRICKS,
+};
 pub use source::{MixedConfig, ResidencyReport, VolumeSource};
 
 use crate::error::{Error, Result};

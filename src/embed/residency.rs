@@ -25,6 +25,7 @@ use super::VolumePass;
 use crate::bricks::Level;
 use crate::cache::block_origin;
 use crate::error::{Error, Result};
+use crate::levels::LevelUpdateReport;
 use crate::lod::{cull_bricks, CullParams, LodView, ValueCulling};
 use crate::plan::{
     admit_by_budget, cull_params, level_margin, next_target, step_towards, FrameInput, FramePlan,
@@ -74,6 +75,20 @@ impl Default for ResidencyConfig {
     }
 }
 
+/// Bricks at one level in one frame ([`FrameReport::per_level`]).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq)]
+pub struct LevelCounts {
+    /// Bricks the view wants at this level.
+    pub wanted: usize,
+    /// Bricks drawn at this level.
+    pub drawn: usize,
+}
+
+/// The target of a level source's choice when [`PlanOptions::error_threshold`] is 0 (refine
+/// whatever the slots allow): a drawn voxel of 1/64 pixel, below which no voxel in view is
+/// refined, so that the slot budget decides.
+pub const BUDGET_DRIVEN_TARGET_PIXELS: f32 = 1.0 / 64.0;
+
 /// What one [`VolumePass::update`] planned and staged: the per-frame residency report.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct FrameReport {
@@ -95,6 +110,13 @@ pub struct FrameReport {
     pub first_source_error: Option<String>,
     /// Bytes of the GPU cache image.
     pub cache_bytes: u64,
+    /// Per level from the finest, for every brick-cache source (two-level sources: 0 the
+    /// hi-res level, 1 the low-res one): the bricks the view wants at that level and the bricks
+    /// drawn there after this update.
+    pub per_level: Vec<LevelCounts>,
+    /// Bricks whose drawn level is not the one the view wants (not loaded yet, or waiting for
+    /// the upload budget of a later frame); culled and dropped bricks are not counted.
+    pub waiting: usize,
     /// CPU time of the plan (culling, level choice, staging decisions), in milliseconds.
     pub plan_ms: f64,
     /// CPU time of the whole update (plan, fetch, staging, requests), in milliseconds.
@@ -136,6 +158,18 @@ impl VolumePass {
     /// `record`, with the same camera, size and settings (in world space: the pass maps them into
     /// the volume frame by its [`VolumePass::model_transform`]). Needs a brick-cache source. Records
     /// nothing and needs no wait (the staged bytes go to the frame slot `record` is given).
+    ///
+    /// A level source ([`VolumeSource::Levels`], [`VolumeSource::LevelStore`],
+    /// [`VolumeSource::LevelStream`]) is planned by [`VolumePass::plan_brick_levels`] for the
+    /// target [`PlanOptions::error_threshold`] (0, the default: [`BUDGET_DRIVEN_TARGET_PIXELS`],
+    /// the slots decide, as for two levels) and reported alike: [`FrameReport::per_level`],
+    /// [`FrameReport::waiting`], the plan's culled and dropped bricks, slots and upload bytes
+    /// against their budgets (its `wanted_hi` ... `drawn_lo` stay 0), the step's uploads, and
+    /// the failed reads as source errors.
+    ///
+    /// [`VolumeSource::Levels`]: super::VolumeSource::Levels
+    /// [`VolumeSource::LevelStore`]: super::VolumeSource::LevelStore
+    /// [`VolumeSource::LevelStream`]: super::VolumeSource::LevelStream
     pub fn update(
         &mut self,
         camera: &Camera,
@@ -144,6 +178,7 @@ impl VolumePass {
         settings: &RenderSettings,
     ) -> Result<FrameReport> {
         let start = Instant::now();
+        let (world_camera, world_settings) = (camera, settings);
         // The planner works in the volume frame, as the ray-caster does.
         let model = self.model_transform();
         let camera = &model.volume_camera(camera);
@@ -151,10 +186,14 @@ impl VolumePass {
         // Validates camera, size and settings as the frame will.
         self.volume_params(camera, settings, width, height)?;
         let config = self.residency;
+        if let Source::Levels(_) = &self.source {
+            return self.update_levels(world_camera, width, height, world_settings, start);
+        }
         let tf = self.tables.transfer_function();
         let Source::Mixed(state) = &mut self.source else {
             return Err(Error::InvalidInput(
-                "update needs a brick-cache source (set_source with Mixed, Bricks or RgbaMixed)"
+                "update needs a brick-cache source (set_source with Mixed, Bricks, RgbaMixed, \
+                 Levels, LevelStore or LevelStream)"
                     .into(),
             ));
         };
@@ -198,6 +237,7 @@ impl VolumePass {
         let plan_ms = plan_start.elapsed().as_secs_f64() * 1e3;
         let report = plan.report;
         let draw = plan.draw.clone();
+        let wanted_levels = plan.wanted.clone();
         let requests = plan.requests.clone();
         let (mut source_errors, mut first_source_error) = (0, None);
         // What the source said it had loaded when it was planned for (one query, not one per
@@ -219,6 +259,19 @@ impl VolumePass {
         }
         let (residency, levels) = state.stage_levels(&draw)?;
         let fell_back = levels.iter().zip(&draw).filter(|(a, b)| a != b).count();
+        let mut per_level = vec![LevelCounts::default(); 2];
+        let mut waiting = 0;
+        for (&wanted, &drawn) in wanted_levels.iter().zip(&levels) {
+            if let Some(l) = wanted.number() {
+                let l = l as usize;
+                per_level[l].wanted += 1;
+                waiting += usize::from(wanted != drawn);
+            }
+            if let Some(l) = drawn.number() {
+                let l = l as usize;
+                per_level[l].drawn += 1;
+            }
+        }
         if fell_back > 0 {
             state.planner.set_drawn(&levels);
         }
@@ -238,6 +291,8 @@ impl VolumePass {
             source_errors,
             first_source_error,
             cache_bytes,
+            per_level,
+            waiting,
             plan_ms,
             update_ms: start.elapsed().as_secs_f64() * 1e3,
         })
@@ -280,6 +335,86 @@ impl VolumePass {
         height: u32,
         target_pixels: f32,
     ) -> Result<LevelChoice> {
+        Ok(self
+            .step_levels(camera, settings, width, height, target_pixels)?
+            .choice)
+    }
+
+    /// [`VolumePass::update`] of a level source: [`VolumePass::plan_brick_levels`] for the
+    /// target of [`PlanOptions::error_threshold`] ([`BUDGET_DRIVEN_TARGET_PIXELS`] for 0), its
+    /// choice and step as a [`FrameReport`].
+    fn update_levels(
+        &mut self,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+        settings: &RenderSettings,
+        start: Instant,
+    ) -> Result<FrameReport> {
+        let threshold = self.residency.options.error_threshold;
+        let target = if threshold > 0.0 {
+            threshold
+        } else {
+            BUDGET_DRIVEN_TARGET_PIXELS
+        };
+        let step = self.step_levels(camera, settings, width, height, target)?;
+        let Source::Levels(state) = &self.source else {
+            return Err(Error::InvalidInput("the level source went away".into()));
+        };
+        let choice = &step.choice;
+        let mut per_level = vec![LevelCounts::default(); state.level_count() as usize];
+        for (&wanted, &drawn) in choice.levels.iter().zip(&state.current) {
+            if let Some(l) = wanted {
+                per_level[l as usize].wanted += 1;
+            }
+            if let Some(l) = drawn {
+                per_level[l as usize].drawn += 1;
+            }
+        }
+        let staged = step.staged.unwrap_or_default();
+        let count = choice.levels.len();
+        let plan = PlanReport {
+            bricks: count,
+            culled: step.culled,
+            dropped: choice.dropped,
+            deferred: choice.waiting,
+            slots_used: usize::try_from(choice.slots).unwrap_or(usize::MAX),
+            slot_budget: usize::try_from(state.slot_count()).unwrap_or(usize::MAX),
+            upload_bytes: staged.uploaded_bytes as u64,
+            upload_budget: self.residency.upload_bytes_per_frame,
+            ..PlanReport::default()
+        };
+        let residency = ResidencyReport {
+            uploaded_bricks: staged.uploaded_bricks,
+            uploaded_bytes: staged.uploaded_bytes,
+            fixup_bricks: staged.uploaded_bricks,
+            pack_ms: staged.stage_ms,
+            update_ms: staged.stage_ms,
+            ..ResidencyReport::default()
+        };
+        Ok(FrameReport {
+            plan,
+            residency,
+            fell_back: 0,
+            source_errors: choice.failed_reads,
+            first_source_error: step.first_error,
+            cache_bytes: state.cache_bytes(),
+            per_level,
+            waiting: choice.waiting,
+            plan_ms: step.plan_ms,
+            update_ms: start.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+
+    /// [`VolumePass::plan_brick_levels`], with what the step staged.
+    fn step_levels(
+        &mut self,
+        camera: &Camera,
+        settings: &RenderSettings,
+        width: u32,
+        height: u32,
+        target_pixels: f32,
+    ) -> Result<LevelStep> {
         let model = self.model_transform();
         let camera = model.volume_camera(camera);
         let settings = model.volume_settings(settings);
@@ -306,7 +441,9 @@ impl VolumePass {
         }
         let window = settings.classification_window(state.is_float, state.value_range);
         let cull = cull_params(&settings, tf, window)?;
+        let plan_start = Instant::now();
         let active = cull_bricks(&state.bricks, &state.cull_ranges, &cull)?;
+        let culled = active.iter().filter(|a| !**a).count();
         let view = LodView::new(&camera, width, height)?;
         // Hysteresis against the last choice, so that a hovering camera does not churn.
         let (levels, slots) = (state.level_count(), state.slot_count());
@@ -331,17 +468,23 @@ impl VolumePass {
         // A stored brick whose read fails is kept out and the step planned again without it
         // (its region keeps the level it draws), at most a few times a call.
         let mut drawn = budgeted_step(state, &view, &choice.levels, budget);
+        let plan_ms = plan_start.elapsed().as_secs_f64() * 1e3;
+        let (mut staged, mut first_error) = (None, None);
         for _ in 0..MAX_FAILED_READS_PER_CALL {
             if drawn == state.current {
                 break;
             }
             match state.stage(&drawn) {
-                Ok(_) => break,
+                Ok(report) => {
+                    staged = Some(report);
+                    break;
+                }
                 Err(e) => {
                     let Some(key) = state.last_failed_read.take() else {
                         return Err(e);
                     };
                     log::warn!("level {}, stored brick of brick {}: {e}", key.0, key.1);
+                    first_error.get_or_insert_with(|| e.to_string());
                     state.failed.insert(key);
                     choice.failed_reads += 1;
                     drawn = budgeted_step(state, &view, &choice.levels, budget);
@@ -364,8 +507,27 @@ impl VolumePass {
             }
             streamer.request(&keys);
         }
-        Ok(choice)
+        Ok(LevelStep {
+            choice,
+            staged,
+            culled,
+            first_error,
+            plan_ms,
+        })
     }
+}
+
+/// What one step of a level source chose and staged ([`VolumePass::plan_brick_levels`]).
+struct LevelStep {
+    choice: LevelChoice,
+    /// What the step staged (`None`: nothing changed).
+    staged: Option<LevelUpdateReport>,
+    /// Bricks culled.
+    culled: usize,
+    /// The first failed read's error.
+    first_error: Option<String>,
+    /// CPU time of culling, the choice and the step's planning, in milliseconds.
+    plan_ms: f64,
 }
 
 /// The stored bricks of the largest single step of a level source, in level-0 stored bricks: a

@@ -19,6 +19,7 @@ use mixvol::plan::choose_levels;
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, Transition};
 use mixvol::volume::{ScalarType, SyntheticField};
+use std::sync::Arc;
 use std::time::Instant;
 
 fn main() -> mixvol::Result<()> {
@@ -39,7 +40,7 @@ fn main() -> mixvol::Result<()> {
     let mut fresh = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     for r in [&mut moving, &mut fresh] {
         r.set_source(VolumeSource::Levels {
-            volume: &volume,
+            volume: Arc::new(volume.clone()),
             levels: &[],
             config,
         })?;

@@ -72,7 +72,7 @@ fn main() -> mixvol::Result<()> {
         let mut r = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
         r.set_transfer_function(&tf)?;
         r.set_source(VolumeSource::Levels {
-            volume: &volume,
+            volume: volume.clone(),
             levels,
             config: config(transition),
         })?;
@@ -168,7 +168,7 @@ fn main() -> mixvol::Result<()> {
         let mut r = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
         r.set_transfer_function(&tf)?;
         r.set_source(VolumeSource::Levels {
-            volume: &volume,
+            volume: volume.clone(),
             levels,
             config: block_config(transition),
         })?;

@@ -316,7 +316,7 @@ fn frames_in_flight(source: InFlightSource) {
                 config,
             }),
             InFlightSource::Levels => pass.set_source(VolumeSource::Levels {
-                volume: &volume,
+                volume: volume.clone(),
                 levels: &[],
                 config,
             }),

@@ -11,6 +11,7 @@ use mixvol::optics::{TfPreset, TransferFunction};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderMode, RenderSettings, Transition};
 use mixvol::volume::{Volume, VoxelData};
+use std::sync::Arc;
 
 const N: u32 = 8;
 
@@ -86,7 +87,7 @@ fn culled_bricks_save_slots_and_change_no_pixel() {
         renderer.set_transfer_function(&tf).unwrap();
         renderer
             .set_source(VolumeSource::Levels {
-                volume: &volume,
+                volume: Arc::new(volume.clone()),
                 levels: &[],
                 config: MixedConfig {
                     brick_size: N,

@@ -584,3 +584,54 @@ fn levels_two_and_up_are_the_tent_over_the_level_below() {
         }
     }
 }
+
+/// A volume's levels for the cache with level 0 read on demand (`pyramid::VolumeLevels`, what a
+/// `VolumeSource::Levels` holds) give every stored brick of every level exactly as the whole
+/// vertex pyramid does, for 8-bit and float volumes and any filter, and hold the coarser
+/// levels only: not the four bytes per voxel of level 0.
+#[test]
+fn volume_levels_read_level_zero_on_demand_and_equal_the_pyramid() {
+    use mixvol::cache::{stored_brick_edge, stored_bricks_per_axis};
+    use mixvol::pyramid::VolumeLevels;
+    use std::sync::Arc;
+    let mut rng = Rng(0x1e7e_1f1e_1d00_000b);
+    let dims = UVec3::new(3 * N + 5, 2 * N + 3, 2 * N + 7);
+    let float = textured_volume(&mut rng, dims);
+    let bytes: Vec<u8> = (0..dims.element_product())
+        .map(|_| rng.below(256) as u8)
+        .collect();
+    let u8_volume = Volume::new(dims, Vec3::ONE, VoxelData::U8(bytes)).unwrap();
+    for (volume, filter) in [
+        (float, DownsampleFilter::Mean2),
+        (u8_volume, DownsampleFilter::BSpline4),
+    ] {
+        let grid = BrickGrid::new(dims, N).unwrap();
+        let levels = 4;
+        let pyramid = LevelGrid::vertex_pyramid(&volume, levels, filter);
+        assert_eq!(LevelGrid::level_one(&volume, filter), pyramid[1]);
+        let on_demand = VolumeLevels::new(Arc::new(volume.clone()), levels, filter);
+        assert_eq!(on_demand.level_count(), levels);
+        for level in 0..levels {
+            let stored = stored_bricks_per_axis(grid.bricks_per_axis(), level);
+            for z in 0..stored.z {
+                for y in 0..stored.y {
+                    for x in 0..stored.x {
+                        let first = UVec3::new(x, y, z) * block_bricks(level);
+                        let texels = on_demand.stored_brick(level, first, N).unwrap();
+                        assert_eq!(texels.len(), stored_brick_edge(N, level).pow(3) as usize);
+                        assert!(
+                            texels == pyramid[level as usize].stored_brick(first, N),
+                            "{filter:?} level {level} block at {first}"
+                        );
+                    }
+                }
+            }
+        }
+        assert_eq!(on_demand.stored_brick(levels, UVec3::ZERO, N), None);
+        let voxels = dims.as_u64vec3().element_product();
+        let pyramid_bytes: u64 = pyramid.iter().map(|g| g.values().len() as u64 * 4).sum();
+        // Level 0 (four bytes a voxel) is not held; levels 1.. are (at large sizes an eighth,
+        // 0.57 bytes a voxel in all).
+        assert_eq!(on_demand.held_bytes(), pyramid_bytes - 4 * voxels);
+    }
+}

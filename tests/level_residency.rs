@@ -16,6 +16,7 @@ use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Transition};
 use mixvol::Error;
 use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
 
 const N: u32 = 8;
 
@@ -282,7 +283,7 @@ fn incremental_changes_draw_what_a_fresh_cache_draws() {
             moving.set_transfer_function(&tf).unwrap();
             moving
                 .set_source(VolumeSource::Levels {
-                    volume: &volume,
+                    volume: Arc::new(volume.clone()),
                     levels: &start,
                     config,
                 })
@@ -326,7 +327,7 @@ fn incremental_changes_draw_what_a_fresh_cache_draws() {
                 let a = moving.render(&camera, &settings, 40, 40).unwrap();
                 fresh
                     .set_source(VolumeSource::Levels {
-                        volume: &volume,
+                        volume: Arc::new(volume.clone()),
                         levels: &levels,
                         config,
                     })

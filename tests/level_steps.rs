@@ -17,6 +17,7 @@ use mixvol::pyramid::{LevelGrid, LevelPlan};
 use mixvol::reference::{self, LevelField, LevelReferenceCache};
 use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Transition};
+use std::sync::Arc;
 
 const N: u32 = 8;
 
@@ -196,7 +197,7 @@ fn a_budgeted_source_reaches_the_wanted_levels_in_steps() {
         });
         renderer
             .set_source(VolumeSource::Levels {
-                volume: &volume,
+                volume: Arc::new(volume.clone()),
                 levels: &[],
                 config: MixedConfig {
                     brick_size: N,

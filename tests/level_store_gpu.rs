@@ -150,7 +150,7 @@ fn a_level_store_draws_as_the_volume_in_ram() {
         let mut from_ram = renderer_for(
             &ctx,
             VolumeSource::Levels {
-                volume: &volume,
+                volume: Arc::new(volume.clone()),
                 levels: &plans[0].1,
                 config: config(budget),
             },

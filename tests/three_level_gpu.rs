@@ -212,7 +212,7 @@ fn render_levels(
     renderer.set_transfer_function(&tf).unwrap();
     renderer
         .set_source(VolumeSource::Levels {
-            volume,
+            volume: Arc::new(volume.clone()),
             levels,
             config: config(transition, budget),
         })
@@ -379,7 +379,7 @@ fn residency_changes_across_three_levels_stay_clean() {
         renderer.set_transfer_function(&tf).unwrap();
         renderer
             .set_source(VolumeSource::Levels {
-                volume: &volume,
+                volume: Arc::new(volume.clone()),
                 levels: &first,
                 config: config(Transition::Smooth, budget),
             })

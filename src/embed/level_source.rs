@@ -14,7 +14,7 @@ use crate::levels::{
     LevelUpdateReport,
 };
 use crate::lod::BrickGeometry;
-use crate::pyramid::{LevelGrid, LevelPlan};
+use crate::pyramid::{LevelPlan, VolumeLevels};
 use crate::scene::Transition;
 use crate::store::{LevelBackend, LevelStore, LevelStreamer};
 use crate::volume::{ScalarType, Volume};
@@ -76,8 +76,14 @@ struct LevelSourceFacts {
 
 /// Where a three-level source's stored bricks come from.
 pub(super) enum LevelData {
-    /// Every level's samples in RAM ([`VolumeSource::Levels`](super::VolumeSource::Levels)).
-    Grids(Vec<LevelGrid>),
+    /// A volume in RAM ([`VolumeSource::Levels`](super::VolumeSource::Levels)): level 0 cut
+    /// from its voxels when packed, the coarser levels' samples held.
+    Volume {
+        /// The volume and its coarser levels.
+        levels: VolumeLevels,
+        /// Brick edge of level 0.
+        brick_size: u32,
+    },
     /// A level store on disk ([`VolumeSource::LevelStore`](super::VolumeSource::LevelStore)).
     Store(Arc<LevelStore>),
     /// A level store read in the background
@@ -89,20 +95,25 @@ impl LevelData {
     /// Levels there are (0 up to this, exclusive).
     fn level_count(&self) -> u32 {
         match self {
-            LevelData::Grids(grids) => grids.len() as u32,
+            LevelData::Volume { levels, .. } => levels.level_count(),
             LevelData::Store(store) => store.level_count(),
             LevelData::Streamed(streamer) => streamer.backend().level_count(),
         }
     }
 
     /// The normalised texels of the stored brick of `level` that holds `brick` (linear index of
-    /// its first brick `first`), read from the store or through the streamer (from RAM, else
-    /// on this thread). Grids in RAM are packed by the caller instead.
+    /// its first brick `first`): cut from the volume in RAM, read from the store, or through the
+    /// streamer (from RAM, else on this thread).
     fn read_stored(&self, level: u32, first: usize, brick: UVec3) -> Result<Vec<f32>> {
         match self {
-            LevelData::Grids(_) => Err(Error::InvalidInput(
-                "a source in RAM packs its bricks from its grids".into(),
-            )),
+            LevelData::Volume { levels, brick_size } => levels
+                .stored_brick(level, block_origin(brick, level), *brick_size)
+                .ok_or_else(|| {
+                    Error::InvalidInput(format!(
+                        "level {level} of a volume of {} levels (brick {first})",
+                        levels.level_count()
+                    ))
+                }),
             LevelData::Store(store) => Ok(store.read_stored(level, brick)?),
             LevelData::Streamed(streamer) => Ok(dequantize(
                 &streamer.read_now((level, first))?,
@@ -114,7 +125,7 @@ impl LevelData {
     /// Where the stored bricks are read from, for sources read from a store or a pyramid.
     fn backend(&self) -> Option<&dyn LevelBackend> {
         match self {
-            LevelData::Grids(_) => None,
+            LevelData::Volume { .. } => None,
             LevelData::Store(store) => Some(&**store),
             LevelData::Streamed(streamer) => Some(&**streamer.backend()),
         }
@@ -144,11 +155,7 @@ impl LevelState {
         let scalar = self.scalar;
         let texel_bytes = scalar.size_bytes();
         let mut uploaded_bytes = 0;
-        // The texels of each uploaded stored brick: packed from the grids in RAM, or read.
-        let grids = match &self.data {
-            LevelData::Grids(grids) => Some(grids.as_slice()),
-            _ => None,
-        };
+        // The texels of each uploaded stored brick: cut from the volume in RAM, or read.
         let (data, grid) = (&self.data, self.grid);
         let mut failed_read = None;
         let staged = stage_three_level(
@@ -158,16 +165,11 @@ impl LevelState {
             scalar,
             &update.upload,
             &mut |brick| {
-                let texels = match grids {
-                    Some(grids) => packed.stored_values(grids, geometry, brick),
-                    None => {
-                        let level = packed.places[brick].map_or(0, |p| p.level);
-                        let first =
-                            grid.linear_index(block_origin(grid.brick_coords(brick), level));
-                        data.read_stored(level, first, grid.brick_coords(brick))
-                            .inspect_err(|_| failed_read = Some((level, first)))?
-                    }
-                };
+                let level = packed.places[brick].map_or(0, |p| p.level);
+                let first = grid.linear_index(block_origin(grid.brick_coords(brick), level));
+                let texels = data
+                    .read_stored(level, first, grid.brick_coords(brick))
+                    .inspect_err(|_| failed_read = Some((level, first)))?;
                 uploaded_bytes += texel_bytes * texels.len();
                 Ok(texels)
             },
@@ -280,23 +282,23 @@ impl VolumePass {
     /// Draws `volume` at `levels` through a new three-level cache ([`VolumeSource::Levels`](super::VolumeSource::Levels)).
     pub(super) fn attach_levels(
         &mut self,
-        volume: &Volume,
+        volume: Arc<Volume>,
         levels: &[Option<u32>],
         config: MixedConfig,
     ) -> Result<()> {
         let grid = crate::bricks::BrickGrid::new(volume.dims(), config.brick_size)?;
-        let grids = LevelGrid::vertex_pyramid(
-            volume,
-            crate::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis()),
-            config.filter,
-        );
+        let level_count = crate::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis());
+        let data = LevelData::Volume {
+            levels: VolumeLevels::new(volume.clone(), level_count, config.filter),
+            brick_size: grid.brick_size(),
+        };
         let facts = LevelSourceFacts {
             grid,
             spacing: volume.spacing(),
             value_range: volume.value_range(),
             scalar: volume.scalar_type(),
         };
-        self.attach_level_data(LevelData::Grids(grids), facts, levels, config)
+        self.attach_level_data(data, facts, levels, config)
     }
 
     /// Draws a level store at `levels` through a new three-level cache, read straight from the
@@ -358,9 +360,9 @@ impl VolumePass {
         let bricks = BrickGeometry::new(grid, facts.spacing)?;
         let n = grid.brick_size();
         let cull_ranges = match &data {
-            LevelData::Grids(grids) => {
+            LevelData::Volume { levels, .. } => {
                 conservative_ranges(&grid, data.level_count(), &mut |level, first| {
-                    let texels = grids[level as usize].stored_brick(first, n);
+                    let texels = levels.stored_brick(level, first, n).unwrap_or_default();
                     Ok(crate::bricks::ValueRange::of(&texels))
                 })?
             }

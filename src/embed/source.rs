@@ -72,8 +72,10 @@ pub enum VolumeSource<'a> {
     /// from a camera, else renders draw these levels until the next `set_brick_levels` or
     /// `set_source`.
     Levels {
-        /// The volume.
-        volume: &'a Volume,
+        /// The volume (shared: level 0's stored bricks are cut from it whenever they are
+        /// uploaded, so no f32 copy of it is held; level 1 and coarser are, about 0.57 bytes
+        /// per voxel, `crate::pyramid::VolumeLevels`).
+        volume: Arc<Volume>,
         /// The level of each brick (linear brick index).
         levels: &'a [Option<u32>],
         /// Brick size, cache budget and transition.

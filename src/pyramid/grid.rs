@@ -240,8 +240,6 @@ impl LevelGrid {
         volume_dims: UVec3,
         filter: DownsampleFilter,
     ) -> Self {
-        let next_level = self.level + 1;
-        let dims = Self::covering_dims(next_level, placement, volume_dims);
         let s = self.spacing();
         let level_one = self.level == 0
             && self.placement == SamplePlacement::CellCentred
@@ -254,24 +252,66 @@ impl LevelGrid {
                 downsample_taps(s, self.placement, placement, j)
             }
         };
-        let taps_x: Vec<Vec<(i32, f32)>> = (0..dims.x as i32).map(taps).collect();
+        Self::summed(self.level + 1, placement, volume_dims, taps, |k| {
+            self.value(k)
+        })
+    }
+
+    /// Level 1 of `volume` on vertices by `filter`, read straight from its voxels: what
+    /// `LevelGrid::from_volume(volume).downsampled(SamplePlacement::Vertex, volume.dims(),
+    /// filter)` gives, bit for bit, without holding level 0 as f32.
+    pub fn level_one(volume: &crate::volume::Volume, filter: DownsampleFilter) -> Self {
+        let dims = volume.dims();
+        Self::summed(
+            1,
+            SamplePlacement::Vertex,
+            dims,
+            |j| level_one_taps(filter, j),
+            |k| normalized_voxel(volume, k),
+        )
+    }
+
+    /// Level `level` with `placement` over a volume of `volume_dims` voxels: every sample the
+    /// [`downsample_sum`] of its `taps` per axis over the samples `value` gives (clamped by
+    /// `value`), z outermost, x fastest.
+    fn summed(
+        level: u32,
+        placement: SamplePlacement,
+        volume_dims: UVec3,
+        taps: impl Fn(i32) -> Vec<(i32, f32)>,
+        value: impl Fn(IVec3) -> f32,
+    ) -> Self {
+        let dims = Self::covering_dims(level, placement, volume_dims);
+        let taps_x: Vec<Vec<(i32, f32)>> = (0..dims.x as i32).map(&taps).collect();
         let mut values = Vec::with_capacity(dims.x as usize * dims.y as usize * dims.z as usize);
         for z in 0..dims.z as i32 {
             let tz = taps(z);
             for y in 0..dims.y as i32 {
                 let ty = taps(y);
                 for tx in &taps_x {
-                    values.push(downsample_sum(&tz, &ty, tx, |k| self.value(k)));
+                    values.push(downsample_sum(&tz, &ty, tx, &value));
                 }
             }
         }
         Self {
-            level: next_level,
+            level,
             placement,
             dims,
             values,
         }
     }
+}
+
+/// Voxel `v` of `volume`, clamped to it (clamp-to-edge), normalised: what level 0's grid holds
+/// there ([`LevelGrid::from_volume`], [`LevelGrid::value`]).
+pub(super) fn normalized_voxel(volume: &crate::volume::Volume, v: IVec3) -> f32 {
+    let dims = volume.dims();
+    let c = v
+        .clamp(IVec3::ZERO, dims.as_ivec3() - IVec3::ONE)
+        .as_uvec3();
+    volume
+        .data()
+        .normalized((c.x + dims.x * (c.y + dims.y * c.z)) as usize)
 }
 
 /// The `edge^3` samples `value` gives from `start`, x fastest: a stored brick's texels, cut from

@@ -241,7 +241,7 @@ pub fn set_up_scene(
                 let (plan, camera_levels) = three_level_plan(&grid, pattern, levels)?;
                 set_level_upload_budget(renderer, args)?;
                 renderer.set_source(VolumeSource::Levels {
-                    volume: &volume,
+                    volume: volume.clone(),
                     levels: &plan,
                     config,
                 })?;

@@ -285,6 +285,11 @@ impl Renderer {
         self.pass.level_slot_count()
     }
 
+    /// Bytes of a level source's cache image (`None` for other sources).
+    pub fn level_cache_bytes(&self) -> Option<u64> {
+        self.pass.level_cache_bytes()
+    }
+
     /// Stages a residency change without submitting it: the next [`Renderer::render`] records
     /// the uploads and the fixup in its own command buffer (so the frame's timings include them).
     /// Renders no longer plan residency from the camera, as with [`Renderer::set_levels`].

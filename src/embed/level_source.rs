@@ -462,4 +462,12 @@ impl VolumePass {
             _ => None,
         }
     }
+
+    /// Bytes of a level source's cache image (`None` for other sources).
+    pub fn level_cache_bytes(&self) -> Option<u64> {
+        match &self.source {
+            Source::Levels(state) => Some(state.cache_bytes()),
+            _ => None,
+        }
+    }
 }

@@ -96,7 +96,8 @@ pub enum LevelsArg {
     /// cache (block levels past 2 with bricks of at least 8 voxels; `render` only).
     Staircase,
     /// Levels 0, 1, 2, ... chosen from the camera for every view (drawn voxels at most a pixel
-    /// on screen where --cache-mb allows), drawn through the three-level cache (`render` only).
+    /// on screen where --gpu-budget-mb or --cache-mb allows), drawn through the three-level
+    /// cache (`render` only).
     Camera,
 }
 
@@ -120,8 +121,9 @@ pub struct MixedArgs {
     /// Transition reconstruction between resolution levels.
     #[arg(long, value_enum, default_value_t = TransitionArg::Smooth)]
     pub transition: TransitionArg,
-    /// Cache image budget in MiB, fractions allowed (for --levels patterns and level sources;
-    /// --gpu-budget-mb sizes the cache of camera-driven two-level residency).
+    /// Cache image budget in MiB, fractions allowed, for fixed --levels patterns (and for
+    /// --levels camera and level sources without --gpu-budget-mb, which sizes the cache of
+    /// camera-driven residency at any level count).
     #[arg(long, default_value_t = 256.0)]
     pub cache_mb: f64,
     /// With --levels camera (and level stores): the largest on-screen size, in pixels, of a
@@ -134,8 +136,9 @@ pub struct MixedArgs {
 #[derive(Args, Debug)]
 pub struct ResidencyArgs {
     /// Draw the volume through the brick cache with camera-driven residency, within this many
-    /// MiB of GPU memory for the cache image plus the per-frame upload staging (a brick store
-    /// is always drawn this way; default for stores: 256).
+    /// MiB of GPU memory for the cache image plus the per-frame upload staging, fractions
+    /// allowed (a brick store is always drawn this way; default for stores: 256). With
+    /// --levels camera or a level store, the same budget for the three-level cache.
     #[arg(long)]
     pub gpu_budget_mb: Option<f64>,
     /// MiB of brick level changes uploaded per frame at most (default: an eighth of the GPU

@@ -95,7 +95,7 @@ impl FrameRow {
     /// Fills the residency of a level source's frame: `levels` the level of every brick drawn
     /// now (`None`: not drawn), `choice` the last camera choice, `update` the residency change
     /// staged for this frame (none when the plan did not change), `upload_budget` the per-frame
-    /// upload budget in bytes and `slots` the cache's slots.
+    /// upload budget in bytes, `slots` the cache's slots and `cache_bytes` its image's bytes.
     pub fn set_levels(
         &mut self,
         levels: &[Option<u32>],
@@ -103,7 +103,9 @@ impl FrameRow {
         update: Option<&mixvol::levels::LevelUpdateReport>,
         upload_budget: u64,
         slots: u64,
+        cache_bytes: u64,
     ) {
+        self.cache_mb = cache_bytes as f64 / 1e6;
         let deepest = levels.iter().flatten().max().map_or(0, |&l| l as usize + 1);
         self.resident = vec![0; deepest];
         for level in levels.iter().flatten() {

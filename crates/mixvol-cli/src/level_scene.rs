@@ -23,18 +23,12 @@ pub fn level_scene(
     transition: Transition,
     note: &str,
 ) -> Result<Scene> {
-    if args.residency.gpu_budget_mb.is_some() {
-        return Err(Error::InvalidInput(
-            "a level store or pyramid is drawn through the three-level cache under --cache-mb; \
-             --gpu-budget-mb sizes the two-level cache of a brick store or volume"
-                .into(),
-        ));
-    }
     let pattern = args.mixed.levels.unwrap_or(LevelsArg::Camera);
     let grid = backend.grid();
     let config = MixedConfig {
         brick_size: grid.brick_size(),
         transition,
+        cache_budget_bytes: level_cache_bytes(args)?,
         ..args.mixed.config()?
     };
     let (plan, camera_levels) = three_level_plan(&grid, pattern, backend.level_count())?;
@@ -89,12 +83,29 @@ pub fn three_level_plan(
     }
 }
 
-/// The per-step upload budget of a three-level scene in bytes: `--upload-mb`, else the default
-/// of `ResidencyConfig` ([`set_level_upload_budget`]).
+/// The per-step upload budget of a three-level scene in bytes: with `--gpu-budget-mb`, the
+/// share [`crate::args::ResidencyArgs::budgets`] gives it (as for two levels: `--upload-mb`,
+/// else an eighth); without, `--upload-mb`, else the default of `ResidencyConfig`
+/// ([`set_level_upload_budget`]).
 pub fn level_upload_budget(args: &RenderArgs) -> u64 {
-    match args.residency.upload_mb {
+    let r = &args.residency;
+    if let Some(Ok((_, upload))) = r.gpu_budget_mb.map(|gpu| r.budgets(gpu)) {
+        return upload;
+    }
+    match r.upload_mb {
         Some(mb) => (mb * f64::from(1 << 20)) as u64,
         None => ResidencyConfig::default().upload_bytes_per_frame,
+    }
+}
+
+/// The cache image budget of a three-level scene whose levels come from the camera or a
+/// level store in bytes: with `--gpu-budget-mb`, what is left of it after the upload staging
+/// (one GPU budget flag for every level count); without, `--cache-mb`.
+pub fn level_cache_bytes(args: &RenderArgs) -> Result<u64> {
+    let r = &args.residency;
+    match r.gpu_budget_mb {
+        Some(gpu) => Ok(r.budgets(gpu)?.0),
+        None => Ok(args.mixed.config()?.cache_budget_bytes),
     }
 }
 

@@ -88,10 +88,15 @@ pub fn set_up_scene(
         error_threshold: r.error_threshold,
         ..PlanOptions::default()
     };
-    if r.gpu_budget_mb.is_some() && args.mixed.levels.is_some() {
+    if r.gpu_budget_mb.is_some()
+        && args
+            .mixed
+            .levels
+            .is_some_and(|pattern| pattern != LevelsArg::Camera)
+    {
         return Err(Error::InvalidInput(
-            "--levels (a fixed pattern) and --gpu-budget-mb (camera-driven residency) exclude \
-             each other"
+            "--levels PATTERN (a fixed pattern) and --gpu-budget-mb (camera-driven residency) \
+             exclude each other; --levels camera takes --gpu-budget-mb"
                 .into(),
         ));
     }
@@ -192,7 +197,8 @@ pub fn set_up_scene(
         }
         Input::Volume(volume) => {
             let volume = volume.clone();
-            if let Some(gpu_mb) = r.gpu_budget_mb {
+            let camera_levels = args.mixed.levels == Some(LevelsArg::Camera);
+            if let Some(gpu_mb) = r.gpu_budget_mb.filter(|_| !camera_levels) {
                 let (cache, upload) = r.budgets(gpu_mb)?;
                 let config = MixedConfig {
                     cache_budget_bytes: cache,
@@ -232,6 +238,7 @@ pub fn set_up_scene(
             };
             let config = MixedConfig {
                 transition,
+                cache_budget_bytes: crate::level_scene::level_cache_bytes(args)?,
                 ..args.mixed.config()?
             };
             let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)?;
@@ -710,6 +717,7 @@ fn render_path(
                 update.as_ref(),
                 crate::level_scene::level_upload_budget(args),
                 renderer.level_slot_count().unwrap_or(0),
+                renderer.level_cache_bytes().unwrap_or(0),
             );
         }
         frame.save_png(&dir.join(format!("frame_{i:04}.png")), args.background)?;

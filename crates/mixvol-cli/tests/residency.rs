@@ -201,8 +201,9 @@ fn weighing_by_value_draws_narrow_bricks_coarser() {
             "8",
             "--levels",
             "camera",
-            "--cache-mb",
-            "64",
+            // The three-level cache under the one GPU budget flag (64 MiB of it the cache).
+            "--gpu-budget-mb",
+            "72",
             "--width",
             "64",
             "--height",
@@ -385,27 +386,27 @@ fn a_level_store_renders_at_camera_levels_and_matches_the_cpu_reference() {
     let text = compare("staircase", &["--levels", "staircase"]);
     assert!(text.contains("at levels 0..=4"), "{text}");
 
-    for (extra, reason) in [
-        (
-            vec!["--gpu-budget-mb", "64"],
-            "three-level cache under --cache-mb",
-        ),
-        (vec!["--levels", "checker"], "is a two-level pattern"),
-    ] {
-        let mut a = vec![
-            "render",
-            "--volume",
-            store.to_str().unwrap(),
-            "--width",
-            "16",
-            "--height",
-            "16",
-        ];
-        a.extend_from_slice(&extra);
-        let (out, text) = run(&a);
-        assert!(!out.status.success(), "{extra:?} is refused\n{text}");
-        assert!(text.contains(reason), "{text}");
-    }
+    // The one GPU budget flag sizes the level store's cache too (1 MiB left after 0.05 MiB
+    // of upload staging: the budget of the first render above).
+    let text = compare(
+        "gpu budget",
+        &["--gpu-budget-mb", "1.05", "--upload-mb", "0.05"],
+    );
+    assert!(text.contains("0 bricks still waiting"), "{text}");
+    // A two-level pattern is refused.
+    let (out, text) = run(&[
+        "render",
+        "--volume",
+        store.to_str().unwrap(),
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--levels",
+        "checker",
+    ]);
+    assert!(!out.status.success(), "--levels checker is refused\n{text}");
+    assert!(text.contains("is a two-level pattern"), "{text}");
     let (out, text) = convert(&[]);
     assert!(!out.status.success() && text.contains("exists"), "{text}");
     let (out, text) = convert(&["--force", "--ram-budget-mb", "1"]);
@@ -598,7 +599,7 @@ fn bad_camera_paths_and_budgets_are_refused_with_the_reason() {
         ),
         (
             vec!["--gpu-budget-mb", "1", "--levels", "checker"],
-            "exclude each other",
+            "--levels camera takes --gpu-budget-mb",
         ),
         (
             vec!["--orbit", "3", "--compare"],
@@ -821,8 +822,9 @@ fn a_damaged_level_store_renders_what_it_can_read_and_names_the_failure() {
 /// Issue 36: a level store of two levels and one of seven drawn along an orbit from the camera
 /// (`--levels camera`, the default) write a per-frame CSV with the residency per level
 /// (`resident_l0`, `resident_l1`, ...) and the bytes each view uploaded, which never exceed
-/// `--upload-mb`, for both level counts; the two-level store draws levels 0 and 1 only, the
-/// seven-level one more, and the drawn bricks never exceed the grid's.
+/// `--upload-mb`, for both level counts, under one `--gpu-budget-mb` (its cache the budget less
+/// the upload staging); the two-level store draws levels 0 and 1 only, the seven-level one
+/// more, and the drawn bricks never exceed the grid's.
 #[test]
 fn level_stores_log_residency_per_level_within_the_upload_cap() {
     let dir = temp_dir("level_csv");
@@ -854,8 +856,9 @@ fn level_stores_log_residency_per_level_within_the_upload_cap() {
             "render",
             "--volume",
             store.to_str().unwrap(),
-            "--cache-mb",
-            "1",
+            // One GPU budget for every level count: 1 MiB of cache, 0.05 of upload staging.
+            "--gpu-budget-mb",
+            "1.05",
             "--upload-mb",
             "0.05",
             "--width",
@@ -893,6 +896,12 @@ fn level_stores_log_residency_per_level_within_the_upload_cap() {
                 "{name}: {drawn} bricks: {csv}"
             );
             assert!(cells[col("budget_fill")] <= 1.0 + 1e-9, "{name}: {csv}");
+            // The cache image takes what the GPU budget leaves after the upload staging.
+            let cache = cells[col("cache_mb")] / 1.048576;
+            assert!(
+                cache > 0.5 && cache <= 1.0 + 1e-3,
+                "{name}: {cache} MiB: {csv}"
+            );
         }
         assert!(uploaded > 0.0, "{name}: the views upload: {csv}");
         match name {

@@ -568,47 +568,21 @@ fn a_kept_chooser_chooses_as_a_fresh_one() {
         }
         let camera = random_camera(&mut rng);
         let view = LodView::new(&camera, 120, 90).unwrap();
-        let fresh = LevelChooser::new()
-            .choose(&LevelRequest {
-                geometry: &geometry,
-                view: &view,
-                active: &active,
-                value_ranges: &[],
-                levels,
-                slots,
-                target_pixels: 1.5,
-                previous: &previous,
-                margin,
-            })
-            .cloned()
-            .unwrap();
-        let kept = chooser
-            .choose(&LevelRequest {
-                geometry: &geometry,
-                view: &view,
-                active: &active,
-                value_ranges: &[],
-                levels,
-                slots,
-                target_pixels: 1.5,
-                previous: &previous,
-                margin,
-            })
-            .unwrap();
+        let request = LevelRequest {
+            geometry: &geometry,
+            view: &view,
+            active: &active,
+            value_ranges: &[],
+            levels,
+            slots,
+            target_pixels: 1.5,
+            previous: &previous,
+            margin,
+        };
+        let fresh = LevelChooser::new().choose(&request).cloned().unwrap();
+        let kept = chooser.choose(&request).unwrap();
         assert_eq!(*kept, fresh, "round {round}");
-        let again = chooser
-            .choose(&LevelRequest {
-                geometry: &geometry,
-                view: &view,
-                active: &active,
-                value_ranges: &[],
-                levels,
-                slots,
-                target_pixels: 1.5,
-                previous: &previous,
-                margin,
-            })
-            .unwrap();
+        let again = chooser.choose(&request).unwrap();
         assert_eq!(*again, fresh, "round {round}: the same inputs again");
         previous = fresh.levels;
     }

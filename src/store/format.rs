@@ -140,6 +140,23 @@ pub fn filter_from_id(id: u32) -> Option<DownsampleFilter> {
     }
 }
 
+/// The filter whose id is the `u32` at `offset` of a header read from `path`; an unknown id is
+/// a [`StoreError::Format`] naming the field `filter` (both store formats read it so).
+pub(crate) fn parse_filter_field(
+    bytes: &[u8],
+    offset: usize,
+    path: &Path,
+) -> Result<DownsampleFilter, StoreError> {
+    let raw = le_u32(bytes, offset);
+    filter_from_id(raw).ok_or_else(|| {
+        format_error(
+            path,
+            "filter",
+            format!("unknown filter id {raw} (0 = mean2, 1 = lamar, 2 = box4, 3 = bspline4)"),
+        )
+    })
+}
+
 /// 64-bit FNV-1a, incrementally.
 #[derive(Copy, Clone, Debug)]
 pub struct Fnv1a(u64);
@@ -405,15 +422,7 @@ pub fn parse_header(bytes: &[u8], actual_len: u64, path: &Path) -> Result<StoreH
             format!("unknown scalar type id {scalar_raw} (0 = u8, 1 = u16, 2 = f32)"),
         )
     })?;
-    let filter_raw = le_u32(bytes, 36);
-    let filter = filter_from_id(filter_raw).ok_or_else(|| {
-        err(
-            "filter",
-            format!(
-                "unknown filter id {filter_raw} (0 = mean2, 1 = lamar, 2 = box4, 3 = bspline4)"
-            ),
-        )
-    })?;
+    let filter = parse_filter_field(bytes, 36, path)?;
     let spacing = Vec3::new(le_f32(bytes, 40), le_f32(bytes, 44), le_f32(bytes, 48));
     if !(spacing.is_finite() && spacing.min_element() > 0.0) {
         return Err(err(

@@ -21,7 +21,7 @@
 //! field at fault in [`StoreError::Format`]; they never panic on any input.
 
 use super::super::format::{
-    filter_from_id, filter_id, format_error, le_f32, le_u32, le_u64, scalar_from_id, scalar_id,
+    filter_id, format_error, le_f32, le_u32, le_u64, parse_filter_field, scalar_from_id, scalar_id,
     Fnv1a,
 };
 use super::super::StoreError;
@@ -301,15 +301,7 @@ pub fn parse_header(
     }
     let grid =
         BrickGrid::new(dims, brick_size).map_err(|e| err("dims", format!("cannot brick: {e}")))?;
-    let filter_raw = le_u32(bytes, 92);
-    let filter = filter_from_id(filter_raw).ok_or_else(|| {
-        err(
-            "filter",
-            format!(
-                "unknown filter id {filter_raw} (0 = mean2, 1 = lamar, 2 = box4, 3 = bspline4)"
-            ),
-        )
-    })?;
+    let filter = parse_filter_field(bytes, 92, path)?;
     let Some(expected) =
         canonical_level_header(&grid, levels, scalar, spacing, value_range, filter)
     else {

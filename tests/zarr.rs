@@ -1059,3 +1059,36 @@ fn v3_sharded_gzip_inner_chunks_with_crc32c_index() {
     let msg = expect_format(load_zarr(&root), &shard_file, "codecs");
     eprintln!("corrupt shard index: {msg}");
 }
+
+/// A gzip chunk that inflates past its chunk's size (a "bomb": 64 MiB of zeros in 300 KB for a
+/// chunk of 512 bytes) is refused before `zarrs` inflates it into memory, naming the chunk file
+/// and the codec field, in v3 (`gzip` codec) and v2 (`gzip` compressor) arrays; the same array
+/// with honest gzip chunks loads (the check inflates into nothing, never holding the data).
+#[test]
+fn gzip_chunks_inflating_past_their_size_are_refused_before_decoding() {
+    let dir = TempDir::new("gzip-bomb");
+    let value = |i: &[u64]| ((i[0] * 13 + i[1] * 8 + i[2]) % 251) as f64;
+    let bomb = gzip(&vec![0u8; 64 << 20]);
+    assert!(bomb.len() < 1 << 20, "{} bytes", bomb.len());
+    for (version, field) in [(3, "codecs"), (2, "compressor")] {
+        let root = dir.join(&format!("v{version}.zarr"));
+        let mut spec = ArraySpec::new(&[16, 8, 8], &[8, 8, 8], Dtype::U8);
+        spec.gzip = true;
+        spec.separator = "/";
+        let chunk = if version == 3 {
+            spec.write_v3(&root, &value);
+            root.join("c/1/0/0")
+        } else {
+            spec.write_v2(&root, &value);
+            root.join("1/0/0")
+        };
+        let honest = load_volume_with_meta(&root).unwrap();
+        check_voxels(&honest, Dtype::U8, &|z, y, x| value(&[z, y, x]));
+        write(&chunk, &bomb);
+        let message = expect_format(load_volume_with_meta(&root), &chunk, field);
+        assert!(
+            message.contains("inflates past the 512 bytes the chunk holds"),
+            "v{version}: {message}"
+        );
+    }
+}

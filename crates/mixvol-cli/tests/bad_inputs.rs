@@ -109,6 +109,7 @@ const CASES: &[Case] = &[
     Case { name: "a store with a damaged magic", args: &["render", "--volume", "{d}/damaged.mvb"], env: NO_ENV, code: 1, fragments: &["damaged.mvb", "\"MIXVOLBX\"", "neither a brick store (MIXVOLBS) nor a level store"], absent: &["headerless raw"] },
     // Issue 42, item 8 (review D26): an empty chunk file is named as such, not blamed on a field.
     Case { name: "an empty Zarr chunk file", args: &["render", "--volume", "{d}/empty_chunk.zarr"], env: NO_ENV, code: 1, fragments: &["empty_chunk.zarr/0.0.0", "is empty (0 bytes), where 64 bytes decoded are expected"], absent: &["chunk_grid", "`chunks`"] },
+    Case { name: "a Zarr array of millions of one-voxel chunks (D8)", args: &["render", "--volume", "{d}/tiny_chunks.zarr"], env: NO_ENV, code: 1, fragments: &["tiny_chunks.zarr/.zarray", "field `chunks`", "2097152 chunks of 1 bytes", "rechunk"], absent: &["panicked"] },
     Case { name: "a gzip Zarr chunk that inflates past its size (D9)", args: &["render", "--volume", "{d}/gzip_bomb.zarr"], env: NO_ENV, code: 1, fragments: &["gzip_bomb.zarr/0.0.0", "inflates past the 64 bytes the chunk holds"], absent: &["panicked"] },
     // Issue 42, item 3 (review D4): convert replaces only a regular file, even with --force.
     Case { name: "convert onto a FIFO with --force", args: &["convert", "ml", "{d}/store.fifo", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store.fifo", "not a regular file", "even with --force"], absent: &[] },
@@ -191,6 +192,8 @@ fn fixtures(d: &Path) {
     // A Zarr v2 array of one 4x4x4 raw chunk whose file is empty.
     zarr_u8(&d.join("empty_chunk.zarr"), "[4,4,4]", "[4,4,4]");
     std::fs::write(d.join("empty_chunk.zarr/0.0.0"), b"").unwrap();
+    // A Zarr v2 array of 128^3 one-voxel chunks, none written.
+    zarr_u8(&d.join("tiny_chunks.zarr"), "[128,128,128]", "[1,1,1]");
     // A Zarr v2 array of one 4x4x4 gzip chunk that inflates to 16 MiB of zeros.
     zarr_u8(&d.join("gzip_bomb.zarr"), "[4,4,4]", "[4,4,4]");
     let zarray = std::fs::read_to_string(d.join("gzip_bomb.zarr/.zarray")).unwrap();

@@ -96,6 +96,50 @@ use zarrs::storage::{ReadableStorageTraits, StorageError};
 /// The largest decoded chunk accepted, in bytes: 1 GiB.
 pub const MAX_CHUNK_BYTES: u64 = 1 << 30;
 
+/// Chunks past this many are refused when they are smaller than [`MIN_CHUNK_BYTES`] (review
+/// D8: 256^3 chunks of one voxel took 52 s and 2.8 GB to read as a blank volume).
+pub const MAX_TINY_CHUNKS: u64 = 1 << 20;
+
+/// Decoded bytes below which a chunk counts as tiny ([`MAX_TINY_CHUNKS`]).
+pub const MIN_CHUNK_BYTES: u64 = 512;
+
+/// Refuses an array of more than [`MAX_TINY_CHUNKS`] chunks of under [`MIN_CHUNK_BYTES`]
+/// decoded bytes each, before any chunk is looked up: each costs a lookup (a file or an object
+/// request) that its few voxels never repay.
+fn check_chunk_count<TStorage: ?Sized>(
+    array: &Array<TStorage>,
+    array_doc: &Path,
+    version: ZarrVersion,
+    stored: StoredType,
+) -> Result<(), VolumeError> {
+    let count = array
+        .chunk_grid_shape()
+        .iter()
+        .try_fold(1u64, |a, &c| a.checked_mul(c))
+        .unwrap_or(u64::MAX);
+    let first = vec![0u64; array.chunk_grid_shape().len()];
+    let Ok(shape) = array.chunk_shape(&first) else {
+        return Ok(());
+    };
+    let chunk_bytes = shape
+        .iter()
+        .try_fold(stored.size_bytes() as u64, |a, d| a.checked_mul(d.get()))
+        .unwrap_or(u64::MAX);
+    if count > MAX_TINY_CHUNKS && chunk_bytes < MIN_CHUNK_BYTES {
+        return Err(format_err(
+            array_doc,
+            version.chunks_field(),
+            format!(
+                "{count} chunks of {chunk_bytes} bytes ({:?} voxels each): more than \
+                 {MAX_TINY_CHUNKS} chunks under {MIN_CHUNK_BYTES} bytes, whose lookups would \
+                 cost far more than their voxels; rechunk the array to larger chunks",
+                shape.iter().map(|d| d.get()).collect::<Vec<_>>()
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Axes an OME-Zarr image may have besides z, y, x (time, channel), each of size 1.
 const MAX_LEADING_AXES: usize = 2;
 
@@ -280,6 +324,7 @@ pub(super) fn open_level(
     let stored = stored_type(&array, &array_doc, version)?;
     let dims = [shape[ndim - 1], shape[ndim - 2], shape[ndim - 3]];
     let lay = layout(&array_doc, shape_field, dims, stored)?;
+    check_chunk_count(&array, &array_doc, version, stored)?;
 
     // Spacing and origin (x, y, z = the last three axes, reversed).
     let (spacing, origin) = match &dataset {

@@ -31,6 +31,23 @@ fn temp_path(name: &str) -> PathBuf {
     ))
 }
 
+/// `volume` written as a level store of every level (Mean2) at a fresh temporary `name`, and
+/// opened.
+fn stored(volume: &Volume, name: &str) -> (PathBuf, Arc<LevelStore>) {
+    let path = temp_path(name);
+    write_level_store(
+        &path,
+        volume,
+        N,
+        None,
+        DownsampleFilter::Mean2,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let store = Arc::new(LevelStore::open(&path).unwrap());
+    (path, store)
+}
+
 fn config(budget: u64) -> MixedConfig {
     MixedConfig {
         brick_size: N,
@@ -120,17 +137,7 @@ fn a_level_store_draws_as_the_volume_in_ram() {
     {
         let mut rng = Rng(0x1e7e_1570_6900_0001);
         let volume = textured_volume(&mut rng, UVec3::new(4 * N, 4 * N, 3 * N));
-        let path = temp_path("f32");
-        write_level_store(
-            &path,
-            &volume,
-            N,
-            None,
-            DownsampleFilter::Mean2,
-            &mut |_, _| {},
-        )
-        .unwrap();
-        let store = Arc::new(LevelStore::open(&path).unwrap());
+        let (path, store) = stored(&volume, "f32");
         assert_eq!(store.level_count(), 5);
         let bricks = store.grid().bricks_per_axis();
         let budget = 96 * 96 * 48 * 4;
@@ -195,17 +202,7 @@ fn a_u8_level_store_matches_the_reference_of_its_levels() {
         let volume: Volume = SyntheticField::MarschnerLobb
             .generate(UVec3::new(4 * N, 3 * N, 4 * N), ScalarType::U8)
             .unwrap();
-        let path = temp_path("u8");
-        write_level_store(
-            &path,
-            &volume,
-            N,
-            None,
-            DownsampleFilter::Mean2,
-            &mut |_, _| {},
-        )
-        .unwrap();
-        let store = Arc::new(LevelStore::open(&path).unwrap());
+        let (path, store) = stored(&volume, "u8");
         let bricks = store.grid().bricks_per_axis();
         let levels = staircase_plan(bricks, 0, store.level_count());
         let renderer = renderer_for(
@@ -420,17 +417,7 @@ fn two_levels_take_the_two_level_caches_slots() {
         }
 
         // Five levels in the same budget: slots of 12^3, too few for every brick at level 0.
-        let path = temp_path("five-levels");
-        write_level_store(
-            &path,
-            &volume,
-            N,
-            None,
-            DownsampleFilter::Mean2,
-            &mut |_, _| {},
-        )
-        .unwrap();
-        let store = Arc::new(LevelStore::open(&path).unwrap());
+        let (path, store) = stored(&volume, "five-levels");
         let coarsest = vec![Some(store.level_count() - 1); count as usize];
         let mut five = renderer_for(
             &ctx,
@@ -464,17 +451,7 @@ fn a_level_store_given_no_levels_is_planned_by_every_render() {
     {
         let mut rng = Rng(0x1e7e_1570_6900_0005);
         let volume = textured_volume(&mut rng, UVec3::new(6 * N, 6 * N, 4 * N));
-        let path = temp_path("planned");
-        write_level_store(
-            &path,
-            &volume,
-            N,
-            None,
-            DownsampleFilter::Mean2,
-            &mut |_, _| {},
-        )
-        .unwrap();
-        let store = Arc::new(LevelStore::open(&path).unwrap());
+        let (path, store) = stored(&volume, "planned");
         let count = store.grid().brick_count();
         // About 80 slots of 12^3 f32 texels for 144 bricks (the image holds 50).
         let budget = 80 * 12 * 12 * 12 * 4;

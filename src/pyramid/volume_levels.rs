@@ -50,18 +50,21 @@ impl VolumeLevels {
     /// (level 0 cut from the volume's voxels, clamped). `None` for a level not held.
     pub fn stored_brick(&self, level: u32, first: UVec3, brick_size: u32) -> Option<Vec<f32>> {
         match level {
-            0 => {
-                let start = crate::cache::stored_first_sample(first, brick_size, 0);
-                let edge = crate::cache::stored_brick_edge(brick_size, 0) as i32;
-                Some(box_values(start, edge, |v| {
-                    normalized_voxel(&self.volume, v)
-                }))
-            }
+            0 => Some(Self::level_zero_brick(&self.volume, first, brick_size)),
             _ => self
                 .coarser
                 .get(level as usize - 1)
                 .map(|grid| grid.stored_brick(first, brick_size)),
         }
+    }
+
+    /// The texels of level 0's stored brick of brick `first` of `volume` in bricks of
+    /// `brick_size`, cut from its voxels (normalised, clamped): what
+    /// `LevelGrid::from_volume(volume).stored_brick(first, brick_size)` gives.
+    pub fn level_zero_brick(volume: &Volume, first: UVec3, brick_size: u32) -> Vec<f32> {
+        let start = crate::cache::stored_first_sample(first, brick_size, 0);
+        let edge = crate::cache::stored_brick_edge(brick_size, 0) as i32;
+        box_values(start, edge, |v| normalized_voxel(volume, v))
     }
 
     /// Bytes the levels hold besides the volume (the coarser grids' f32 samples).

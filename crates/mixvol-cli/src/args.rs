@@ -597,7 +597,7 @@ pub struct ConvertArgs {
     pub series: Option<String>,
     /// Write a level store instead: every level of the volume as the three-level cache stores
     /// it, drawn by `mixvol render STORE` at levels chosen from the camera. The volume is read
-    /// whole: it plus about 4.5 bytes per voxel must fit --ram-budget-mb. --filter builds
+    /// whole: it plus about 1.25 bytes per voxel must fit --ram-budget-mb. --filter builds
     /// level 1 (recorded in the store); every coarser level is the vertex pyramid's tent or
     /// mean.
     #[arg(long)]

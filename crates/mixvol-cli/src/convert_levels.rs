@@ -17,9 +17,10 @@ use mixvol::{Error, Result};
 use serde_json::json;
 use std::time::Instant;
 
-/// Bytes per voxel the level writer holds besides the volume: level 0 as f32 and level 1
-/// (an eighth of it) while level 1 is built.
-const WRITER_BYTES_PER_VOXEL: f64 = 4.5;
+/// Bytes per voxel the level writer holds besides the volume: levels 1 and 2 as f32 while
+/// level 2 is built (level 0 is cut from the voxels brick by brick), about 0.56 for a large
+/// volume, up to about 1.2 for one of 8^3 voxels (a vertex level has one more sample per axis).
+const WRITER_BYTES_PER_VOXEL: f64 = 1.25;
 
 /// Runs `mixvol convert --all-levels` under a RAM budget of `budget` bytes.
 pub fn convert_levels(args: &ConvertArgs, budget: u64) -> Result<()> {

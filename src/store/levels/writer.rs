@@ -12,7 +12,7 @@ use crate::bricks::{dequantize, quantize_to, BrickGrid, DownsampleFilter, ValueR
 use crate::cache::{
     block_bricks, min_brick_size_for_levels, pyramid_levels, stored_bricks_per_axis,
 };
-use crate::pyramid::{LevelGrid, SamplePlacement};
+use crate::pyramid::{LevelGrid, SamplePlacement, VolumeLevels};
 use crate::store::format::brick_crc;
 use crate::store::writer::{commit_partial, create_partial};
 use crate::store::StoreError;
@@ -91,7 +91,8 @@ pub(super) fn check_level_desc(
 /// texels [`LevelGrid::stored_brick`] gives, in the volume's scalar type. `progress(done,
 /// total)` is called after every stored brick.
 ///
-/// RAM: the volume plus two adjacent levels as f32 (about 4.5 bytes per voxel at the peak);
+/// RAM: the volume plus levels 1 and 2 as f32 (about 0.56 bytes per voxel at the peak; level 0
+/// is cut from the voxels brick by brick);
 /// the texels stream to disk level by level. [`super::write_level_store_from_slabs`] writes
 /// the same bytes from a file under a RAM budget. The file is assembled in a fresh temporary file beside `path`
 /// and renamed to `path` only once complete; on any error the partial file is removed.
@@ -120,13 +121,21 @@ pub fn write_level_store(
         path,
         header,
         &mut |sink| {
-            let mut level_grid = LevelGrid::from_volume(volume);
-            for level in 0..header.levels {
-                if level > 0 {
-                    level_grid =
-                        level_grid.downsampled(SamplePlacement::Vertex, volume.dims(), filter);
-                }
-                sink.write_level(&grid, &level_grid)?;
+            // Level 0 cut from the voxels, level 1 built from them: level 0 is never held as f32.
+            let n = grid.brick_size();
+            sink.write_stored(&grid, 0, &|first| {
+                VolumeLevels::level_zero_brick(volume, first, n)
+            })?;
+            let mut level_grid = None::<LevelGrid>;
+            for _ in 1..header.levels {
+                let next = match &level_grid {
+                    None => LevelGrid::level_one(volume, filter),
+                    Some(finer) => {
+                        finer.downsampled(SamplePlacement::Vertex, volume.dims(), filter)
+                    }
+                };
+                sink.write_level(&grid, &next)?;
+                level_grid = Some(next);
             }
             Ok(ValueRange { min, max })
         },
@@ -175,14 +184,26 @@ impl TexelSink<'_> {
         grid: &BrickGrid,
         level_grid: &LevelGrid,
     ) -> Result<(), StoreError> {
-        let level = level_grid.level();
+        let n = grid.brick_size();
+        self.write_stored(grid, level_grid.level(), &|first| {
+            level_grid.stored_brick(first, n)
+        })
+    }
+
+    /// Appends every stored brick of `level` for `grid` in table order (blocks in linear
+    /// order), the texels of the one whose block starts at brick `first` from `texels(first)`.
+    pub(super) fn write_stored(
+        &mut self,
+        grid: &BrickGrid,
+        level: u32,
+        texels: &dyn Fn(UVec3) -> Vec<f32>,
+    ) -> Result<(), StoreError> {
         let stored = stored_bricks_per_axis(grid.bricks_per_axis(), level);
         let block = block_bricks(level);
         for z in 0..stored.z {
             for y in 0..stored.y {
                 for x in 0..stored.x {
-                    let first = UVec3::new(x, y, z) * block;
-                    self.push(&level_grid.stored_brick(first, grid.brick_size()))?;
+                    self.push(&texels(UVec3::new(x, y, z) * block))?;
                 }
             }
         }

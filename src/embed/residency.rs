@@ -237,7 +237,6 @@ impl VolumePass {
         let plan_ms = plan_start.elapsed().as_secs_f64() * 1e3;
         let report = plan.report;
         let draw = plan.draw.clone();
-        let wanted_levels = plan.wanted.clone();
         let requests = plan.requests.clone();
         let (mut source_errors, mut first_source_error) = (0, None);
         // What the source said it had loaded when it was planned for (one query, not one per
@@ -261,6 +260,9 @@ impl VolumePass {
         let fell_back = levels.iter().zip(&draw).filter(|(a, b)| a != b).count();
         let mut per_level = vec![LevelCounts::default(); 2];
         let mut waiting = 0;
+        // The plan's wanted levels, read again after staging (staging does not touch the
+        // planner) rather than copied per frame.
+        let wanted_levels = &state.planner.last_plan().wanted;
         for (&wanted, &drawn) in wanted_levels.iter().zip(&levels) {
             if let Some(l) = wanted.number() {
                 let l = l as usize;

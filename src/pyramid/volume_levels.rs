@@ -40,11 +40,6 @@ impl VolumeLevels {
         1 + self.coarser.len() as u32
     }
 
-    /// The volume.
-    pub fn volume(&self) -> &Arc<Volume> {
-        &self.volume
-    }
-
     /// The texels of the stored brick of `level` whose block starts at brick `first`, for
     /// bricks of `brick_size`: what [`LevelGrid::stored_brick`] of the pyramid's level gives
     /// (level 0 cut from the volume's voxels, clamped). `None` for a level not held.

@@ -275,6 +275,24 @@ impl Renderer {
         Ok(choice)
     }
 
+    /// Plans the residency of a brick-cache source from `camera` as the next
+    /// [`Renderer::render`] would ([`VolumePass::update`], under
+    /// [`Renderer::set_residency_config`]), submits what it staged (uploads, fixups) and waits,
+    /// without drawing: a host converging residency before a timed frame or a batch render calls
+    /// it until the report says nothing uploads or waits. Whether renders plan is unchanged
+    /// ([`Renderer::is_planned`]). Errors: not a brick-cache source, a bad view or settings.
+    pub fn update(
+        &mut self,
+        camera: &Camera,
+        settings: &RenderSettings,
+        width: u32,
+        height: u32,
+    ) -> Result<FrameReport> {
+        let report = self.pass.update(camera, width, height, settings)?;
+        self.flush()?;
+        Ok(report)
+    }
+
     /// The level of every brick a three-level source draws (`None` for other sources).
     pub fn brick_levels(&self) -> Option<&[Option<u32>]> {
         self.pass.brick_levels()

@@ -516,6 +516,40 @@ fn a_level_store_given_no_levels_is_planned_by_every_render() {
             report.plan.slots_used
         );
         assert_matches("converged", &f, &reference_frame(&renderer, &store));
+        let converged = renderer.brick_levels().unwrap().to_vec();
+        // `Renderer::update` steps the same residency without drawing: a second renderer
+        // reaches the same levels under the same cap, still planned, and its next render
+        // uploads nothing and draws what the reference draws.
+        let mut stepped = renderer_for(
+            &ctx,
+            VolumeSource::LevelStore {
+                store: store.clone(),
+                levels: &[],
+                config: config(budget),
+            },
+        );
+        stepped.set_residency_config(ResidencyConfig {
+            upload_bytes_per_frame: cap,
+            ..ResidencyConfig::default()
+        });
+        let mut updates = 0;
+        loop {
+            let report = stepped.update(&camera(), &settings(), W, W).unwrap();
+            assert!(report.residency.uploaded_bytes as u64 <= cap);
+            updates += 1;
+            if report.waiting == 0 && report.residency.uploaded_bytes == 0 {
+                break;
+            }
+            assert!(updates < 40, "updates converge");
+        }
+        assert_eq!(updates, frame + 1, "one step per update, as per render");
+        assert!(stepped.is_planned());
+        assert_eq!(stepped.brick_levels().unwrap(), &converged[..]);
+        let f = stepped.render(&camera(), &settings(), W, W).unwrap();
+        let report = f.residency.as_ref().expect("still planned");
+        assert_eq!(report.residency.uploaded_bytes, 0, "{report:?}");
+        assert_matches("stepped", &f, &reference_frame(&stepped, &store));
+        drop(stepped);
         // A caller's own step takes over: renders draw what it staged.
         renderer
             .plan_brick_levels(&camera(), &settings(), W, W, 4.0)

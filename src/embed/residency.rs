@@ -164,8 +164,10 @@ impl VolumePass {
     /// target [`PlanOptions::error_threshold`] (0, the default: [`BUDGET_DRIVEN_TARGET_PIXELS`],
     /// the slots decide, as for two levels) and reported alike: [`FrameReport::per_level`],
     /// [`FrameReport::waiting`], the plan's culled and dropped bricks, slots and upload bytes
-    /// against their budgets (its `wanted_hi` ... `drawn_lo` stay 0), the step's uploads, and
-    /// the failed reads as source errors.
+    /// against their budgets (its `wanted_hi` ... `drawn_lo` stay 0), the choice's largest voxel
+    /// on screen in pixels as the worst screen-space error ([`PlanReport::max_drawn_error`];
+    /// weighted by value range with [`ResidencyConfig::weigh_by_value`]), the step's uploads,
+    /// and the failed reads as source errors.
     ///
     /// [`VolumeSource::Levels`]: super::VolumeSource::Levels
     /// [`VolumeSource::LevelStore`]: super::VolumeSource::LevelStore
@@ -384,6 +386,7 @@ impl VolumePass {
             slot_budget: usize::try_from(state.slot_count()).unwrap_or(usize::MAX),
             upload_bytes: staged.uploaded_bytes as u64,
             upload_budget: self.residency.upload_bytes_per_frame,
+            max_drawn_error: choice.pixels_per_voxel,
             ..PlanReport::default()
         };
         let residency = ResidencyReport {

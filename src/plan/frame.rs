@@ -176,6 +176,9 @@ pub struct PlanReport {
     /// Requests left out by the RAM budget.
     pub requests_cut: usize,
     /// Largest screen-space error of a brick drawn `Lo` (0 when none is; `Hi` bricks have none).
+    /// A level source's: the largest on-screen size, in pixels, of a voxel at the levels the
+    /// view wants (weighted by value range where its choice is; the drawn levels reach it once
+    /// nothing waits), [`super::LevelChoice::pixels_per_voxel`].
     pub max_drawn_error: f32,
 }
 

@@ -30,8 +30,9 @@ pub struct FrameRow {
     pub uploaded_mb: f64,
     /// Megabytes of level changes against the per-frame upload budget.
     pub upload_budget_mb: f64,
-    /// Bricks drawn at each level, level 0 (full resolution) first: `Hi` and `Lo` of a
-    /// two-level scene, every level of a level source (CSV columns `resident_l0`, ...).
+    /// Bricks drawn at each level, level 0 (full resolution) first
+    /// (`mixvol::renderer::FrameReport::per_level`: `Hi` and `Lo` of a two-level scene, every
+    /// level of a level source; CSV columns `resident_l0`, ...).
     pub resident: Vec<usize>,
     /// Bricks drawn absent although the view wants them (not loaded yet, or deferred).
     pub absent_wanted: usize,
@@ -39,7 +40,8 @@ pub struct FrameRow {
     pub culled: usize,
     /// Bricks dropped because even all-low-res did not fit the cache.
     pub dropped: usize,
-    /// Bricks whose wanted level the source has not loaded.
+    /// Bricks not drawn at the level the view wants: not loaded yet, or waiting for the upload
+    /// budget of a later frame.
     pub waiting: usize,
     /// Level changes deferred to later frames by the upload budget.
     pub deferred: usize,
@@ -49,7 +51,8 @@ pub struct FrameRow {
     pub cache_mb: f64,
     /// Megabytes of GPU memory allocated by the renderer after the frame.
     pub gpu_allocated_mb: f64,
-    /// Largest screen-space error of a brick drawn low-res (pixels x value range).
+    /// Largest screen-space error of a brick drawn low-res (pixels x value range; a level
+    /// source: the largest voxel on screen, in pixels, at the levels the view wants).
     pub worst_error: f32,
     /// Bricks whose load failed in the source (drawn at a fallback).
     pub source_errors: usize,
@@ -74,11 +77,11 @@ impl FrameRow {
             row.uploaded_bricks = r.residency.uploaded_bricks;
             row.uploaded_mb = r.residency.uploaded_bytes as f64 / 1e6;
             row.upload_budget_mb = p.upload_budget as f64 / 1e6;
-            row.resident = vec![p.drawn_hi, p.drawn_lo];
+            row.resident = r.per_level.iter().map(|l| l.drawn).collect();
             row.absent_wanted = p.drawn_absent;
             row.culled = p.culled;
             row.dropped = p.dropped;
-            row.waiting = p.waiting_for_source;
+            row.waiting = r.waiting;
             row.deferred = p.deferred;
             row.budget_fill = if p.slot_budget == 0 {
                 0.0
@@ -90,41 +93,6 @@ impl FrameRow {
             row.source_errors = r.source_errors;
         }
         row
-    }
-
-    /// Fills the residency of a level source's frame: `levels` the level of every brick drawn
-    /// now (`None`: not drawn), `choice` the last camera choice, `update` the residency change
-    /// staged for this frame (none when the plan did not change), `upload_budget` the per-frame
-    /// upload budget in bytes, `slots` the cache's slots and `cache_bytes` its image's bytes.
-    pub fn set_levels(
-        &mut self,
-        levels: &[Option<u32>],
-        choice: &mixvol::plan::LevelChoice,
-        update: Option<&mixvol::levels::LevelUpdateReport>,
-        upload_budget: u64,
-        slots: u64,
-        cache_bytes: u64,
-    ) {
-        self.cache_mb = cache_bytes as f64 / 1e6;
-        let deepest = levels.iter().flatten().max().map_or(0, |&l| l as usize + 1);
-        self.resident = vec![0; deepest];
-        for level in levels.iter().flatten() {
-            self.resident[*level as usize] += 1;
-        }
-        self.dropped = choice.dropped;
-        self.waiting = choice.waiting;
-        self.source_errors = choice.failed_reads;
-        self.upload_budget_mb = upload_budget as f64 / 1e6;
-        self.budget_fill = if slots == 0 {
-            0.0
-        } else {
-            choice.slots as f64 / slots as f64
-        };
-        if let Some(u) = update {
-            self.uploaded_bricks = u.uploaded_bricks;
-            self.uploaded_mb = u.uploaded_bytes as f64 / 1e6;
-            self.plan_ms = u.stage_ms;
-        }
     }
 }
 

@@ -6,6 +6,7 @@ use crate::args::{LevelsArg, RenderArgs};
 use crate::levels::{per_level_counts, staircase};
 use crate::render::Scene;
 use mixvol::bricks::BrickGrid;
+use mixvol::plan::PlanOptions;
 use mixvol::renderer::{MixedConfig, Renderer, ResidencyConfig, VolumeSource};
 use mixvol::scene::Transition;
 use mixvol::store::{LevelBackend, LevelStreamConfig, LevelStreamer};
@@ -32,7 +33,7 @@ pub fn level_scene(
         ..args.mixed.config()?
     };
     let (plan, camera_levels) = three_level_plan(&grid, pattern, backend.level_count())?;
-    set_level_upload_budget(renderer, args)?;
+    set_level_residency(renderer, args)?;
     // Stored bricks are read in the background: views step onto those in RAM.
     let streamer = Arc::new(LevelStreamer::new(
         backend.clone(),
@@ -50,9 +51,8 @@ pub fn level_scene(
     Ok(Scene {
         volume: None,
         streamer: None,
-        planned: false,
+        planned: camera_levels,
         config: Some(config),
-        camera_levels,
         level_streamer: Some(streamer),
     })
 }
@@ -86,7 +86,7 @@ pub fn three_level_plan(
 /// The per-step upload budget of a three-level scene in bytes: with `--gpu-budget-mb`, the
 /// share [`crate::args::ResidencyArgs::budgets`] gives it (as for two levels: `--upload-mb`,
 /// else an eighth); without, `--upload-mb`, else the default of `ResidencyConfig`
-/// ([`set_level_upload_budget`]).
+/// ([`set_level_residency`]).
 pub fn level_upload_budget(args: &RenderArgs) -> u64 {
     let r = &args.residency;
     if let Some(Ok((_, upload))) = r.gpu_budget_mb.map(|gpu| r.budgets(gpu)) {
@@ -109,9 +109,10 @@ pub fn level_cache_bytes(args: &RenderArgs) -> Result<u64> {
     }
 }
 
-/// `--upload-mb` as the per-step upload budget of a three-level scene whose levels come from
-/// the camera (without it, the default of `ResidencyConfig`), and `--weigh-by-value`.
-pub fn set_level_upload_budget(renderer: &mut Renderer, args: &RenderArgs) -> Result<()> {
+/// The residency of a three-level scene whose levels come from the camera: `--upload-mb` as
+/// the per-step upload budget (without it, the default of `ResidencyConfig`), `--voxel-px` as
+/// the target of the level choice, and `--weigh-by-value`.
+pub fn set_level_residency(renderer: &mut Renderer, args: &RenderArgs) -> Result<()> {
     if let Some(mb) = args.residency.upload_mb {
         if !(mb.is_finite() && mb > 0.0) {
             return Err(Error::InvalidInput(format!(
@@ -119,25 +120,22 @@ pub fn set_level_upload_budget(renderer: &mut Renderer, args: &RenderArgs) -> Re
             )));
         }
     }
+    let voxel_px = args.mixed.voxel_px;
+    if !(voxel_px.is_finite() && voxel_px > 0.0) {
+        return Err(Error::InvalidInput(format!(
+            "--voxel-px {voxel_px}: expected a positive number of pixels"
+        )));
+    }
     renderer.set_residency_config(ResidencyConfig {
         upload_bytes_per_frame: level_upload_budget(args),
         weigh_by_value: args.residency.weigh_by_value,
+        options: PlanOptions {
+            error_threshold: voxel_px,
+            ..PlanOptions::default()
+        },
         ..ResidencyConfig::default()
     });
     Ok(())
-}
-
-/// What a residency change of the three-level cache moved, as one line.
-pub fn level_update_line(u: &mixvol::levels::LevelUpdateReport) -> String {
-    format!(
-        "level residency: uploaded {} of {} stored bricks ({} moved, {:.1} MB{}), staged in {:.1} ms",
-        u.uploaded_bricks,
-        u.stored_bricks,
-        u.moved_bricks,
-        u.uploaded_bytes as f64 / 1e6,
-        if u.repacked { ", packed afresh" } else { "" },
-        u.stage_ms
-    )
 }
 
 /// What a level store's background reader did.

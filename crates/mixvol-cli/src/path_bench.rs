@@ -111,16 +111,20 @@ pub fn bench_path(args: &BenchArgs) -> Result<()> {
         let scene = set_up_scene(&mut renderer, r, &input, transition)?;
         if !scene.planned {
             return Err(Error::InvalidInput(
-                "bench along a path needs camera-driven residency: --gpu-budget-mb or a brick \
-                 store"
+                "bench along a path needs camera-driven residency: --gpu-budget-mb, a brick \
+                 store, levels from the camera (--levels camera) or a level store"
                     .into(),
             ));
         }
         // Warm-up at a far view (compiles the variants; llvmpipe compiles at first draw), then
         // start from nothing resident.
         renderer.render(&cameras[0], &settings, r.width, r.height)?;
-        let bricks = renderer.brick_cache().map_or(0, |c| c.grid().brick_count());
-        renderer.set_levels(&vec![Level::Absent; bricks])?;
+        if let Some(count) = renderer.brick_levels().map(<[_]>::len) {
+            renderer.set_brick_levels(&vec![None; count])?;
+        } else {
+            let bricks = renderer.brick_cache().map_or(0, |c| c.grid().brick_count());
+            renderer.set_levels(&vec![Level::Absent; bricks])?;
+        }
         renderer.set_planned(true);
         runs.push(Run {
             transition,

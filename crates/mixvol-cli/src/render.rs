@@ -12,8 +12,7 @@ use crate::input::{
     model_transform, open_input_with_meta, orientation_line, window_line, window_of, Input,
 };
 use crate::level_scene::{
-    level_scene, level_stream_line, level_update_line, print_three_level, set_level_upload_budget,
-    three_level_plan,
+    level_scene, level_stream_line, print_three_level, set_level_residency, three_level_plan,
 };
 use crate::levels::{level_pattern, per_level_counts};
 use crate::stats::{peak_rss_bytes, Summary};
@@ -51,9 +50,6 @@ pub struct Scene {
     pub planned: bool,
     /// The brick-cache configuration, when one is used.
     pub config: Option<MixedConfig>,
-    /// Whether every view chooses its levels from the camera (`--levels camera`: the
-    /// three-level cache).
-    pub camera_levels: bool,
     /// The background reader of a level store or of an image's pyramid drawn through the
     /// three-level cache (the CPU reference of `--compare` reads its levels back).
     pub level_streamer: Option<Arc<LevelStreamer>>,
@@ -221,7 +217,6 @@ pub fn set_up_scene(
                     streamer: None,
                     planned: true,
                     config: Some(config),
-                    camera_levels: false,
                     level_streamer: None,
                 });
             }
@@ -232,7 +227,6 @@ pub fn set_up_scene(
                     streamer: None,
                     planned: false,
                     config: None,
-                    camera_levels: false,
                     level_streamer: None,
                 });
             };
@@ -246,7 +240,7 @@ pub fn set_up_scene(
                 let levels =
                     mixvol::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis());
                 let (plan, camera_levels) = three_level_plan(&grid, pattern, levels)?;
-                set_level_upload_budget(renderer, args)?;
+                set_level_residency(renderer, args)?;
                 renderer.set_source(VolumeSource::Levels {
                     volume: volume.clone(),
                     levels: &plan,
@@ -256,9 +250,8 @@ pub fn set_up_scene(
                 return Ok(Scene {
                     volume: Some(volume),
                     streamer: None,
-                    planned: false,
+                    planned: camera_levels,
                     config: Some(config),
-                    camera_levels,
                     level_streamer: None,
                 });
             }
@@ -283,28 +276,10 @@ pub fn set_up_scene(
                 streamer: None,
                 planned: false,
                 config: Some(config),
-                camera_levels: false,
                 level_streamer: None,
             })
         }
     }
-}
-
-/// One step of a `--levels camera` scene towards the levels `camera` wants at the frame size
-/// and `--voxel-px`.
-fn plan_levels(
-    renderer: &mut Renderer,
-    camera: &Camera,
-    settings: &RenderSettings,
-    args: &RenderArgs,
-) -> Result<mixvol::plan::LevelChoice> {
-    renderer.plan_brick_levels(
-        camera,
-        settings,
-        args.width,
-        args.height,
-        args.mixed.voxel_px,
-    )
 }
 
 /// Draws `streamer` (a brick store's or a streamed image's) through camera-driven residency
@@ -328,7 +303,6 @@ fn planned_scene<S: Streaming + 'static>(
         streamer: Some(streamer),
         planned: true,
         config: Some(config),
-        camera_levels: false,
         level_streamer: None,
     })
 }
@@ -351,17 +325,18 @@ fn print_cache(renderer: &Renderer, config: &MixedConfig, upload: u64, ram: Opti
     }
 }
 
-/// One line on the residency of `report`.
+/// One line on the residency of `report`: the bricks drawn per level (level 0, full
+/// resolution, first), what was culled, dropped, is waiting or failed, the slots and the worst
+/// screen-space error.
 pub fn residency_line(report: &FrameReport) -> String {
     let p = &report.plan;
+    let drawn: Vec<usize> = report.per_level.iter().map(|l| l.drawn).collect();
     format!(
-        "residency: {} hi + {} lo drawn, {} wanted but absent, {} culled, {} dropped, {} waiting for the source; {}/{} slots ({:.0} % full, {:.1} MB cache); worst screen-space error {:.3}; planner {:.2} ms{}",
-        p.drawn_hi,
-        p.drawn_lo,
+        "residency: {drawn:?} bricks drawn per level, {} wanted but absent, {} culled, {} dropped, {} waiting; {}/{} slots ({:.0} % full, {:.1} MB cache); worst screen-space error {:.3}; planner {:.2} ms{}",
         p.drawn_absent,
         p.culled,
         p.dropped,
-        p.waiting_for_source,
+        report.waiting,
         p.slots_used,
         p.slot_budget,
         100.0 * p.slots_used as f64 / p.slot_budget.max(1) as f64,
@@ -518,34 +493,124 @@ pub fn render(args: &RenderArgs) -> Result<()> {
     summary.finish()
 }
 
-/// Renders frames of one view until camera-driven residency has converged (nothing to upload,
-/// nothing the source can still load), at most [`MAX_CONVERGE_FRAMES`]; returns the frames
-/// rendered and whether it converged.
+/// What converging one view's residency did.
+struct Converged {
+    /// Residency updates run.
+    steps: usize,
+    /// Whether it settled within [`MAX_CONVERGE_FRAMES`] (a level source: nothing waits).
+    settled: bool,
+    /// The last update's report.
+    last: FrameReport,
+    /// Bytes all the updates uploaded.
+    uploaded: u64,
+    /// Wall time of the updates (plans, uploads, fixups, waits for the source), in ms.
+    ms: f64,
+}
+
+/// Runs camera-driven residency updates of one view ([`Renderer::update`]: plan, uploads and
+/// fixups, no drawing) until they converge, at most [`MAX_CONVERGE_FRAMES`]. A two-level
+/// source converges when nothing uploads or is deferred and its streamer has nothing left to
+/// load; a level source when nothing waits, or when a step after the first moves nothing once
+/// its reader is idle (what is left failed to read or does not fit the RAM budget: no later
+/// step could move either).
 fn converge(
     renderer: &mut Renderer,
     scene: &Scene,
     camera: &Camera,
     settings: &RenderSettings,
     args: &RenderArgs,
-) -> Result<(usize, bool)> {
-    for i in 1..=MAX_CONVERGE_FRAMES {
-        let frame = renderer.render(camera, settings, args.width, args.height)?;
-        let Some(report) = frame.residency else {
-            return Ok((i, true));
-        };
+) -> Result<Converged> {
+    let start = std::time::Instant::now();
+    let (width, height) = (args.width, args.height);
+    let mut uploaded = 0u64;
+    let done = |steps: usize, settled: bool, last: FrameReport, uploaded: u64| Converged {
+        steps,
+        settled,
+        last,
+        uploaded,
+        ms: start.elapsed().as_secs_f64() * 1e3,
+    };
+    let mut last = FrameReport::default();
+    for step in 1..=MAX_CONVERGE_FRAMES {
+        let before = renderer.brick_levels().map(<[_]>::to_vec);
+        let report = renderer.update(camera, settings, width, height)?;
+        uploaded += report.residency.uploaded_bytes as u64;
+        if let Some(before) = before {
+            // A level source.
+            let moved = renderer.brick_levels() != Some(before.as_slice());
+            if report.waiting == 0 || (!moved && step > 1) {
+                let settled = report.waiting == 0;
+                return Ok(done(step, settled, report, uploaded));
+            }
+            if let Some(streamer) = &scene.level_streamer {
+                // Let the reader catch up before the next step.
+                streamer.wait_idle(Duration::from_secs(60));
+            }
+            last = report;
+            continue;
+        }
         let source_done = match &scene.streamer {
             Some(s) => s.wait_settled(STREAM_WAIT),
             None => true,
         };
         if report.plan.is_settled() && source_done {
             // Settled and the source has nothing left to load: one more plan would be the same.
-            let again = renderer.render(camera, settings, args.width, args.height)?;
-            if again.residency.is_none_or(|r| r.plan.is_settled()) {
-                return Ok((i + 1, true));
+            let again = renderer.update(camera, settings, width, height)?;
+            uploaded += again.residency.uploaded_bytes as u64;
+            if again.plan.is_settled() {
+                return Ok(done(step + 1, true, again, uploaded));
             }
+            last = again;
+        } else {
+            last = report;
         }
     }
-    Ok((MAX_CONVERGE_FRAMES, false))
+    Ok(done(MAX_CONVERGE_FRAMES, false, last, uploaded))
+}
+
+/// Prints how one view's residency converged: the levels of a level source (bricks per level,
+/// slots, the largest drawn voxel, steps, what still waits, the reader's counts), or the
+/// frames a two-level source took.
+fn print_converged(renderer: &Renderer, scene: &Scene, c: &Converged) {
+    let Some(levels) = renderer.brick_levels() else {
+        if c.settled {
+            println!("residency converged after {} frames", c.steps);
+        } else {
+            println!(
+                "residency still changing after {} frames (showing the last)",
+                c.steps
+            );
+        }
+        if let Some(s) = &scene.streamer {
+            println!("{}", s.summary());
+        }
+        return;
+    };
+    let plan = &c.last.plan;
+    let (deepest, per_level) = per_level_counts(levels);
+    println!(
+        "levels from the camera: {per_level:?} bricks at levels 0..={deepest}, {} slots, drawn voxels at most {:.2} px; choice, upload and fixups {:.1} ms",
+        plan.slots_used, plan.max_drawn_error, c.ms
+    );
+    if plan.dropped > 0 {
+        println!(
+            "the cache cannot hold every brick even at the coarsest level: {} bricks not drawn \
+             (the least important: out of view first, then the farthest); raise --gpu-budget-mb",
+            plan.dropped
+        );
+    }
+    println!(
+        "level steps: {} under the upload budget ({:.1} MB in all), {} bricks still waiting",
+        c.steps,
+        c.uploaded as f64 / 1e6,
+        c.last.waiting
+    );
+    if let Some(streamer) = &scene.level_streamer {
+        println!("{}", level_stream_line(&streamer.stats()));
+        if let Some(e) = streamer.first_failure() {
+            println!("level stream: first failed read: {e}");
+        }
+    }
 }
 
 /// A single view: converge (camera-driven residency), one warm-up frame, `--frames` timed
@@ -559,72 +624,9 @@ fn render_view(
     tf: &TransferFunction,
     args: &RenderArgs,
 ) -> Result<()> {
-    if scene.camera_levels {
-        // Under --upload-mb the cache moves towards the camera's choice in steps: one per call,
-        // until nothing waits.
-        let start = std::time::Instant::now();
-        let mut steps = 0;
-        let mut uploaded = 0;
-        let mut drawn = renderer.brick_levels().map(<[_]>::to_vec);
-        let choice = loop {
-            let choice = plan_levels(renderer, camera, settings, args)?;
-            steps += 1;
-            let now = renderer.brick_levels().map(<[_]>::to_vec);
-            let moved = now != drawn;
-            if moved {
-                uploaded += renderer.last_level_update().map_or(0, |u| u.uploaded_bytes);
-            }
-            drawn = now;
-            // A step after the first that does not move cannot be followed by one that does:
-            // what is left failed to read, or does not fit the RAM budget.
-            if choice.waiting == 0 || steps >= MAX_CONVERGE_FRAMES || (!moved && steps > 1) {
-                break choice;
-            }
-            if let Some(streamer) = &scene.level_streamer {
-                // One view converges: let the reader catch up before the next step.
-                streamer.wait_idle(Duration::from_secs(60));
-            }
-        };
-        let plan_ms = start.elapsed().as_secs_f64() * 1e3;
-        let (deepest, per_level) = per_level_counts(&choice.levels);
-        println!(
-            "levels from the camera: {per_level:?} bricks at levels 0..={deepest}, {} slots, drawn voxels at most {:.2} px; choice, upload and fixups {plan_ms:.1} ms",
-            choice.slots, choice.pixels_per_voxel
-        );
-        if choice.dropped > 0 {
-            println!(
-                "the cache cannot hold every brick even at the coarsest level: {} bricks not \
-                 drawn (the least important: out of view first, then the farthest); raise \
-                 --cache-mb",
-                choice.dropped
-            );
-        }
-        if steps > 1 {
-            println!(
-                "level steps: {steps} under the upload budget ({:.1} MB in all), {} bricks still waiting",
-                uploaded as f64 / 1e6,
-                choice.waiting
-            );
-        } else if let Some(u) = renderer.last_level_update() {
-            println!("{}", level_update_line(u));
-        }
-        if let Some(streamer) = &scene.level_streamer {
-            println!("{}", level_stream_line(&streamer.stats()));
-            if let Some(e) = streamer.first_failure() {
-                println!("level stream: first failed read: {e}");
-            }
-        }
-    }
     if scene.planned {
-        let (frames, converged) = converge(renderer, scene, camera, settings, args)?;
-        if converged {
-            println!("residency converged after {frames} frames");
-        } else {
-            println!("residency still changing after {frames} frames (showing the last)");
-        }
-        if let Some(s) = &scene.streamer {
-            println!("{}", s.summary());
-        }
+        let converged = converge(renderer, scene, camera, settings, args)?;
+        print_converged(renderer, scene, &converged);
     }
     // Warm-up: llvmpipe compiles shaders at the first draw.
     let (mut frame, _) = frame_row(renderer, ctx, 0, camera, settings, args)?;
@@ -696,30 +698,8 @@ fn render_path(
     create_parent(&dir.join("frame_0000.png"))?;
     let mut rows = Vec::with_capacity(cameras.len());
     let mut last = None;
-    let mut level_moves = Vec::new();
     for (i, camera) in cameras.iter().enumerate() {
-        let mut choice = None;
-        let mut update = None;
-        if scene.camera_levels {
-            let before = renderer.brick_levels().map(<[_]>::to_vec);
-            choice = Some(plan_levels(renderer, camera, settings, args)?);
-            // A view whose plan did not change stages nothing.
-            if renderer.brick_levels() != before.as_deref() {
-                update = renderer.last_level_update().cloned();
-                level_moves.extend(update.clone());
-            }
-        }
-        let (frame, mut row) = frame_row(renderer, ctx, i, camera, settings, args)?;
-        if let (Some(choice), Some(levels)) = (&choice, renderer.brick_levels()) {
-            row.set_levels(
-                levels,
-                choice,
-                update.as_ref(),
-                crate::level_scene::level_upload_budget(args),
-                renderer.level_slot_count().unwrap_or(0),
-                renderer.level_cache_bytes().unwrap_or(0),
-            );
-        }
+        let (frame, row) = frame_row(renderer, ctx, i, camera, settings, args)?;
         frame.save_png(&dir.join(format!("frame_{i:04}.png")), args.background)?;
         rows.push(row);
         last = Some(frame);
@@ -733,19 +713,6 @@ fn render_path(
         csv.display()
     );
     print_timing(&rows, "first frame included");
-    if scene.camera_levels {
-        let uploaded: usize = level_moves.iter().map(|u| u.uploaded_bricks).sum();
-        let drawn: usize = level_moves.iter().map(|u| u.stored_bricks).sum();
-        let bytes: usize = level_moves.iter().map(|u| u.uploaded_bytes).sum();
-        let repacked = level_moves.iter().filter(|u| u.repacked).count();
-        let moved: usize = level_moves.iter().map(|u| u.moved_bricks).sum();
-        println!(
-            "levels along the path: {} changes uploaded {uploaded} of the {drawn} stored bricks they \
-             draw ({moved} moved to make room; {:.1} MB; {repacked} packed afresh)",
-            level_moves.len(),
-            bytes as f64 / 1e6
-        );
-    }
     if scene.planned {
         let uploaded: f64 = rows.iter().map(|r| r.uploaded_mb).sum();
         let changed = rows.iter().filter(|r| r.uploaded_bricks > 0).count();

@@ -212,6 +212,17 @@ fn rss_bytes() -> u64 {
         .map_or(0, |kib| kib * 1024)
 }
 
+/// The level every brick is drawn at (level 0 full resolution; `None` not drawn): a level
+/// source's, or a two-level cache's hi-res and low-res as 0 and 1.
+fn drawn_levels(renderer: &Renderer) -> Option<Vec<Option<u32>>> {
+    match renderer.brick_levels() {
+        Some(levels) => Some(levels.to_vec()),
+        None => renderer
+            .brick_cache()
+            .map(|c| c.levels().iter().map(|l| l.number()).collect()),
+    }
+}
+
 /// The warm-up of an `n`-frame soak: its first tenth, but at least 100 frames (half the soak
 /// when that is shorter).
 pub fn warm_up_frames(n: u32) -> u32 {
@@ -303,7 +314,7 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
     renderer.set_model_transform(model);
     let scene = set_up_scene(&mut renderer, r, &input, r.mixed.transition.transition())?;
     drop(input);
-    if !scene.planned && !scene.camera_levels {
+    if !scene.planned {
         return Err(Error::InvalidInput(
             "--soak needs camera-driven residency: --gpu-budget-mb, a brick store, or levels \
              from the camera (--levels camera, a level store)"
@@ -318,9 +329,7 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
         r.width, r.height
     );
     let mut samples = Vec::new();
-    let mut previous = renderer.brick_cache().map(|c| c.levels());
-    // A three-level scene: its levels, chosen from the camera before every frame.
-    let mut previous_levels = renderer.brick_levels().map(<[_]>::to_vec);
+    let mut previous = drawn_levels(&renderer);
     let mut levels_drawn = std::collections::BTreeSet::new();
     let (mut level_changes, mut changes_at_warm, mut uploaded) = (0u64, 0u64, 0u64);
     let (mut uploading, mut deferring, mut largest_cache) = (0u32, 0u32, 0u64);
@@ -338,34 +347,21 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
     };
     for i in 0..frames {
         let camera = soak_camera(&base, i)?;
-        if scene.camera_levels {
-            renderer.plan_brick_levels(&camera, &settings, r.width, r.height, r.mixed.voxel_px)?;
-            let levels = renderer.brick_levels().map(<[_]>::to_vec);
-            if let (Some(a), Some(b)) = (&previous_levels, &levels) {
-                let changed = a.iter().zip(b).filter(|(x, y)| x != y).count() as u64;
-                if changed > 0 {
-                    let update = renderer.last_level_update().cloned().unwrap_or_default();
-                    level_changes += changed;
-                    uploaded += update.uploaded_bricks as u64;
-                    uploading += 1;
-                    // The staging buffer grows to hold the largest change.
-                    largest_cache = largest_cache.max(update.uploaded_bytes as u64);
-                }
-            }
-            levels_drawn.extend(levels.iter().flatten().flatten().copied());
-            previous_levels = levels;
-        }
         let frame = renderer.render(&camera, &settings, r.width, r.height)?;
         if let Some(report) = &frame.residency {
             uploaded += report.residency.uploaded_bricks as u64;
             uploading += u32::from(report.residency.uploaded_bricks > 0);
             deferring += u32::from(report.plan.deferred > 0);
-            largest_cache = largest_cache.max(report.cache_bytes);
+            // The staging buffer grows to hold the largest change, at most the cache image.
+            largest_cache = largest_cache
+                .max(report.cache_bytes)
+                .max(report.residency.uploaded_bytes as u64);
         }
-        let levels = renderer.brick_cache().map(|c| c.levels());
+        let levels = drawn_levels(&renderer);
         if let (Some(a), Some(b)) = (&previous, &levels) {
             level_changes += a.iter().zip(b).filter(|(x, y)| x != y).count() as u64;
         }
+        levels_drawn.extend(levels.iter().flatten().flatten().copied());
         previous = levels;
         let done = i + 1;
         if done == warm_up {
@@ -376,7 +372,7 @@ pub fn soak(args: &BenchArgs, frames: u32) -> Result<()> {
         }
     }
     let seconds = start.elapsed().as_secs_f64();
-    if scene.camera_levels {
+    if renderer.brick_levels().is_some() {
         println!("soak: levels drawn {levels_drawn:?}");
     }
     drop(renderer);

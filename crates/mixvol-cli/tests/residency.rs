@@ -45,15 +45,19 @@ fn number_after(text: &str, key: &str) -> f64 {
         .unwrap_or_else(|e| panic!("'{}' after '{key}': {e}\n{text}", &rest[..end]))
 }
 
-/// `(hi, lo)` bricks drawn, from the residency line.
+/// `(hi, lo)` bricks drawn, from the residency line (`residency: [hi, lo] bricks drawn per
+/// level, ...`).
 fn drawn(text: &str) -> (usize, usize) {
     let line = text
         .lines()
-        .find(|l| l.starts_with("residency:"))
+        .find_map(|l| l.strip_prefix("residency: ["))
         .unwrap_or_else(|| panic!("no residency line in:\n{text}"));
-    let hi = number_after(line, "residency:") as usize;
-    let lo = number_after(line, "hi +") as usize;
-    (hi, lo)
+    let counts: Vec<usize> = line[..line.find(']').unwrap()]
+        .split(", ")
+        .map(|c| c.parse().unwrap())
+        .collect();
+    assert_eq!(counts.len(), 2, "two levels: {line}");
+    (counts[0], counts[1])
 }
 
 fn pixels(path: &Path) -> image::RgbaImage {
@@ -908,6 +912,55 @@ fn level_stores_log_residency_per_level_within_the_upload_cap() {
             "two" => assert_eq!(level_columns.len(), 2, "{csv}"),
             _ => assert!(level_columns.len() >= 3, "{csv}"),
         }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Issue 36: `bench` along a camera path takes levels chosen from the camera (it refused
+/// every scene but the two-level ones): both transitions start from nothing drawn, every frame
+/// uploads at most `--upload-mb`, the frames converge after the path, and the JSON says so.
+#[test]
+fn bench_along_a_path_takes_levels_from_the_camera() {
+    let dir = temp_dir("level_path_bench");
+    let json = dir.join("bench.json");
+    let upload_mb = 0.05;
+    let (out, text) = run(&[
+        "bench",
+        "--dims",
+        "64,64,64",
+        "--brick-size",
+        "8",
+        "--levels",
+        "camera",
+        "--gpu-budget-mb",
+        "1.05",
+        "--upload-mb",
+        "0.05",
+        "--width",
+        "32",
+        "--height",
+        "32",
+        "--orbit",
+        "3",
+        "--validation",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("validation: 0 warnings/errors"), "{text}");
+    let value: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let runs = value["transitions"].as_array().unwrap();
+    assert_eq!(runs.len(), 2, "{value}");
+    for run in runs {
+        assert_eq!(run["frames"], 3, "{value}");
+        // MB (10^6 bytes) per frame against MiB.
+        let max = run["uploaded_mb_per_frame"]["max"].as_f64().unwrap();
+        assert!(
+            max > 0.0 && max <= upload_mb * 1.048576 + 1e-9,
+            "{max} MB: {value}"
+        );
+        assert!(run["frames_to_converge"].as_u64().is_some(), "{value}");
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -1,8 +1,8 @@
 //! What the render thread pays for a camera-driven three-level residency change, read from a
 //! level store synchronously (`VolumeSource::LevelStore`: the stored bricks are read inside
-//! `plan_brick_levels`) against in the background (`VolumeSource::LevelStream`: the call steps
+//! `Renderer::update`) against in the background (`VolumeSource::LevelStream`: the call steps
 //! onto bricks already in RAM and asks the streamer for the rest), side by side in one run along
-//! an orbit (issue 19, item 4). Each view times `plan_brick_levels` (choice, reads, staging) and
+//! an orbit (issue 19, item 4). Each view times `update` (choice, reads, staging, upload) and
 //! then renders a frame on both renderers; the streamed one never waits for its reader.
 //!
 //! Run: `cargo bench --bench level_stream` (MIXVOL_BENCH_VIEWS, MIXVOL_BENCH_SIZE to change).
@@ -64,6 +64,13 @@ fn main() -> mixvol::Result<()> {
         levels: &[],
         config,
     })?;
+    // One step per view, a drawn voxel of a pixel wanted; the renders draw what it staged.
+    for r in [&mut direct, &mut streamed] {
+        let mut config = r.residency_config();
+        config.options.error_threshold = 1.0;
+        r.set_residency_config(config);
+        r.set_planned(false);
+    }
     let settings = RenderSettings::default();
     let (mut direct_ms, mut streamed_ms) = (Vec::new(), Vec::new());
     let (mut direct_stage, mut streamed_stage) = (Vec::new(), Vec::new());
@@ -76,15 +83,16 @@ fn main() -> mixvol::Result<()> {
         let step = |r: &mut Renderer| -> mixvol::Result<(f64, f64, usize, usize)> {
             let before = r.brick_levels().map(<[_]>::to_vec);
             let start = Instant::now();
-            let choice = r.plan_brick_levels(&camera, &settings, size, size, 1.0)?;
+            r.update(&camera, &settings, size, size)?;
             let ms = start.elapsed().as_secs_f64() * 1e3;
+            let waiting = r.last_level_choice().map_or(0, |c| c.waiting);
             let changed = r.brick_levels() != before.as_deref();
             let (stage_ms, bytes) = match r.last_level_update() {
                 Some(u) if changed => (u.stage_ms, u.uploaded_bytes),
                 _ => (0.0, 0),
             };
             r.render(&camera, &settings, size, size)?;
-            Ok((ms, stage_ms, bytes, choice.waiting))
+            Ok((ms, stage_ms, bytes, waiting))
         };
         let (d_ms, d_stage, d_bytes, _) = step(&mut direct)?;
         let (s_ms, s_stage, s_bytes, waiting) = step(&mut streamed)?;
@@ -111,7 +119,7 @@ fn main() -> mixvol::Result<()> {
         ctx.info().name
     );
     println!(
-        "| source | plan_brick_levels median ms | max ms | of which staging (reads, packing), median ms | MB staged |"
+        "| source | update median ms | max ms | of which staging (reads, packing), median ms | MB staged |"
     );
     println!("|---|---|---|---|---|");
     println!(

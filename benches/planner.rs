@@ -354,7 +354,7 @@ fn main() {
 }
 
 /// The level choice for any number of levels (`plan::LevelChooser::choose`, what
-/// `VolumePass::plan_brick_levels` runs each view) on the same grid, every level the bricks
+/// `VolumePass::update` runs for each view of a level source) on the same grid, every level the bricks
 /// take (`cache::pyramid_levels`), the slot budget binding (an eighth of the bricks),
 /// hysteresis against the last choice, one chooser kept across the views as a host keeps it.
 /// Rows: the still camera (settled, then the same view again: the chooser returns its last

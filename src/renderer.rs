@@ -194,8 +194,8 @@ impl Renderer {
     /// [`Renderer::set_residency_config`]) until [`Renderer::set_levels`] or
     /// [`Renderer::stage_levels`] takes over (for tests and fixed patterns). A level source
     /// given no levels (an empty slice) is planned alike, inside each render's submission (its
-    /// uploads and fixups in the frame's timing), until [`Renderer::set_brick_levels`] or
-    /// [`Renderer::plan_brick_levels`] takes over; one given its levels draws them.
+    /// uploads and fixups in the frame's timing), until [`Renderer::set_brick_levels`] takes
+    /// over; one given its levels draws them (and [`Renderer::update`] plans it explicitly).
     pub fn set_source(&mut self, source: VolumeSource<'_>) -> Result<()> {
         self.probe = None;
         // A level source given its levels draws them; one given none is planned.
@@ -253,26 +253,10 @@ impl Renderer {
         self.pass.last_level_update()
     }
 
-    /// Chooses the level of every brick of a three-level source from `camera` and `settings`
-    /// (culling what the transfer function leaves empty; see
-    /// [`VolumePass::plan_brick_levels`]), uploads what changed, runs the fixups, and waits. A
-    /// streamed source ([`VolumeSource::LevelStream`]) steps only onto stored bricks in RAM and
-    /// never waits for its reader. Renders no longer plan residency themselves (the caller
-    /// does; until the next [`Renderer::set_source`] or [`Renderer::set_planned`]).
-    pub fn plan_brick_levels(
-        &mut self,
-        camera: &Camera,
-        settings: &RenderSettings,
-        width: u32,
-        height: u32,
-        target_pixels: f32,
-    ) -> Result<crate::plan::LevelChoice> {
-        self.planned = false;
-        let choice = self
-            .pass
-            .plan_brick_levels(camera, settings, width, height, target_pixels)?;
-        self.flush()?;
-        Ok(choice)
+    /// The last choice of levels from the camera of a level source (see
+    /// [`VolumePass::last_level_choice`]).
+    pub fn last_level_choice(&self) -> Option<&crate::plan::LevelChoice> {
+        self.pass.last_level_choice()
     }
 
     /// Plans the residency of a brick-cache source from `camera` as the next
@@ -331,6 +315,11 @@ impl Renderer {
     /// Budgets and tuning of camera-driven residency (see [`VolumePass::set_residency_config`]).
     pub fn set_residency_config(&mut self, config: ResidencyConfig) {
         self.pass.set_residency_config(config);
+    }
+
+    /// The budgets and tuning of camera-driven residency.
+    pub fn residency_config(&self) -> ResidencyConfig {
+        self.pass.residency_config()
     }
 
     /// The last planned frame's plan (see [`VolumePass::last_plan`]).

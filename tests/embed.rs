@@ -255,7 +255,7 @@ enum InFlightSource {
     /// The two-level brick cache, its levels set by the host (`set_levels`).
     TwoLevel,
     /// A level source (`VolumeSource::Levels`), its levels chosen from each frame's camera
-    /// (`plan_brick_levels`, alternating targets so that the levels change).
+    /// (`VolumePass::update` with alternating error thresholds, so that the levels change).
     Levels,
 }
 
@@ -386,7 +386,10 @@ fn frames_in_flight(source: InFlightSource) {
                 // Fine and coarse targets in turn: the levels change every frame or two.
                 let before = pass.brick_levels().unwrap().to_vec();
                 let target = [0.3, 2.0, 6.0][i % 3];
-                pass.plan_brick_levels(&camera, &RenderSettings::default(), size, size, target)
+                let mut config = pass.residency_config();
+                config.options.error_threshold = target;
+                pass.set_residency_config(config);
+                pass.update(&camera, size, size, &RenderSettings::default())
                     .unwrap();
                 level_changes += usize::from(pass.brick_levels().unwrap() != &before[..]);
             } else if i % 3 == 0 {

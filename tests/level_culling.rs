@@ -1,4 +1,4 @@
-//! Value culling of a three-level source (issue 19, item 4): `plan_brick_levels` leaves undrawn
+//! Value culling of a three-level source (issue 19, item 4): `Renderer::update` leaves undrawn
 //! the bricks whose conservative range the transfer function maps to zero opacity, which saves
 //! their slots and changes no pixel, and culls nothing where the mode reads every value.
 
@@ -98,9 +98,7 @@ fn culled_bricks_save_slots_and_change_no_pixel() {
             })
             .unwrap();
         // A tiny target: every brick in view wants level 0.
-        let choice = renderer
-            .plan_brick_levels(&camera, &settings, 48, 48, 0.01)
-            .unwrap();
+        let choice = common::step_levels(&mut renderer, &camera, &settings, 48, 48, 0.01).unwrap();
         let culled: Vec<UVec3> = (0..grid.brick_count())
             .filter(|&i| choice.levels[i].is_none())
             .map(|i| grid.brick_coords(i))
@@ -127,9 +125,7 @@ fn culled_bricks_save_slots_and_change_no_pixel() {
             mode: RenderMode::Mip,
             ..settings
         };
-        let choice = renderer
-            .plan_brick_levels(&camera, &mip, 48, 48, 0.01)
-            .unwrap();
+        let choice = common::step_levels(&mut renderer, &camera, &mip, 48, 48, 0.01).unwrap();
         assert!(choice.levels.iter().all(Option::is_some));
     }
     common::finish(ctx);

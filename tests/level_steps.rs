@@ -214,9 +214,8 @@ fn a_budgeted_source_reaches_the_wanted_levels_in_steps() {
         let mut waiting = Vec::new();
         let mut uploaded = Vec::new();
         loop {
-            let choice = renderer
-                .plan_brick_levels(&camera, &settings, 40, 40, 0.5)
-                .unwrap();
+            let choice =
+                common::step_levels(&mut renderer, &camera, &settings, 40, 40, 0.5).unwrap();
             waiting.push(choice.waiting);
             // A hard cap (review H2): every stored brick the step uploads counts, new ones,
             // re-fixed neighbours and moved ones alike.

@@ -171,12 +171,8 @@ fn a_level_store_draws_as_the_volume_in_ram() {
             assert_matches(name, &a, &reference_frame(&from_store, &store));
         }
         // Levels chosen from the camera (four pixels per drawn voxel wanted: a mix of levels).
-        from_store
-            .plan_brick_levels(&camera(), &settings(), W, W, 4.0)
-            .unwrap();
-        from_ram
-            .plan_brick_levels(&camera(), &settings(), W, W, 4.0)
-            .unwrap();
+        common::step_levels(&mut from_store, &camera(), &settings(), W, W, 4.0).unwrap();
+        common::step_levels(&mut from_ram, &camera(), &settings(), W, W, 4.0).unwrap();
         let chosen = from_store.brick_levels().unwrap().to_vec();
         assert_eq!(Some(chosen.as_slice()), from_ram.brick_levels());
         let distinct: std::collections::BTreeSet<_> = chosen.iter().flatten().collect();
@@ -293,8 +289,7 @@ fn an_unreadable_stored_brick_falls_back_and_is_counted() {
         let (mut failed, mut last) = (0, Vec::new());
         let mut settled = None;
         for step in 0..12 {
-            let choice = renderer
-                .plan_brick_levels(&camera, &settings(), W, W, 0.5)
+            let choice = common::step_levels(&mut renderer, &camera, &settings(), W, W, 0.5)
                 .unwrap_or_else(|e| panic!("step {step}: a failed read aborted the view: {e}"));
             failed += choice.failed_reads;
             let now = renderer.brick_levels().unwrap().to_vec();
@@ -444,7 +439,7 @@ fn two_levels_take_the_two_level_caches_slots() {
 /// per-frame cap (and the frame's GPU timing covers that upload), the report counts bricks per
 /// level and those still waiting, the frames converge (nothing waits, nothing uploads) to a
 /// plan that fills the slots and draws what the CPU reference draws for its levels; the same
-/// step a caller takes with `plan_brick_levels` stops the renders' own planning.
+/// levels a caller sets (`set_brick_levels`) stop the renders' own planning.
 #[test]
 fn a_level_store_given_no_levels_is_planned_by_every_render() {
     let ctx = common::validated_context();
@@ -550,15 +545,13 @@ fn a_level_store_given_no_levels_is_planned_by_every_render() {
         assert_eq!(report.residency.uploaded_bytes, 0, "{report:?}");
         assert_matches("stepped", &f, &reference_frame(&stepped, &store));
         drop(stepped);
-        // A caller's own step takes over: renders draw what it staged.
-        renderer
-            .plan_brick_levels(&camera(), &settings(), W, W, 4.0)
-            .unwrap();
+        // Levels the caller sets take over: renders draw them and plan no more.
+        let coarsest = vec![Some(store.level_count() - 1); count];
+        renderer.set_brick_levels(&coarsest).unwrap();
         assert!(!renderer.is_planned());
-        let before = renderer.brick_levels().unwrap().to_vec();
         let f = renderer.render(&camera(), &settings(), W, W).unwrap();
         assert!(f.residency.is_none());
-        assert_eq!(renderer.brick_levels().unwrap(), &before[..]);
+        assert_eq!(renderer.brick_levels().unwrap(), &coarsest[..]);
         drop(renderer);
         let _ = std::fs::remove_file(&path);
     }

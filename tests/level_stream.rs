@@ -372,14 +372,11 @@ fn a_streamed_level_store_steps_onto_bricks_in_ram_and_reaches_the_camera_plan()
         let at_attach = streamer.stats().blocking_reads;
         assert!(at_attach >= 1, "attaching reads the coarsest level");
 
-        let choice = streamed
-            .plan_brick_levels(&camera(), &settings(), W, W, TARGET_PX)
-            .unwrap();
+        let choice =
+            common::step_levels(&mut streamed, &camera(), &settings(), W, W, TARGET_PX).unwrap();
         assert_eq!(streamed.brick_levels().unwrap(), &coarsest[..]);
         assert!(choice.waiting > 0, "the camera wants finer levels");
-        direct
-            .plan_brick_levels(&camera(), &settings(), W, W, TARGET_PX)
-            .unwrap();
+        common::step_levels(&mut direct, &camera(), &settings(), W, W, TARGET_PX).unwrap();
         let wanted = direct.brick_levels().unwrap().to_vec();
         assert_eq!(choice.levels, wanted);
         let distinct: std::collections::BTreeSet<_> = wanted.iter().flatten().collect();
@@ -389,9 +386,9 @@ fn a_streamed_level_store_steps_onto_bricks_in_ram_and_reaches_the_camera_plan()
         let mut steps = 0;
         loop {
             assert!(streamer.wait_idle(WAIT));
-            let choice = streamed
-                .plan_brick_levels(&camera(), &settings(), W, W, TARGET_PX)
-                .unwrap();
+            let choice =
+                common::step_levels(&mut streamed, &camera(), &settings(), W, W, TARGET_PX)
+                    .unwrap();
             steps += 1;
             // A hard cap (review H2), re-fixed and moved bricks included.
             let update = streamed.last_level_update().unwrap();
@@ -459,9 +456,7 @@ fn the_ram_budget_cuts_the_request_list() {
                 ..ResidencyConfig::default()
             });
             let before = streamer.stats().bytes_read;
-            renderer
-                .plan_brick_levels(&camera(), &settings(), W, W, 1.5)
-                .unwrap();
+            common::step_levels(&mut renderer, &camera(), &settings(), W, W, 1.5).unwrap();
             assert!(streamer.wait_idle(WAIT));
             let stats = streamer.stats();
             assert!(stats.wanted_bricks > 0, "{ram_bytes:?}: {stats:?}");

@@ -227,17 +227,14 @@ fn a_remote_pyramid_streams_at_the_cameras_levels_and_matches_the_reference() {
         let coarsest = renderer.brick_levels().unwrap().to_vec();
         assert!(coarsest.iter().all(|l| *l == Some(5)));
         let at_attach = streamer.stats().blocking_reads;
-        let first = renderer
-            .plan_brick_levels(&camera(), &settings(), W, W, 3.0)
-            .unwrap();
+        let first = common::step_levels(&mut renderer, &camera(), &settings(), W, W, 3.0).unwrap();
         assert_eq!(renderer.brick_levels().unwrap(), &coarsest[..]);
         assert!(first.waiting > 0);
         let mut steps = 0;
         loop {
             assert!(streamer.wait_idle(Duration::from_secs(60)));
-            let choice = renderer
-                .plan_brick_levels(&camera(), &settings(), W, W, 3.0)
-                .unwrap();
+            let choice =
+                common::step_levels(&mut renderer, &camera(), &settings(), W, W, 3.0).unwrap();
             steps += 1;
             if choice.waiting == 0 {
                 break;

@@ -1,6 +1,6 @@
 //! The three-level sources of the pass ([`VolumeSource::Levels`](super::VolumeSource::Levels), [`VolumeSource::LevelStore`](super::VolumeSource::LevelStore)):
 //! their state on the GPU ([`LevelState`]), attaching one, and moving it to other levels
-//! (`set_brick_levels`, and through `plan_brick_levels` in `residency.rs`).
+//! (`set_brick_levels`, and through `update` in `residency.rs`).
 
 use super::source::{MixedConfig, Source};
 use super::VolumePass;
@@ -31,7 +31,7 @@ pub(crate) struct LevelState {
     grid: crate::bricks::BrickGrid,
     data: LevelData,
     geometry: SlotGeometry,
-    /// The brick grid in world space (for [`VolumePass::plan_brick_levels`]).
+    /// The brick grid in world space (for [`VolumePass::update`]).
     pub(super) bricks: BrickGeometry,
     /// The level of every brick drawn now.
     pub(super) current: Vec<Option<u32>>,
@@ -46,8 +46,9 @@ pub(crate) struct LevelState {
     pub(super) facts: LevelPlanFacts,
     /// Which stored bricks the cache holds where (residency changes upload only what changed).
     pub(super) residency: LevelResidency,
-    /// The levels the last camera choice wanted (drawn once their bricks are uploaded).
-    pub(super) wanted: Vec<Option<u32>>,
+    /// The last camera choice ([`VolumePass::update`]): the levels it wanted (drawn once
+    /// their bricks are uploaded) and its counts.
+    pub(super) last_choice: Option<crate::plan::LevelChoice>,
     /// The camera's level chooser, with its buffers (kept between views).
     pub(super) chooser: crate::plan::LevelChooser,
     /// What the last residency change moved.
@@ -407,7 +408,7 @@ impl VolumePass {
                 any_absent: true,
             },
             residency: LevelResidency::new(&geometry, grid.brick_count()),
-            wanted: Vec::new(),
+            last_choice: None,
             chooser: crate::plan::LevelChooser::new(),
             last_update: None,
             cull_ranges,
@@ -443,6 +444,16 @@ impl VolumePass {
     pub fn last_level_update(&self) -> Option<&LevelUpdateReport> {
         match &self.source {
             Source::Levels(state) => state.last_update.as_ref(),
+            _ => None,
+        }
+    }
+
+    /// The last choice of levels from the camera of a level source ([`VolumePass::update`]):
+    /// the level each brick wants, the slots, the bricks still waiting, dropped or failed, the
+    /// largest voxel on screen (`None` for other sources, and before the first update).
+    pub fn last_level_choice(&self) -> Option<&crate::plan::LevelChoice> {
+        match &self.source {
+            Source::Levels(state) => state.last_choice.as_ref(),
             _ => None,
         }
     }

@@ -29,7 +29,7 @@ use crate::levels::LevelUpdateReport;
 use crate::lod::{cull_bricks, CullParams, LodView, ValueCulling};
 use crate::plan::{
     admit_by_budget, cull_params, level_margin, next_target, step_towards, FrameInput, FramePlan,
-    LevelChoice, LevelRequest, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
+    LevelRequest, PlanBudget, PlanOptions, PlanReport, ResidencyPlanner,
 };
 use crate::scene::{Camera, RenderSettings};
 use crate::volume::ScalarType;
@@ -44,7 +44,7 @@ pub struct ResidencyConfig {
     /// Bytes of brick level changes uploaded per frame at most. Two-level sources: the
     /// planner's budget (the cache's compaction moves and border restores come on top, see
     /// [`crate::plan`]); it should hold one hi-res and two low-res bricks, or a still camera may
-    /// not converge. Level sources ([`VolumePass::plan_brick_levels`]): a hard cap on every
+    /// not converge. Level sources ([`VolumePass::update`]): a hard cap on every
     /// stored brick a step uploads, moves and re-fixed neighbours included; at least
     /// [`MIN_STEP_BRICKS`] level-0 stored bricks.
     pub upload_bytes_per_frame: u64,
@@ -54,7 +54,7 @@ pub struct ResidencyConfig {
     pub ram_bytes: Option<u64>,
     /// Planner tuning (error threshold, hysteresis).
     pub options: PlanOptions,
-    /// Level sources ([`VolumePass::plan_brick_levels`]): weigh each brick's on-screen voxel
+    /// Level sources ([`VolumePass::update`]): weigh each brick's on-screen voxel
     /// size by its value-range width as a fraction of the volume's (the two-level planner's
     /// screen-space error, which it always uses): a brick of narrow range is drawn
     /// `log2(1 / width)` levels coarser for the same target, one of a single value only as
@@ -160,14 +160,21 @@ impl VolumePass {
     /// nothing and needs no wait (the staged bytes go to the frame slot `record` is given).
     ///
     /// A level source ([`VolumeSource::Levels`], [`VolumeSource::LevelStore`],
-    /// [`VolumeSource::LevelStream`]) is planned by [`VolumePass::plan_brick_levels`] for the
+    /// [`VolumeSource::LevelStream`]) is planned by levels chosen from the camera for the
     /// target [`PlanOptions::error_threshold`] (0, the default: [`BUDGET_DRIVEN_TARGET_PIXELS`],
     /// the slots decide, as for two levels) and reported alike: [`FrameReport::per_level`],
     /// [`FrameReport::waiting`], the plan's culled and dropped bricks, slots and upload bytes
     /// against their budgets (its `wanted_hi` ... `drawn_lo` stay 0), the choice's largest voxel
     /// on screen in pixels as the worst screen-space error ([`PlanReport::max_drawn_error`];
     /// weighted by value range with [`ResidencyConfig::weigh_by_value`]), the step's uploads,
-    /// and the failed reads as source errors.
+    /// and the failed reads as source errors. Each update takes one step towards the choice
+    /// ([`VolumePass::last_level_choice`]): at most one level finer per brick, within the upload
+    /// budget as a hard cap (re-fixed neighbours and moved bricks counted; a budget below
+    /// [`MIN_STEP_BRICKS`] level-0 stored bricks is an error), a streamed store only onto
+    /// stored bricks its reader holds in RAM (never reading the disk on this thread but for a
+    /// drawn brick evicted under a tight RAM budget); a failed read keeps its region at the
+    /// level it draws and is counted, and a cache too small for the coarsest plan draws the
+    /// most important bricks only ([`PlanReport::dropped`]).
     ///
     /// [`VolumeSource::Levels`]: super::VolumeSource::Levels
     /// [`VolumeSource::LevelStore`]: super::VolumeSource::LevelStore
@@ -304,49 +311,35 @@ impl VolumePass {
 }
 
 impl VolumePass {
-    /// Chooses the level of every brick of a three-level source ([`VolumeSource::Levels`],
-    /// [`VolumeSource::LevelStore`]) for a frame of `camera` (world space) with `settings` at
-    /// `width` x `height` pixels, with drawn voxels at most `target_pixels` on screen where the
-    /// cache allows (each voxel's size weighted by its brick's value range with
-    /// [`ResidencyConfig::weigh_by_value`]) ([`crate::plan::LevelChooser`], with hysteresis
-    /// against the last choice), and stages a step towards it (the next
-    /// [`VolumePass::record`] uploads what changed): the step refines at most one level per brick
-    /// and uploads at most [`ResidencyConfig::upload_bytes_per_frame`] bytes, counting every
-    /// stored brick it uploads (new ones, kept ones whose coarser neighbours changed, ones moved
-    /// to make room); a step that does not fit waits ([`crate::plan::next_target`],
-    /// [`crate::plan::admit_by_budget`], [`crate::plan::step_towards`]). The returned choice
-    /// counts the bricks still waiting, and calling again (a frame later) goes on. Bricks the
-    /// pass's transfer function
-    /// (or iso-value, or clip planes) leaves empty are culled by their conservative ranges
-    /// (`crate::levels::conservative_ranges`): not drawn, taking no slot, unless a drawn block
-    /// covers them. A streamed store ([`VolumeSource::LevelStream`]) steps only onto stored
-    /// bricks its streamer holds in RAM (it waits, drawing what it has, while they are read)
-    /// and then requests the next step's bricks, the drawn ones and the rest of the wanted
-    /// plan, in that order: the call never reads the disk, except for a drawn brick whose
-    /// coarser neighbour changed and that the streamer evicted under a tight RAM budget.
-    /// Errors: another kind of source, a bad view, settings or target, an upload budget below
-    /// [`MIN_STEP_BRICKS`] level-0 stored bricks. A cache too small for the coarsest plan is no
-    /// error: the least important bricks are not drawn ([`LevelChoice::dropped`]).
+    /// [`VolumePass::update`] of a level source ([`VolumeSource::Levels`],
+    /// [`VolumeSource::LevelStore`], [`VolumeSource::LevelStream`]): chooses the level of
+    /// every brick for a frame of `camera` (world space) with `settings` at `width` x `height`
+    /// pixels, with drawn voxels at most [`PlanOptions::error_threshold`] pixels on screen
+    /// ([`BUDGET_DRIVEN_TARGET_PIXELS`] for 0) where the cache allows (each voxel's size
+    /// weighted by its brick's value range with [`ResidencyConfig::weigh_by_value`])
+    /// ([`crate::plan::LevelChooser`], with hysteresis against the last choice), and stages a
+    /// step towards it (the next [`VolumePass::record`] uploads what changed): the step refines
+    /// at most one level per brick and uploads at most
+    /// [`ResidencyConfig::upload_bytes_per_frame`] bytes, counting every stored brick it
+    /// uploads (new ones, kept ones whose coarser neighbours changed, ones moved to make room);
+    /// a step that does not fit waits ([`crate::plan::next_target`],
+    /// [`crate::plan::admit_by_budget`], [`crate::plan::step_towards`]). The choice
+    /// ([`VolumePass::last_level_choice`]) counts the bricks still waiting, and the next update
+    /// goes on. Bricks the pass's transfer function (or iso-value, or clip planes) leaves
+    /// empty are culled by their conservative ranges (`crate::levels::conservative_ranges`):
+    /// not drawn, taking no slot, unless a drawn block covers them. A streamed store
+    /// ([`VolumeSource::LevelStream`]) steps only onto stored bricks its streamer holds in RAM
+    /// (it waits, drawing what it has, while they are read) and then requests the next step's
+    /// bricks, the drawn ones and the rest of the wanted plan, in that order, cut to
+    /// [`ResidencyConfig::ram_bytes`]: the call never reads the disk, except for a drawn brick
+    /// whose coarser neighbour changed and that the streamer evicted under a tight RAM budget.
+    /// Errors: a bad view, settings or target, an upload budget below [`MIN_STEP_BRICKS`]
+    /// level-0 stored bricks. A cache too small for the coarsest plan is no error: the least
+    /// important bricks are not drawn ([`crate::plan::LevelChoice::dropped`]).
     ///
     /// [`VolumeSource::Levels`]: super::VolumeSource::Levels
     /// [`VolumeSource::LevelStore`]: super::VolumeSource::LevelStore
     /// [`VolumeSource::LevelStream`]: super::VolumeSource::LevelStream
-    pub fn plan_brick_levels(
-        &mut self,
-        camera: &Camera,
-        settings: &RenderSettings,
-        width: u32,
-        height: u32,
-        target_pixels: f32,
-    ) -> Result<LevelChoice> {
-        Ok(self
-            .step_levels(camera, settings, width, height, target_pixels)?
-            .choice)
-    }
-
-    /// [`VolumePass::update`] of a level source: [`VolumePass::plan_brick_levels`] for the
-    /// target of [`PlanOptions::error_threshold`] ([`BUDGET_DRIVEN_TARGET_PIXELS`] for 0), its
-    /// choice and step as a [`FrameReport`].
     fn update_levels(
         &mut self,
         camera: &Camera,
@@ -365,7 +358,9 @@ impl VolumePass {
         let Source::Levels(state) = &self.source else {
             return Err(Error::InvalidInput("the level source went away".into()));
         };
-        let choice = &step.choice;
+        let Some(choice) = &state.last_choice else {
+            return Err(Error::InvalidInput("the level step chose nothing".into()));
+        };
         let mut per_level = vec![LevelCounts::default(); state.level_count() as usize];
         for (&wanted, &drawn) in choice.levels.iter().zip(&state.current) {
             if let Some(l) = wanted {
@@ -411,7 +406,8 @@ impl VolumePass {
         })
     }
 
-    /// [`VolumePass::plan_brick_levels`], with what the step staged.
+    /// One step of [`VolumePass::update`] for a level source towards `target_pixels` (its
+    /// choice kept as the source's last), with what the step staged.
     fn step_levels(
         &mut self,
         camera: &Camera,
@@ -428,8 +424,8 @@ impl VolumePass {
         let tf = self.tables.transfer_function();
         let Source::Levels(state) = &mut self.source else {
             return Err(Error::InvalidInput(
-                "plan_brick_levels needs a three-level source (VolumeSource::Levels or \
-                 LevelStore)"
+                "a level step needs a level source (VolumeSource::Levels, LevelStore or \
+                 LevelStream)"
                     .into(),
             ));
         };
@@ -466,7 +462,7 @@ impl VolumePass {
                 levels,
                 slots,
                 target_pixels,
-                previous: &state.wanted,
+                previous: state.last_choice.as_ref().map_or(&[], |c| &c.levels),
                 margin: level_margin(self.residency.options.hysteresis),
             })?
             .clone();
@@ -504,7 +500,6 @@ impl VolumePass {
             .zip(&choice.levels)
             .filter(|(d, w)| d != w)
             .count();
-        state.wanted = choice.levels.clone();
         if let Some(streamer) = state.streamer() {
             let mut keys = stream_request(state, &view, &choice.levels);
             if let Some(ram) = self.residency.ram_bytes {
@@ -512,8 +507,8 @@ impl VolumePass {
             }
             streamer.request(&keys);
         }
+        state.last_choice = Some(choice);
         Ok(LevelStep {
-            choice,
             staged,
             culled,
             first_error,
@@ -522,9 +517,9 @@ impl VolumePass {
     }
 }
 
-/// What one step of a level source chose and staged ([`VolumePass::plan_brick_levels`]).
+/// What one step of a level source staged ([`VolumePass::update`]; its choice is the
+/// source's last).
 struct LevelStep {
-    choice: LevelChoice,
     /// What the step staged (`None`: nothing changed).
     staged: Option<LevelUpdateReport>,
     /// Bricks culled.
@@ -538,10 +533,10 @@ struct LevelStep {
 /// The stored bricks of the largest single step of a level source, in level-0 stored bricks: a
 /// brick refined to level 0 (or coarsened from it) and its 26 level-0 neighbours, whose
 /// fixed-up borders go stale and are uploaded again. An upload budget of this many level-0
-/// stored bricks always lets some step move (`VolumePass::plan_brick_levels` refuses less).
+/// stored bricks always lets some step move ([`VolumePass::update`] refuses less).
 pub const MIN_STEP_BRICKS: u64 = 27;
 
-/// Failed stored-brick reads `VolumePass::plan_brick_levels` plans around within one call
+/// Failed stored-brick reads [`VolumePass::update`] plans around within one call
 /// (each read once); past them the call keeps the drawn levels and goes on at the next.
 const MAX_FAILED_READS_PER_CALL: usize = 8;
 
@@ -659,7 +654,7 @@ fn stream_request(state: &LevelState, view: &LodView, wanted: &[Option<u32>]) ->
 ///   the cache's slots; when no prefix does, the first such brick alone that does (a brick
 ///   with fewer finer neighbours to fix up again costs less);
 /// - else the drawn levels: the step waits (a budget below one stored brick and the
-///   neighbours it makes stale never moves; `plan_brick_levels` refuses a budget below
+///   neighbours it makes stale never moves; `update` refuses a budget below
 ///   [`MIN_STEP_BRICKS`] level-0 stored bricks).
 ///
 /// A streamed source admits only stored bricks in its streamer's RAM, and a step that moves

@@ -59,7 +59,7 @@ pub enum VolumeSource<'a> {
     /// at the levels the host gives, one per brick: `Some(0)` full resolution, `Some(k)` the
     /// vertex level `k` of [`crate::pyramid::LevelGrid::vertex_pyramid`], `None` not drawn (an
     /// empty slice: every brick at the coarsest level, a start for
-    /// `VolumePass::plan_brick_levels`). Face-, edge- and corner-adjacent drawn bricks must
+    /// `VolumePass::update`). Face-, edge- and corner-adjacent drawn bricks must
     /// differ by at most one level; past
     /// level 2 (bricks of at least 8 voxels) the bricks of a level come in aligned blocks of
     /// [`crate::cache::block_bricks`]`(k)` per axis, each stored as one level-2-sized brick, up to
@@ -67,10 +67,9 @@ pub enum VolumeSource<'a> {
     /// The cache holds texels of the volume's scalar type (u8 / u16 UNORM: transitions between
     /// vertex levels then jump by at most half a step, `docs/cache-layout.md`; f32: C0
     /// everywhere); `config.filter` builds level 1 from level 0 (the two-level cache's low-res
-    /// samples of that filter), every coarser level is the pyramid's tent or mean. The
-    /// two-level planner does not drive it; `VolumePass::plan_brick_levels` chooses levels
-    /// from a camera, else renders draw these levels until the next `set_brick_levels` or
-    /// `set_source`.
+    /// samples of that filter), every coarser level is the pyramid's tent or mean.
+    /// `VolumePass::update` chooses levels from the camera (the levels given are where it
+    /// starts); `VolumePass::set_brick_levels` sets them explicitly.
     Levels {
         /// The volume (shared: level 0's stored bricks are cut from it whenever they are
         /// uploaded, so no f32 copy of it is held; level 1 and coarser are, about 0.57 bytes
@@ -96,7 +95,7 @@ pub enum VolumeSource<'a> {
         config: MixedConfig,
     },
     /// A level store drawn as [`VolumeSource::LevelStore`] draws it, its stored bricks read on
-    /// the streamer's background thread: [`VolumePass::plan_brick_levels`](super::VolumePass::plan_brick_levels)
+    /// the streamer's background thread: [`VolumePass::update`](super::VolumePass::update)
     /// steps only onto bricks already in RAM (never waiting on the disk) and tells the streamer
     /// what to read next (`crate::store::LevelStreamer`'s module docs). Attaching the source and
     /// [`VolumePass::set_brick_levels`](super::VolumePass::set_brick_levels) read what is not in

@@ -7,7 +7,7 @@
 //! includes `mixed.glsl`, unchanged: a level-0 brick blends, a coarser one is a plain fetch).
 //!
 //! The levels come from the host (`renderer::Renderer::set_brick_levels`) or from the
-//! camera (`renderer::Renderer::plan_brick_levels`, [`crate::plan::choose_levels`]), for a
+//! camera (`renderer::Renderer::update`, [`crate::plan::choose_levels`]), for a
 //! volume in RAM, a level store, or stored bricks streamed in the background
 //! ([`crate::store::LevelStreamer`]: a level store, an OME-Zarr pyramid);
 //! [`GpuLevelCache`] fills a cache once to read the field and the cache back (the tests check

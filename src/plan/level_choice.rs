@@ -50,14 +50,14 @@ pub struct LevelChoice {
     /// resolution already): the target, grown by what the budget forced.
     pub pixels_per_voxel: f32,
     /// Bricks whose chosen level is not drawn yet because its stored brick waits for a later
-    /// step's upload budget (`VolumePass::plan_brick_levels`; 0 from [`choose_levels`]).
+    /// step's upload budget (`VolumePass::update`; 0 from [`choose_levels`]).
     pub waiting: usize,
     /// Bricks not drawn because the cache cannot hold even the coarsest plan: the least
     /// important blocks of the coarsest level (out of view first, then the farthest) are
     /// dropped until it fits (module docs, step 0). 0 when the cache holds the coarsest plan.
     pub dropped: usize,
     /// Stored bricks whose read failed while this view was staged
-    /// (`VolumePass::plan_brick_levels`; 0 from [`choose_levels`]): each is kept out of every
+    /// (`VolumePass::update`; 0 from [`choose_levels`]): each is kept out of every
     /// later step, so its region keeps the level it draws (a coarser one), and the step is
     /// planned again without it.
     pub failed_reads: usize,

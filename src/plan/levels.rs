@@ -50,7 +50,7 @@
 //! last plan drew whole is refined only once its priority is `margin` above zero, so a camera
 //! that hovers at a boundary does not move bricks back and forth.
 //!
-//! The host calls it per view through `embed::VolumePass::plan_brick_levels`, which moves the
+//! The host calls it per view through `embed::VolumePass::update`, which moves the
 //! cache towards its choice under the per-frame upload budget ([`super::step_towards`]) and, for
 //! a streamed source, onto the stored bricks its [`crate::store::LevelStreamer`] holds in RAM.
 

@@ -222,3 +222,26 @@ pub fn coverage(actual: &[Vec4], expected: &[Vec4], covered_alpha: f32, large: f
         diff,
     }
 }
+
+/// One camera-driven residency step of a level source towards drawn voxels of at most
+/// `target_pixels` on screen: `Renderer::update` with that error threshold (the renderer's
+/// other budgets kept), and the choice it made. Renders then draw what the steps staged
+/// without planning on their own (the caller steps).
+pub fn step_levels(
+    renderer: &mut mixvol::renderer::Renderer,
+    camera: &mixvol::scene::Camera,
+    settings: &mixvol::scene::RenderSettings,
+    width: u32,
+    height: u32,
+    target_pixels: f32,
+) -> mixvol::Result<mixvol::plan::LevelChoice> {
+    let mut config = renderer.residency_config();
+    config.options.error_threshold = target_pixels;
+    renderer.set_residency_config(config);
+    renderer.set_planned(false);
+    renderer.update(camera, settings, width, height)?;
+    Ok(renderer
+        .last_level_choice()
+        .expect("a level source's update chooses")
+        .clone())
+}

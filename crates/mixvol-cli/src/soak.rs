@@ -7,7 +7,7 @@
 //! elevation every [`BOB_FRAMES`] frames (periods with no common factor, so the path does not
 //! repeat within a soak), so the planner changes brick levels every few frames. A three-level
 //! scene (a level store, or `--levels camera`) chooses its levels from the camera before every
-//! frame (`plan_brick_levels`, the level store's bricks streamed in the background) and prints
+//! frame (each render plans, the level store's bricks streamed in the background) and prints
 //! the levels it drew.
 //!
 //! Every `max(1, N / 1000)` frames (and at the end of the warm-up and the last frame) it samples

@@ -5,7 +5,7 @@
 //!
 //! - **Wanted set.** [`LevelStreamer::request`] replaces the wanted set with a list of stored
 //!   bricks `(level, first brick)`, highest priority first (duplicates keep their first place).
-//!   It only takes a short lock. `renderer::Renderer::plan_brick_levels` requests, in
+//!   It only takes a short lock. `renderer::Renderer::update` requests, in
 //!   this order: the bricks of its next step towards the wanted plan, the stored bricks drawn
 //!   now (a change of a coarser neighbour uploads them again), then the rest of the wanted plan.
 //! - **Loading.** [`LevelStreamConfig::loaders`] background threads read the wanted bricks that

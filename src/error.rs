@@ -77,6 +77,18 @@ pub enum Error {
     /// The device or instance lacks something the renderer needs.
     #[error("unsupported: {0}")]
     Unsupported(String),
+    /// A frame the caller asked to be complete shows bricks that failed to load (a corrupt
+    /// stored brick, a failed fetch): it draws nothing, or draws them at a coarser level when
+    /// no fallback was allowed.
+    #[error("{failed} bricks failed to load (first: {first}): {consequence}")]
+    FailedLoads {
+        /// Bricks (stored bricks of a level source) whose load failed.
+        failed: usize,
+        /// The first failure's message.
+        first: String,
+        /// What that means for the frame.
+        consequence: String,
+    },
     /// The caller passed something unusable.
     #[error("invalid input: {0}")]
     InvalidInput(String),

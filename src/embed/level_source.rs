@@ -64,6 +64,8 @@ pub(crate) struct LevelState {
     pub(super) failed: HashSet<(u32, usize)>,
     /// The stored brick whose read made the last [`LevelState::stage`] fail, if one did.
     pub(super) last_failed_read: Option<(u32, usize)>,
+    /// The error of the first stored brick whose read failed on the render thread.
+    pub(super) first_failure: Option<String>,
 }
 
 /// What a three-level source needs to know of its volume besides the stored bricks.
@@ -214,6 +216,32 @@ impl LevelState {
             LevelData::Streamed(streamer) => Some(streamer),
             _ => None,
         }
+    }
+
+    /// Stored bricks whose read failed since the source was attached, on the render thread or
+    /// (a streamed store) in the background: each kept out of every step, its region drawn at
+    /// a coarser level or not at all.
+    pub(super) fn failed_read_count(&self) -> usize {
+        let Some(streamer) = self.streamer() else {
+            return self.failed.len();
+        };
+        let mut keys = streamer.failed_keys();
+        if keys.is_empty() {
+            return self.failed.len();
+        }
+        keys.extend(self.failed.iter().copied());
+        keys.sort_unstable();
+        keys.dedup();
+        keys.len()
+    }
+
+    /// The error of the first failed read on the render thread, else of one in the background.
+    pub(super) fn first_failed_read(&self) -> Option<String> {
+        self.first_failure.clone().or_else(|| {
+            self.streamer()
+                .and_then(LevelStreamer::first_failure)
+                .map(|e| e.to_string())
+        })
     }
 
     /// Slots of the cache.
@@ -415,6 +443,7 @@ impl VolumePass {
             error_ranges,
             failed: HashSet::new(),
             last_failed_read: None,
+            first_failure: None,
         };
         state.stage(levels)?;
         self.source = Source::Levels(Box::new(state));

@@ -104,7 +104,10 @@ pub struct FrameReport {
     /// fetching (the planner draws them from their fallback next frame).
     pub fell_back: usize,
     /// Bricks whose wanted level failed to load in the source (drawn at a fallback level, or
-    /// absent when none is loaded).
+    /// absent when none is loaded). A level source: the stored bricks whose read failed since
+    /// it was attached, on the render thread or in a streamer's background (each kept out of
+    /// every step, its region drawn at a coarser level or not at all). A host that must not
+    /// show a fallback (a batch render) treats a non-zero count as an error.
     pub source_errors: usize,
     /// The first of those errors, for the host's log.
     pub first_source_error: Option<String>,
@@ -167,7 +170,7 @@ impl VolumePass {
     /// against their budgets (its `wanted_hi` ... `drawn_lo` stay 0), the choice's largest voxel
     /// on screen in pixels as the worst screen-space error ([`PlanReport::max_drawn_error`];
     /// weighted by value range with [`ResidencyConfig::weigh_by_value`]), the step's uploads,
-    /// and the failed reads as source errors. Each update takes one step towards the choice
+    /// and the stored bricks whose read failed since the source was attached as source errors. Each update takes one step towards the choice
     /// ([`VolumePass::last_level_choice`]): at most one level finer per brick, within the upload
     /// budget as a hard cap (re-fixed neighbours and moved bricks counted; a budget below
     /// [`MIN_STEP_BRICKS`] level-0 stored bricks is an error), a streamed store only onto
@@ -396,8 +399,8 @@ impl VolumePass {
             plan,
             residency,
             fell_back: 0,
-            source_errors: choice.failed_reads,
-            first_source_error: step.first_error,
+            source_errors: state.failed_read_count(),
+            first_source_error: state.first_failed_read(),
             cache_bytes: state.cache_bytes(),
             per_level,
             waiting: choice.waiting,
@@ -470,7 +473,7 @@ impl VolumePass {
         // (its region keeps the level it draws), at most a few times a call.
         let mut drawn = budgeted_step(state, &view, &choice.levels, budget);
         let plan_ms = plan_start.elapsed().as_secs_f64() * 1e3;
-        let (mut staged, mut first_error) = (None, None);
+        let mut staged = None;
         for _ in 0..MAX_FAILED_READS_PER_CALL {
             if drawn == state.current {
                 break;
@@ -485,7 +488,7 @@ impl VolumePass {
                         return Err(e);
                     };
                     log::warn!("level {}, stored brick of brick {}: {e}", key.0, key.1);
-                    first_error.get_or_insert_with(|| e.to_string());
+                    state.first_failure.get_or_insert_with(|| e.to_string());
                     state.failed.insert(key);
                     choice.failed_reads += 1;
                     drawn = budgeted_step(state, &view, &choice.levels, budget);
@@ -511,7 +514,6 @@ impl VolumePass {
         Ok(LevelStep {
             staged,
             culled,
-            first_error,
             plan_ms,
         })
     }
@@ -524,8 +526,6 @@ struct LevelStep {
     staged: Option<LevelUpdateReport>,
     /// Bricks culled.
     culled: usize,
-    /// The first failed read's error.
-    first_error: Option<String>,
     /// CPU time of culling, the choice and the step's planning, in milliseconds.
     plan_ms: f64,
 }

@@ -158,6 +158,11 @@ pub struct ResidencyArgs {
     /// whatever the budget allows.
     #[arg(long, default_value_t = 0.0)]
     pub error_threshold: f32,
+    /// Exit 1 and write no image when a brick the view wants failed to load (a corrupt stored
+    /// brick, a failed fetch) and is drawn at a coarser level instead (without it: a warning
+    /// on stderr; a view that draws nothing because of failed loads is always an error).
+    #[arg(long)]
+    pub strict: bool,
 }
 
 /// The camera path: one view (the default), a turntable, a dolly or keyframes.

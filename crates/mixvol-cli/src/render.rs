@@ -325,6 +325,43 @@ fn print_cache(renderer: &Renderer, config: &MixedConfig, upload: u64, ram: Opti
     }
 }
 
+/// The first failed load's message of `report`.
+fn first_failure(report: &FrameReport) -> String {
+    report
+        .first_source_error
+        .clone()
+        .unwrap_or_else(|| "no message".into())
+}
+
+/// The bricks that failed to load in `report` (issue 42, D1 and D6): none is fine; a frame
+/// that draws nothing because of them, or (with `strict`) draws their regions at a fallback, is
+/// an error; otherwise a warning on stderr names the count and the first failure. `what`
+/// names the frame in messages.
+fn check_failed_loads(report: &FrameReport, strict: bool, what: &str) -> Result<()> {
+    let failed = report.source_errors;
+    if failed == 0 {
+        return Ok(());
+    }
+    let first = first_failure(report);
+    let drawn: usize = report.per_level.iter().map(|l| l.drawn).sum();
+    let consequence = if drawn == 0 {
+        format!("{what} draws nothing; no image written")
+    } else if strict {
+        format!("{what} would draw their regions at a coarser level (--strict); no image written")
+    } else {
+        eprintln!(
+            "warning: {failed} bricks failed to load (first: {first}); {what} draws their \
+             regions at a coarser level where one is loaded, else not at all"
+        );
+        return Ok(());
+    };
+    Err(Error::FailedLoads {
+        failed,
+        first,
+        consequence,
+    })
+}
+
 /// One line on the residency of `report`: the bricks drawn per level (level 0, full
 /// resolution, first), what was culled, dropped, is waiting or failed, the slots and the worst
 /// screen-space error.
@@ -636,6 +673,12 @@ fn render_view(
         frame = f;
         rows.push(row);
     }
+    if let Some(report) = &frame.residency {
+        if let Err(e) = check_failed_loads(report, args.residency.strict, "the view") {
+            println!("{}", residency_line(report));
+            return Err(e);
+        }
+    }
     create_parent(&args.output)?;
     frame.save_png(&args.output, args.background)?;
     println!(
@@ -698,8 +741,19 @@ fn render_path(
     create_parent(&dir.join("frame_0000.png"))?;
     let mut rows = Vec::with_capacity(cameras.len());
     let mut last = None;
+    // Failed loads (issue 42, D1 and D6): the frame with the most, and whether any frame drew.
+    let (mut failing, mut drew_any): (Option<FrameReport>, bool) = (None, false);
     for (i, camera) in cameras.iter().enumerate() {
         let (frame, row) = frame_row(renderer, ctx, i, camera, settings, args)?;
+        if let Some(report) = &frame.residency {
+            drew_any |= report.per_level.iter().any(|l| l.drawn > 0);
+            if report.source_errors > failing.as_ref().map_or(0, |r| r.source_errors) {
+                if args.residency.strict {
+                    check_failed_loads(report, true, &format!("frame {i}"))?;
+                }
+                failing = Some(report.clone());
+            }
+        }
         frame.save_png(&dir.join(format!("frame_{i:04}.png")), args.background)?;
         rows.push(row);
         last = Some(frame);
@@ -713,6 +767,18 @@ fn render_path(
         csv.display()
     );
     print_timing(&rows, "first frame included");
+    if let Some(report) = &failing {
+        let what = "the path";
+        if drew_any {
+            check_failed_loads(report, false, what)?;
+        } else {
+            return Err(Error::FailedLoads {
+                failed: report.source_errors,
+                first: first_failure(report),
+                consequence: "no frame of the path draws anything".into(),
+            });
+        }
+    }
     if scene.planned {
         let uploaded: f64 = rows.iter().map(|r| r.uploaded_mb).sum();
         let changed = rows.iter().filter(|r| r.uploaded_bricks > 0).count();

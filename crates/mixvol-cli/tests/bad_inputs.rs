@@ -114,6 +114,9 @@ const CASES: &[Case] = &[
     // Issue 42, item 3 (review D4): convert replaces only a regular file, even with --force.
     Case { name: "convert onto a FIFO with --force", args: &["convert", "ml", "{d}/store.fifo", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store.fifo", "not a regular file", "even with --force"], absent: &[] },
     Case { name: "convert onto a link with --force", args: &["convert", "ml", "{d}/store_link.mvbs", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store_link.mvbs", "symbolic link"], absent: &[] },
+    // Issue 42, items 1 and 5 (review D1, D6): a brick that fails its check is an outcome the
+    // caller sees: with --strict the image is refused, naming the failure.
+    Case { name: "corrupt stored bricks under --strict", args: &["render", "--volume", "{d}/corrupt.mvbs", "--gpu-budget-mb", "0.3", "--width", "16", "--height", "16", "--frames", "1", "--strict", "-o", "{d}/strict.png"], env: NO_ENV, code: 1, fragments: &["bricks failed to load", "is corrupt", "--strict", "no image written"], absent: &["wrote "] },
     Case { name: "--device matching nothing", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--device", "no-such-gpu-x"], env: NO_ENV, code: 1, fragments: &["matching 'no-such-gpu-x'", "devices present: "], absent: &["rejected: []"] },
 ];
 
@@ -232,6 +235,25 @@ fn fixtures(d: &Path) {
     file.extend_from_slice(&floats);
     std::fs::write(d.join("nan.nrrd"), file).unwrap();
     std::fs::create_dir(d.join("plain_folder")).unwrap();
+    // A brick store of 32^3 voxels whose every stored brick has one byte flipped.
+    let volume = mixvol::volume::SyntheticField::MarschnerLobb
+        .generate(glam::UVec3::splat(32), mixvol::volume::ScalarType::U8)
+        .unwrap();
+    let store = d.join("corrupt.mvbs");
+    let summary = mixvol::store::write_store_from_volume(
+        &store,
+        &volume,
+        16,
+        mixvol::bricks::DownsampleFilter::Mean2,
+    )
+    .unwrap();
+    let h = summary.header;
+    let mut bytes = std::fs::read(&store).unwrap();
+    for brick in 0..u64::from(h.brick_count) {
+        let at = h.data_offset + brick * (h.hi_brick_bytes + h.lo_brick_bytes) + 7;
+        bytes[at as usize] ^= 0x5A;
+    }
+    std::fs::write(&store, &bytes).unwrap();
     std::fs::write(d.join("v.xyz"), [0u8; 64]).unwrap();
 }
 

@@ -234,3 +234,96 @@ fn render_stream_over_http_draws_the_converted_store_and_fetches_only_chunks() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--stream applies to OME-Zarr"));
 }
+
+/// Issue 42, item 1 (review D1): `render --stream` of an image whose chunk fetches fail never
+/// writes a blank image with exit 0. Every chunk answering 500: exit 1, no PNG, the message
+/// names the failed loads and that the view draws nothing. One chunk answering 500: the image
+/// is written with its region drawn coarser or not at all, and stderr says so; `--strict`
+/// refuses that image (exit 1, no PNG).
+#[test]
+fn a_streamed_render_with_failed_fetches_never_writes_a_blank_image_with_exit_0() {
+    let dir = TempDir::new("cli-stream-500");
+    // 5^3 chunks of 8^3 voxels, bricks of 8: a corner chunk feeds only the bricks beside it.
+    let image = ImageSpec {
+        shape: [40, 40, 40],
+        chunks: [8, 8, 8],
+        v3: true,
+        missing: None,
+        fill: 0,
+    };
+    image.write(&dir.0.join("img.zarr"));
+    let server = range_server(&dir.0);
+    let quick = [
+        ("MIXVOL_REMOTE_TIMEOUT_MS", "2000"),
+        ("MIXVOL_REMOTE_RETRIES", "1"),
+    ];
+    let render = |mode: &str, png: &Path, strict: bool| {
+        let url = format!("{}/{mode}/img.zarr", server.base());
+        let mut args = vec![
+            "render",
+            "--volume",
+            &url,
+            "--stream",
+            "--width",
+            "32",
+            "--height",
+            "32",
+            "--frames",
+            "1",
+            "--brick-size",
+            "8",
+            "--gpu-budget-mb",
+            "4",
+            "--output",
+            png.to_str().unwrap(),
+        ];
+        if strict {
+            args.push("--strict");
+        }
+        let out = mixvol(&args, &quick);
+        let text = format!(
+            "{}\n{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        (out, text)
+    };
+    let png = dir.0.join("all500.png");
+    let (out, text) = render("500", &png, false);
+    assert!(!out.status.success(), "{text}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("bricks failed to load") && err.contains("draws nothing"),
+        "{text}"
+    );
+    assert!(err.contains("500"), "the failure is named: {text}");
+    assert!(!png.exists(), "no blank image: {text}");
+
+    // The corner chunk fails, the others are served.
+    let key = image.chunk_key([0, 0, 0]).replace('/', "~");
+    let one = format!("500@{key}");
+    let png = dir.0.join("one500.png");
+    let (out, text) = render(&one, &png, false);
+    assert!(out.status.success(), "{text}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("warning: ") && err.contains("bricks failed to load"),
+        "{text}"
+    );
+    assert!(png.exists(), "{text}");
+    let strict = dir.0.join("strict.png");
+    let (out, text) = render(&one, &strict, true);
+    assert!(!out.status.success(), "{text}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("--strict"),
+        "{text}"
+    );
+    assert!(!strict.exists(), "{text}");
+    // All chunks served: no warning.
+    let (out, text) = render("ok", &dir.0.join("ok.png"), true);
+    assert!(out.status.success(), "{text}");
+    assert!(
+        !String::from_utf8_lossy(&out.stderr).contains("failed to load"),
+        "{text}"
+    );
+}

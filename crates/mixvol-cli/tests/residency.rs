@@ -743,6 +743,35 @@ fn corrupt_bricks_in_a_store_are_reported_and_drawn_at_their_fallback() {
     assert!(text.contains("failed to load (first:"), "{text}");
     assert!(text.contains("is corrupt"), "{text}");
     assert!(covered(&pixels(&png), BACKGROUND) > 0.2, "{text}");
+    // Every command says so on stderr (issue 42, item 5), and --strict refuses the image.
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("warning: ") && stderr.contains("bricks failed to load"),
+        "{text}"
+    );
+    let strict = dir.join("strict.png");
+    let (out, text) = run(&[
+        "render",
+        "--volume",
+        store.to_str().unwrap(),
+        "--gpu-budget-mb",
+        "0.3",
+        "--width",
+        "48",
+        "--height",
+        "48",
+        "--frames",
+        "1",
+        "--strict",
+        "-o",
+        strict.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success(), "{text}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("--strict"),
+        "{text}"
+    );
+    assert!(!strict.exists(), "{text}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -800,6 +829,14 @@ fn a_damaged_level_store_renders_what_it_can_read_and_names_the_failure() {
     );
     assert!(
         text.contains("first failed read:") && text.contains("CRC-32"),
+        "{text}"
+    );
+    // The failures reach the frame's report and stderr (issue 42, item 5): the background
+    // reader's failures count as well as the render thread's.
+    assert!(text.contains("bricks failed to load (first:"), "{text}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("warning: ") && stderr.contains("CRC-32"),
         "{text}"
     );
     // The bricks whose reads failed still wait: the view stopped short of the camera's plan.

@@ -375,6 +375,11 @@ impl LevelStreamer {
         self.shared.lock().failed.values().next().cloned()
     }
 
+    /// The stored bricks whose read failed (until [`LevelStreamer::clear_failures`]).
+    pub fn failed_keys(&self) -> Vec<StoredKey> {
+        self.shared.lock().failed.keys().copied().collect()
+    }
+
     /// The stored bricks of `keys` that are not in RAM (for tests and reports).
     pub fn missing(&self, keys: &[StoredKey]) -> HashSet<StoredKey> {
         let s = self.shared.lock();

@@ -96,7 +96,7 @@ pub enum LevelsArg {
     /// cache (block levels past 2 with bricks of at least 8 voxels; `render` only).
     Staircase,
     /// Levels 0, 1, 2, ... chosen from the camera for every view (drawn voxels at most a pixel
-    /// on screen where --gpu-budget-mb or --cache-mb allows), drawn through the three-level
+    /// on screen where --gpu-budget-mb allows), drawn through the three-level
     /// cache (`render` only).
     Camera,
 }
@@ -121,11 +121,6 @@ pub struct MixedArgs {
     /// Transition reconstruction between resolution levels.
     #[arg(long, value_enum, default_value_t = TransitionArg::Smooth)]
     pub transition: TransitionArg,
-    /// Cache image budget in MiB, fractions allowed, for fixed --levels patterns (and for
-    /// --levels camera and level sources without --gpu-budget-mb, which sizes the cache of
-    /// camera-driven residency at any level count).
-    #[arg(long, default_value_t = 256.0)]
-    pub cache_mb: f64,
     /// With --levels camera (and level stores): the largest on-screen size, in pixels, of a
     /// drawn voxel; larger values draw coarser levels and take fewer slots.
     #[arg(long, default_value_t = 1.0)]
@@ -135,14 +130,15 @@ pub struct MixedArgs {
 /// Camera-driven residency: the budgets the planner draws a volume (or a brick store) under.
 #[derive(Args, Debug)]
 pub struct ResidencyArgs {
-    /// Draw the volume through the brick cache with camera-driven residency, within this many
-    /// MiB of GPU memory for the cache image plus the per-frame upload staging, fractions
-    /// allowed (a brick store is always drawn this way; default for stores: 256). With
-    /// --levels camera or a level store, the same budget for the three-level cache.
+    /// MiB of GPU memory for the brick cache image plus the per-frame upload staging,
+    /// fractions allowed, at every level count (default: 256). Given for an in-memory volume
+    /// without --levels, it draws the volume through the brick cache with camera-driven
+    /// residency; brick stores, level stores, streamed images and --levels use it as their
+    /// cache budget.
     #[arg(long)]
     pub gpu_budget_mb: Option<f64>,
-    /// MiB of brick level changes uploaded per frame at most (default: an eighth of the GPU
-    /// budget).
+    /// MiB of brick level changes uploaded per frame at most, taken from --gpu-budget-mb
+    /// (default: an eighth of it).
     #[arg(long)]
     pub upload_mb: Option<f64>,
     /// Levels chosen from the camera: weigh each brick's on-screen voxel size by the width of
@@ -202,9 +198,19 @@ impl PathArgs {
     }
 }
 
+/// The GPU budget without `--gpu-budget-mb`, in MiB.
+pub const DEFAULT_GPU_BUDGET_MB: f64 = 256.0;
+
 impl ResidencyArgs {
+    /// `(cache budget, upload budget per frame)` in bytes of `--gpu-budget-mb` (default
+    /// [`DEFAULT_GPU_BUDGET_MB`]) and `--upload-mb`: the one GPU budget of every brick-cache
+    /// scene.
+    pub fn gpu_budgets(&self) -> Result<(u64, u64)> {
+        self.budgets(self.gpu_budget_mb.unwrap_or(DEFAULT_GPU_BUDGET_MB))
+    }
+
     /// `(cache budget, upload budget per frame)` in bytes for a GPU budget of `gpu_mb` MiB.
-    pub fn budgets(&self, gpu_mb: f64) -> Result<(u64, u64)> {
+    fn budgets(&self, gpu_mb: f64) -> Result<(u64, u64)> {
         let mib = |flag: &str, v: f64| {
             if v.is_finite() && v > 0.0 && v <= 1.0e9 {
                 Ok((v * (1u64 << 20) as f64) as u64)
@@ -500,23 +506,12 @@ impl TransitionArg {
 }
 
 impl MixedArgs {
-    /// The brick-cache configuration of `--brick-size`, `--cache-mb` and `--transition`.
-    pub fn config(&self) -> Result<MixedConfig> {
-        let mb = self.cache_mb;
-        if mb > 1.0e9 {
-            return Err(Error::InvalidInput(format!(
-                "--cache-mb {mb} is too large: at most 1e9 MiB"
-            )));
-        }
-        if !(mb.is_finite() && mb > 0.0) {
-            return Err(Error::InvalidInput(format!(
-                "--cache-mb {mb}: expected a positive number of MiB"
-            )));
-        }
-        let cache_budget_bytes = (mb * (1u64 << 20) as f64) as u64;
+    /// The brick-cache configuration of `--brick-size`, the cache's share of `--gpu-budget-mb`
+    /// ([`ResidencyArgs::gpu_budgets`]) and `--transition`.
+    pub fn config(&self, residency: &ResidencyArgs) -> Result<MixedConfig> {
         Ok(MixedConfig {
             brick_size: self.brick_size,
-            cache_budget_bytes,
+            cache_budget_bytes: residency.gpu_budgets()?.0,
             transition: self.transition.transition(),
             ..MixedConfig::default()
         })

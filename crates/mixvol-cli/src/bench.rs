@@ -72,7 +72,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
         Some(pattern) => {
             renderer.set_source(VolumeSource::Mixed {
                 volume: volume.clone(),
-                config: r.mixed.config()?,
+                config: r.mixed.config(&r.residency)?,
             })?;
             let grid = BrickGrid::new(volume.dims(), r.mixed.brick_size)?;
             let levels = level_pattern(&grid, pattern)?;

@@ -29,8 +29,7 @@ pub fn level_scene(
     let config = MixedConfig {
         brick_size: grid.brick_size(),
         transition,
-        cache_budget_bytes: level_cache_bytes(args)?,
-        ..args.mixed.config()?
+        ..args.mixed.config(&args.residency)?
     };
     let (plan, camera_levels) = three_level_plan(&grid, pattern, backend.level_count())?;
     set_level_residency(renderer, args)?;
@@ -83,43 +82,11 @@ pub fn three_level_plan(
     }
 }
 
-/// The per-step upload budget of a three-level scene in bytes: with `--gpu-budget-mb`, the
-/// share [`crate::args::ResidencyArgs::budgets`] gives it (as for two levels: `--upload-mb`,
-/// else an eighth); without, `--upload-mb`, else the default of `ResidencyConfig`
-/// ([`set_level_residency`]).
-pub fn level_upload_budget(args: &RenderArgs) -> u64 {
-    let r = &args.residency;
-    if let Some(Ok((_, upload))) = r.gpu_budget_mb.map(|gpu| r.budgets(gpu)) {
-        return upload;
-    }
-    match r.upload_mb {
-        Some(mb) => (mb * f64::from(1 << 20)) as u64,
-        None => ResidencyConfig::default().upload_bytes_per_frame,
-    }
-}
-
-/// The cache image budget of a three-level scene whose levels come from the camera or a
-/// level store in bytes: with `--gpu-budget-mb`, what is left of it after the upload staging
-/// (one GPU budget flag for every level count); without, `--cache-mb`.
-pub fn level_cache_bytes(args: &RenderArgs) -> Result<u64> {
-    let r = &args.residency;
-    match r.gpu_budget_mb {
-        Some(gpu) => Ok(r.budgets(gpu)?.0),
-        None => Ok(args.mixed.config()?.cache_budget_bytes),
-    }
-}
-
-/// The residency of a three-level scene whose levels come from the camera: `--upload-mb` as
-/// the per-step upload budget (without it, the default of `ResidencyConfig`), `--voxel-px` as
-/// the target of the level choice, and `--weigh-by-value`.
+/// The residency of a three-level scene whose levels come from the camera: the upload share
+/// of `--gpu-budget-mb` (`--upload-mb`) as the per-step upload budget, `--voxel-px` as the
+/// target of the level choice, and `--weigh-by-value`.
 pub fn set_level_residency(renderer: &mut Renderer, args: &RenderArgs) -> Result<()> {
-    if let Some(mb) = args.residency.upload_mb {
-        if !(mb.is_finite() && mb > 0.0) {
-            return Err(Error::InvalidInput(format!(
-                "--upload-mb {mb}: expected a positive number of MiB"
-            )));
-        }
-    }
+    let (_, upload) = args.residency.gpu_budgets()?;
     let voxel_px = args.mixed.voxel_px;
     if !(voxel_px.is_finite() && voxel_px > 0.0) {
         return Err(Error::InvalidInput(format!(
@@ -127,7 +94,7 @@ pub fn set_level_residency(renderer: &mut Renderer, args: &RenderArgs) -> Result
         )));
     }
     renderer.set_residency_config(ResidencyConfig {
-        upload_bytes_per_frame: level_upload_budget(args),
+        upload_bytes_per_frame: upload,
         weigh_by_value: args.residency.weigh_by_value,
         options: PlanOptions {
             error_threshold: voxel_px,

@@ -84,18 +84,6 @@ pub fn set_up_scene(
         error_threshold: r.error_threshold,
         ..PlanOptions::default()
     };
-    if r.gpu_budget_mb.is_some()
-        && args
-            .mixed
-            .levels
-            .is_some_and(|pattern| pattern != LevelsArg::Camera)
-    {
-        return Err(Error::InvalidInput(
-            "--levels PATTERN (a fixed pattern) and --gpu-budget-mb (camera-driven residency) \
-             exclude each other; --levels camera takes --gpu-budget-mb"
-                .into(),
-        ));
-    }
     match input {
         Input::Zarr {
             location, level, ..
@@ -112,7 +100,7 @@ pub fn set_up_scene(
                     )));
                 }
                 let ram = r.ram_bytes()?;
-                let brick_size = args.mixed.config()?.brick_size;
+                let brick_size = args.mixed.config(&args.residency)?.brick_size;
                 let window = window_of(args, None)?;
                 let backend = crate::stream::open_zarr_levels(location, brick_size, ram, window)?;
                 let note = " from the image's pyramid";
@@ -125,12 +113,12 @@ pub fn set_up_scene(
                         .into(),
                 ));
             }
-            let (cache, upload) = r.budgets(r.gpu_budget_mb.unwrap_or(256.0))?;
+            let (cache, upload) = r.gpu_budgets()?;
             let ram = r.ram_bytes()?;
             let config = MixedConfig {
                 cache_budget_bytes: cache,
                 transition,
-                ..args.mixed.config()?
+                ..args.mixed.config(&args.residency)?
             };
             let streamer = crate::stream::open_streamed(
                 location,
@@ -156,7 +144,7 @@ pub fn set_up_scene(
                         .into(),
                 ));
             }
-            let (cache, upload) = r.budgets(r.gpu_budget_mb.unwrap_or(256.0))?;
+            let (cache, upload) = r.gpu_budgets()?;
             let ram = r.ram_bytes()?;
             let config = MixedConfig {
                 brick_size: store.header().brick_size,
@@ -193,13 +181,12 @@ pub fn set_up_scene(
         }
         Input::Volume(volume) => {
             let volume = volume.clone();
-            let camera_levels = args.mixed.levels == Some(LevelsArg::Camera);
-            if let Some(gpu_mb) = r.gpu_budget_mb.filter(|_| !camera_levels) {
-                let (cache, upload) = r.budgets(gpu_mb)?;
+            if r.gpu_budget_mb.is_some() && args.mixed.levels.is_none() {
+                let (cache, upload) = r.gpu_budgets()?;
                 let config = MixedConfig {
                     cache_budget_bytes: cache,
                     transition,
-                    ..args.mixed.config()?
+                    ..args.mixed.config(&args.residency)?
                 };
                 renderer.set_residency_config(ResidencyConfig {
                     upload_bytes_per_frame: upload,
@@ -221,6 +208,14 @@ pub fn set_up_scene(
                 });
             }
             let Some(pattern) = args.mixed.levels else {
+                if r.upload_mb.is_some() {
+                    // Review D29: it used to be ignored without a word.
+                    return Err(Error::InvalidInput(
+                        "--upload-mb applies to the brick cache (--gpu-budget-mb, --levels, a \
+                         store or a streamed image); a plain volume is uploaded once, whole"
+                            .into(),
+                    ));
+                }
                 renderer.set_source(VolumeSource::Volume(&volume))?;
                 return Ok(Scene {
                     volume: Some(volume),
@@ -232,8 +227,7 @@ pub fn set_up_scene(
             };
             let config = MixedConfig {
                 transition,
-                cache_budget_bytes: crate::level_scene::level_cache_bytes(args)?,
-                ..args.mixed.config()?
+                ..args.mixed.config(&args.residency)?
             };
             let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)?;
             if matches!(pattern, LevelsArg::Camera | LevelsArg::Staircase) {

@@ -267,7 +267,10 @@ fn levels_chosen_from_the_camera_fit_the_cache_and_match_the_cpu_reference() {
         "8",
         "--levels",
         "camera",
-        "--cache-mb",
+        // 1 MiB of cache (the budget less the upload staging).
+        "--gpu-budget-mb",
+        "2",
+        "--upload-mb",
         "1",
         "--width",
         "64",
@@ -297,7 +300,10 @@ fn levels_chosen_from_the_camera_fit_the_cache_and_match_the_cpu_reference() {
         "8",
         "--levels",
         "camera",
-        "--cache-mb",
+        // 1 MiB of cache (the budget less the upload staging).
+        "--gpu-budget-mb",
+        "2",
+        "--upload-mb",
         "1",
         "--width",
         "32",
@@ -366,7 +372,7 @@ fn a_level_store_renders_at_camera_levels_and_matches_the_cpu_reference() {
         assert_matches_reference(&text, &png);
         text
     };
-    let text = compare("camera", &["--cache-mb", "1"]);
+    let text = compare("camera", &["--gpu-budget-mb", "2", "--upload-mb", "1"]);
     assert!(text.contains("(level store)"), "{text}");
     assert!(
         text.contains("levels chosen from the camera from 7 levels on disk"),
@@ -384,19 +390,12 @@ fn a_level_store_renders_at_camera_levels_and_matches_the_cpu_reference() {
     assert!(stream.contains(" 0 failed"), "{text}");
     // A small upload budget reaches the same choice in steps, and draws what the reference draws.
     // 0.05 MiB: just above the smallest budget, 27 level-0 stored bricks of 12^3 u8.
-    let text = compare("steps", &["--cache-mb", "1", "--upload-mb", "0.05"]);
+    let text = compare("steps", &["--gpu-budget-mb", "1.05", "--upload-mb", "0.05"]);
     assert!(number_after(&text, "level steps:") > 2.0, "{text}");
     assert!(text.contains("0 bricks still waiting"), "{text}");
     let text = compare("staircase", &["--levels", "staircase"]);
     assert!(text.contains("at levels 0..=4"), "{text}");
 
-    // The one GPU budget flag sizes the level store's cache too (1 MiB left after 0.05 MiB
-    // of upload staging: the budget of the first render above).
-    let text = compare(
-        "gpu budget",
-        &["--gpu-budget-mb", "1.05", "--upload-mb", "0.05"],
-    );
-    assert!(text.contains("0 bricks still waiting"), "{text}");
     // A two-level pattern is refused.
     let (out, text) = run(&[
         "render",
@@ -601,9 +600,15 @@ fn bad_camera_paths_and_budgets_are_refused_with_the_reason() {
             vec!["--gpu-budget-mb", "1", "--upload-mb", "2"],
             "--upload-mb",
         ),
+        // --upload-mb comes out of the one GPU budget, the default 256 MiB without the flag;
+        // a plain volume has no brick cache to upload into.
         (
-            vec!["--gpu-budget-mb", "1", "--levels", "checker"],
-            "--levels camera takes --gpu-budget-mb",
+            vec!["--levels", "checker", "--upload-mb", "300"],
+            "must stay below --gpu-budget-mb 256",
+        ),
+        (
+            vec!["--upload-mb", "1"],
+            "--upload-mb applies to the brick cache",
         ),
         (
             vec!["--orbit", "3", "--compare"],
@@ -806,8 +811,10 @@ fn a_damaged_level_store_renders_what_it_can_read_and_names_the_failure() {
         "render",
         "--volume",
         store.to_str().unwrap(),
-        "--cache-mb",
-        "2",
+        "--gpu-budget-mb",
+        "3",
+        "--upload-mb",
+        "1",
         "--width",
         "64",
         "--height",

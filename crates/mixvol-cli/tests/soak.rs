@@ -239,7 +239,8 @@ fn a_three_level_soak_is_clean_across_the_levels() {
                 "--soak",
                 "300",
             ])
-            .args(["--cache-mb", "2", "--width", "48", "--height", "48"])
+            .args(["--gpu-budget-mb", "3", "--upload-mb", "1"])
+            .args(["--width", "48", "--height", "48"])
             .args(["--ram-budget-mb", "8", "--voxel-px", voxel_px])
             .args(["--soak-log", csv.to_str().unwrap()])
             .env_remove("MIXVOL_TEST_INVALID_VULKAN_CALL")

@@ -183,6 +183,7 @@ fn main() -> mixvol::Result<()> {
             filter: DownsampleFilter::Mean2,
             cache_budget_bytes: 256 << 20,
             transition: Transition::Smooth,
+            max_levels: 0,
         },
     })?;
     let grid = BrickGrid::new(volume.dims(), brick_size).expect("valid grid");

@@ -35,6 +35,7 @@ fn main() -> mixvol::Result<()> {
         filter: DownsampleFilter::Mean2,
         cache_budget_bytes: 32 << 20,
         transition: Transition::Smooth,
+        max_levels: 0,
     };
     let mut moving = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
     let mut fresh = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;

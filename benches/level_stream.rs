@@ -47,6 +47,7 @@ fn main() -> mixvol::Result<()> {
         filter: DownsampleFilter::Mean2,
         cache_budget_bytes: 32 << 20,
         transition: Transition::Smooth,
+        max_levels: 0,
     };
     let streamer = Arc::new(LevelStreamer::new(
         store.clone(),

@@ -57,6 +57,7 @@ fn main() -> mixvol::Result<()> {
         filter: DownsampleFilter::Mean2,
         cache_budget_bytes: 256 << 20,
         transition,
+        max_levels: 0,
     };
     let two_level = |transition| -> mixvol::Result<Renderer> {
         let mut r = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;

@@ -61,6 +61,7 @@ fn main() -> mixvol::Result<()> {
                 filter: DownsampleFilter::Mean2,
                 cache_budget_bytes: 64 << 20,
                 transition,
+                max_levels: 0,
             },
         })?;
         r.set_levels(levels)?;

@@ -259,6 +259,7 @@ fn first_frames(dir: &Path, cold: bool) {
         filter: DownsampleFilter::Mean2,
         cache_budget_bytes: CACHE_BUDGET,
         transition: Transition::Smooth,
+        max_levels: 0,
     };
     // Compile the pipelines once (not part of the timings).
     {

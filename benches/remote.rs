@@ -259,6 +259,7 @@ fn streaming(spec: &ImageSpec, dir: &std::path::Path, http: &Server, runs: u32) 
                     filter: DownsampleFilter::Mean2,
                     cache_budget_bytes: 64 << 20,
                     transition: Transition::Smooth,
+                    max_levels: 0,
                 },
             })
             .expect("source");

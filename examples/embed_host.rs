@@ -766,6 +766,7 @@ fn run_scene(scene: Scene, model: ModelTransform) -> Result<HostReport, BoxError
                     filter: DownsampleFilter::Mean2,
                     cache_budget_bytes: BRICK_CACHE_BUDGET,
                     transition: Transition::Smooth,
+                    max_levels: 0,
                 },
             })?;
             pass.set_residency_config(ResidencyConfig {

@@ -60,6 +60,7 @@ fn config(transition: Transition) -> MixedConfig {
         filter: DownsampleFilter::Mean2,
         cache_budget_bytes: 64 << 20,
         transition,
+        max_levels: 0,
     }
 }
 

@@ -94,6 +94,7 @@ fn culled_bricks_save_slots_and_change_no_pixel() {
                     filter: DownsampleFilter::Mean2,
                     cache_budget_bytes: 64 * 64 * 64 * 4,
                     transition: Transition::Smooth,
+                    max_levels: 0,
                 },
             })
             .unwrap();

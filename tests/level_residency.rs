@@ -277,6 +277,7 @@ fn incremental_changes_draw_what_a_fresh_cache_draws() {
                 filter: DownsampleFilter::Mean2,
                 cache_budget_bytes: budget,
                 transition: Transition::Smooth,
+                max_levels: 0,
             };
             let start = staircase_plan(bricks, 0, 4);
             let mut moving = Renderer::new(&ctx, TargetFormat::Rgba32Float).unwrap();

@@ -204,6 +204,7 @@ fn a_budgeted_source_reaches_the_wanted_levels_in_steps() {
                     filter: DownsampleFilter::Mean2,
                     cache_budget_bytes: 64 * 64 * 64 * 4,
                     transition: Transition::Smooth,
+                    max_levels: 0,
                 },
             })
             .unwrap();

@@ -54,6 +54,7 @@ fn config(budget: u64) -> MixedConfig {
         filter: DownsampleFilter::Mean2,
         cache_budget_bytes: budget,
         transition: Transition::Smooth,
+        max_levels: 0,
     }
 }
 
@@ -334,7 +335,9 @@ fn an_unreadable_stored_brick_falls_back_and_is_counted() {
 /// not, draws every brick at level 0. Its frames, at level 0 everywhere and at a checker of
 /// levels 0 and 1, match the CPU reference over the store's levels (mirrored with two
 /// classes) and the two-level cache's frames of the same volume (`VolumeSource::Mixed`,
-/// `Hi`/`Lo`), level 1 built by `Mean2` or by `Box4`; a store of five levels in the same budget cannot draw every brick at level 0.
+/// `Hi`/`Lo`), level 1 built by `Mean2` or by `Box4`, and so does the volume in memory capped at
+/// two levels (`MixedConfig::max_levels`, the same slots); a store of five levels in the same
+/// budget cannot draw every brick at level 0.
 #[test]
 fn two_levels_take_the_two_level_caches_slots() {
     let ctx = common::validated_context();
@@ -387,11 +390,25 @@ fn two_levels_take_the_two_level_caches_slots() {
                     },
                 },
             );
+            let mut in_memory = renderer_for(
+                &ctx,
+                VolumeSource::Levels {
+                    volume: Arc::new(volume.clone()),
+                    levels: &finest,
+                    config: MixedConfig {
+                        filter,
+                        max_levels: 2,
+                        ..config(budget)
+                    },
+                },
+            );
+            assert_eq!(in_memory.level_slot_count(), Some(two.slot_count() as u64));
             for (name, levels) in [
                 ("level 0", &finest),
                 ("checker of levels 0 and 1", &checker),
             ] {
                 from_store.set_brick_levels(levels).unwrap();
+                in_memory.set_brick_levels(levels).unwrap();
                 let hi_lo: Vec<Level> = levels
                     .iter()
                     .map(|l| if *l == Some(0) { Level::Hi } else { Level::Lo })
@@ -406,8 +423,15 @@ fn two_levels_take_the_two_level_caches_slots() {
                     "{name} ({filter:?}): the one system and the two-level cache draw the same \
                  frame: {d:?}"
                 );
+                let c = in_memory.render(&camera(), &settings(), W, W).unwrap();
+                let d = common::diff(&c.pixels, &b.pixels, 1.0 / 255.0);
+                assert!(
+                    d.max < 1e-4,
+                    "{name} ({filter:?}): the volume in memory at two levels draws the two-level \
+                     cache's frame: {d:?}"
+                );
             }
-            drop((from_store, two_level));
+            drop((from_store, two_level, in_memory));
             let _ = std::fs::remove_file(&path);
         }
 

@@ -295,6 +295,7 @@ fn config() -> MixedConfig {
         filter: DownsampleFilter::Mean2,
         cache_budget_bytes: 64 << 20,
         transition: Transition::Smooth,
+        max_levels: 0,
     }
 }
 

@@ -247,6 +247,7 @@ fn random_mixed(
                 filter: DownsampleFilter::Mean2,
                 cache_budget_bytes: 64 << 20,
                 transition,
+                max_levels: 0,
             },
         })
         .unwrap();
@@ -878,6 +879,7 @@ fn tricubic_b_spline_is_exact_and_consistent_across_bricks() {
                     filter: DownsampleFilter::Mean2,
                     cache_budget_bytes: 64 << 20,
                     transition: Transition::Smooth,
+                    max_levels: 0,
                 },
             })
             .unwrap();
@@ -967,6 +969,7 @@ fn coarse_low_res_steps_are_exact_on_homogeneous_data() {
                     filter: DownsampleFilter::Mean2,
                     cache_budget_bytes: 64 << 20,
                     transition: Transition::Smooth,
+                    max_levels: 0,
                 },
             })
             .unwrap();
@@ -1007,6 +1010,7 @@ fn coarse_low_res_steps_are_exact_on_homogeneous_data() {
                     filter: DownsampleFilter::Mean2,
                     cache_budget_bytes: 64 << 20,
                     transition: Transition::Smooth,
+                    max_levels: 0,
                 },
             })
             .unwrap();

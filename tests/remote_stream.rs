@@ -236,6 +236,7 @@ fn renderer_of(
                 filter: DownsampleFilter::Mean2,
                 cache_budget_bytes: 1 << 20,
                 transition: Transition::Smooth,
+                max_levels: 0,
             },
         })
         .unwrap();

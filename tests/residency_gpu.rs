@@ -82,6 +82,7 @@ fn mixed_config(cache_budget_bytes: u64) -> MixedConfig {
         filter: DownsampleFilter::Mean2,
         cache_budget_bytes,
         transition: Transition::Smooth,
+        max_levels: 0,
     }
 }
 

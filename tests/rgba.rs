@@ -227,6 +227,7 @@ fn rgba_volumes_through_the_brick_cache_match_the_reference() {
             filter: DownsampleFilter::Mean2,
             cache_budget_bytes: 64 << 20,
             transition,
+            max_levels: 0,
         };
         for model in [SamplingModel::Opacity, SamplingModel::Extinction] {
             let channels = RgbaBrickSource::channel_volumes(&volume, model).unwrap();

@@ -131,6 +131,7 @@ fn config(cache_budget: u64) -> MixedConfig {
         filter: DownsampleFilter::Mean2,
         cache_budget_bytes: cache_budget,
         transition: Transition::Smooth,
+        max_levels: 0,
     }
 }
 

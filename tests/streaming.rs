@@ -22,6 +22,7 @@ fn config() -> MixedConfig {
         filter: DownsampleFilter::Mean2,
         cache_budget_bytes: 16 << 20,
         transition: Transition::Smooth,
+        max_levels: 0,
     }
 }
 

@@ -233,6 +233,7 @@ fn config(transition: Transition, budget: u64) -> MixedConfig {
         filter: DownsampleFilter::Mean2,
         cache_budget_bytes: budget,
         transition,
+        max_levels: 0,
     }
 }
 

@@ -221,6 +221,7 @@ fn a_remote_pyramid_streams_at_the_cameras_levels_and_matches_the_reference() {
                     filter: DownsampleFilter::Mean2,
                     cache_budget_bytes: 16 << 20,
                     transition: Transition::Smooth,
+                    max_levels: 0,
                 },
             })
             .unwrap();

@@ -316,7 +316,11 @@ impl VolumePass {
         config: MixedConfig,
     ) -> Result<()> {
         let grid = crate::bricks::BrickGrid::new(volume.dims(), config.brick_size)?;
-        let level_count = crate::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis());
+        let all = crate::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis());
+        let level_count = match config.max_levels {
+            0 => all,
+            cap => cap.min(all),
+        };
         let data = LevelData::Volume {
             levels: VolumeLevels::new(volume.clone(), level_count, config.filter),
             brick_size: grid.brick_size(),

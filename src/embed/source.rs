@@ -195,15 +195,22 @@ pub struct MixedConfig {
     pub cache_budget_bytes: u64,
     /// Smooth (C0) or discontinuous transitions.
     pub transition: Transition,
+    /// The most levels an in-memory volume drawn as a level source
+    /// ([`VolumeSource::Levels`]) gets: 0 for as many as its grid takes
+    /// ([`crate::cache::pyramid_levels`]); 2 draws levels 0 and 1 through two slot classes,
+    /// the two-level cache's bytes and capacity. A store has its own levels (ignored there).
+    pub max_levels: u32,
 }
 
 impl Default for MixedConfig {
+    /// Bricks of 32, the mean-of-2 filter, a 256 MiB cache, smooth transitions, every level.
     fn default() -> Self {
         Self {
             brick_size: 32,
             filter: DownsampleFilter::Mean2,
             cache_budget_bytes: 256 << 20,
             transition: Transition::Smooth,
+            max_levels: 0,
         }
     }
 }

@@ -63,6 +63,7 @@ pub fn mixed_config(n: u32, transition: Transition) -> MixedConfig {
         filter: DownsampleFilter::Mean2,
         cache_budget_bytes: 64 << 20,
         transition,
+        max_levels: 0,
     }
 }
 

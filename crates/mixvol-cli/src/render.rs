@@ -151,6 +151,7 @@ pub fn set_up_scene(
                 filter: store.filter(),
                 cache_budget_bytes: cache,
                 transition,
+                max_levels: 0,
             };
             // Each scene streams through its own reader of the store.
             let streamer = Arc::new(BrickStreamer::new(

@@ -247,6 +247,18 @@ impl Renderer {
         Ok(report)
     }
 
+    /// Stages a level source's move to `levels` without submitting it (see
+    /// [`VolumePass::set_brick_levels`]): the next [`Renderer::render`] records the uploads and
+    /// the fixups in its own command buffer (so the frame's timings include them). Renders no
+    /// longer plan residency from the camera, as with [`Renderer::set_brick_levels`].
+    pub fn stage_brick_levels(
+        &mut self,
+        levels: &[Option<u32>],
+    ) -> Result<crate::levels::LevelUpdateReport> {
+        self.planned = false;
+        self.pass.set_brick_levels(levels)
+    }
+
     /// What the last residency change of a three-level source moved (see
     /// [`VolumePass::last_level_update`]).
     pub fn last_level_update(&self) -> Option<&crate::levels::LevelUpdateReport> {

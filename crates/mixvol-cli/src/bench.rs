@@ -3,14 +3,16 @@
 //! budget or a brick store it benchmarks camera-driven residency instead (`path_bench`); with
 //! `--soak N` it soaks the renderer for N frames instead (`soak`).
 
-use crate::args::BenchArgs;
+use crate::args::{BenchArgs, LevelsArg};
 use crate::input::{is_brick_store, load_volume};
+use crate::level_scene::three_level_plan;
 use crate::levels::{level_pattern, swapped};
 use crate::stats::Summary;
 use mixvol::bricks::BrickGrid;
+use mixvol::cache::pyramid_levels;
 use mixvol::gpu::{ContextDesc, GpuContext};
 use mixvol::optics::TransferFunction;
-use mixvol::renderer::{Renderer, TargetFormat, VolumeSource};
+use mixvol::renderer::{MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::RenderSettings;
 use mixvol::{Error, Result};
 use serde::Serialize;
@@ -70,16 +72,41 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
     match r.mixed.levels {
         None => renderer.set_source(VolumeSource::Volume(&volume))?,
         Some(pattern) => {
-            renderer.set_source(VolumeSource::Mixed {
-                volume: volume.clone(),
-                config: r.mixed.config(&r.residency)?,
-            })?;
             let grid = BrickGrid::new(volume.dims(), r.mixed.brick_size)?;
-            let levels = level_pattern(&grid, pattern)?;
-            // The churn partner: the same pattern with hi and lo swapped.
+            // Levels 0 and 1 of a two-level pattern through two slot classes (the two-level
+            // cache's capacity); the staircase through every level the grid takes.
+            let (levels, max_levels) = match pattern {
+                LevelsArg::Camera => {
+                    return Err(Error::InvalidInput(
+                        "bench --levels camera draws along a camera path: add --orbit N, \
+                         --dolly N or --path FILE"
+                            .into(),
+                    ))
+                }
+                LevelsArg::Staircase => {
+                    if args.churn {
+                        return Err(Error::InvalidInput(
+                            "--churn swaps levels 0 and 1 of a two-level pattern (all-hi, \
+                             all-lo, checker, half), not the staircase"
+                                .into(),
+                        ));
+                    }
+                    let count = pyramid_levels(grid.brick_size(), grid.bricks_per_axis());
+                    (three_level_plan(&grid, pattern, count)?.0, 0)
+                }
+                _ => (level_pattern(&grid, pattern)?, 2),
+            };
+            // The churn partner: the same pattern with levels 0 and 1 swapped.
             patterns.push(swapped(&levels));
             patterns.insert(0, levels);
-            renderer.set_levels(&patterns[0])?;
+            renderer.set_source(VolumeSource::Levels {
+                volume: volume.clone(),
+                levels: &patterns[0],
+                config: MixedConfig {
+                    max_levels,
+                    ..r.mixed.config(&r.residency)?
+                },
+            })?;
         }
     }
     let camera = r.camera();
@@ -93,7 +120,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
     let mut variant = None;
     for i in 0..r.frames {
         if args.churn {
-            renderer.stage_levels(&patterns[(i as usize + 1) % 2])?;
+            renderer.stage_brick_levels(&patterns[(i as usize + 1) % 2])?;
         }
         let frame = renderer.render(&camera, &settings, r.width, r.height)?;
         upload.extend(frame.timing.gpu_upload_ms);

@@ -63,15 +63,17 @@ pub fn junction(args: &JunctionArgs) -> Result<()> {
     for transition in [Transition::Discontinuous, Transition::Smooth] {
         let mut renderer = Renderer::new(&ctx, TargetFormat::Rgba8Unorm)?;
         renderer.set_transfer_function(&tf)?;
-        renderer.set_source(VolumeSource::Mixed {
+        // Levels 0 and 1 through the two-level slot classes.
+        renderer.set_source(VolumeSource::Levels {
             volume: volume.clone(),
+            levels: &levels,
             config: MixedConfig {
                 brick_size: 16,
                 transition,
+                max_levels: 2,
                 ..MixedConfig::default()
             },
         })?;
-        renderer.set_levels(&levels)?;
         let frame = renderer.render(&camera, &settings, args.size, args.size)?;
         halves.push(frame.to_rgba8(Vec3::splat(0.08)));
     }

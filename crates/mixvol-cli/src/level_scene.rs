@@ -128,7 +128,7 @@ pub fn print_three_level(grid: &BrickGrid, plan: &[Option<u32>], camera_levels: 
         format!("at levels 0..={deepest} ({per_level:?} bricks per level)")
     };
     println!(
-        "three-level cache: {} bricks of {}^3 {drawn}{note}",
+        "brick cache: {} bricks of {}^3 {drawn}{note}",
         grid.brick_count(),
         grid.brick_size(),
     );

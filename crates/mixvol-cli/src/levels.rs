@@ -2,13 +2,12 @@
 
 use crate::args::LevelsArg;
 use mixvol::bricks::BrickGrid;
-use mixvol::bricks::Level;
 use mixvol::{Error, Result};
 
-/// The level of every brick of `grid` under a two-level `pattern`, in linear brick order; an
-/// error for [`LevelsArg::Staircase`] ([`staircase`]) and [`LevelsArg::Camera`], which draw
-/// through the three-level cache.
-pub fn level_pattern(grid: &BrickGrid, pattern: LevelsArg) -> Result<Vec<Level>> {
+/// The level of every brick of `grid` under a two-level `pattern` (`Some(0)` full resolution,
+/// `Some(1)` the level below), in linear brick order; an error for [`LevelsArg::Staircase`]
+/// ([`staircase`]) and [`LevelsArg::Camera`], which are not two-level patterns.
+pub fn level_pattern(grid: &BrickGrid, pattern: LevelsArg) -> Result<Vec<Option<u32>>> {
     let half = grid.bricks_per_axis().x / 2;
     (0..grid.brick_count())
         .map(|i| {
@@ -20,14 +19,14 @@ pub fn level_pattern(grid: &BrickGrid, pattern: LevelsArg) -> Result<Vec<Level>>
                 LevelsArg::Half => b.x >= half,
                 LevelsArg::Staircase | LevelsArg::Camera => {
                     return Err(Error::InvalidInput(
-                        "--levels staircase and --levels camera draw through the three-level \
-                         cache, which only `render` sets up (`cargo bench --bench levels` times \
-                         it)"
-                        .into(),
+                        "--levels staircase and --levels camera are not fixed two-level \
+                         patterns: `render` draws them (`cargo bench --bench levels` times \
+                         them)"
+                            .into(),
                     ))
                 }
             };
-            Ok(if hi { Level::Hi } else { Level::Lo })
+            Ok(Some(if hi { 0 } else { 1 }))
         })
         .collect()
 }
@@ -47,17 +46,11 @@ pub fn staircase(grid: &BrickGrid) -> Vec<Option<u32>> {
         .collect()
 }
 
-/// `levels` with hi and lo swapped (the partner pattern of `bench --churn`).
-pub fn swapped(levels: &[Level]) -> Vec<Level> {
+/// `levels` with levels 0 and 1 swapped (the partner pattern of `bench --churn`).
+pub fn swapped(levels: &[Option<u32>]) -> Vec<Option<u32>> {
     levels
         .iter()
-        .map(|l| {
-            if *l == Level::Hi {
-                Level::Lo
-            } else {
-                Level::Hi
-            }
-        })
+        .map(|l| l.map(|level| u32::from(level == 0)))
         .collect()
 }
 

@@ -231,45 +231,32 @@ pub fn set_up_scene(
                 ..args.mixed.config(&args.residency)?
             };
             let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)?;
-            if matches!(pattern, LevelsArg::Camera | LevelsArg::Staircase) {
-                let levels =
-                    mixvol::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis());
-                let (plan, camera_levels) = three_level_plan(&grid, pattern, levels)?;
-                set_level_residency(renderer, args)?;
-                renderer.set_source(VolumeSource::Levels {
-                    volume: volume.clone(),
-                    levels: &plan,
-                    config,
-                })?;
-                print_three_level(&grid, &plan, camera_levels, "");
-                return Ok(Scene {
-                    volume: Some(volume),
-                    streamer: None,
-                    planned: camera_levels,
-                    config: Some(config),
-                    level_streamer: None,
-                });
-            }
-            renderer.set_source(VolumeSource::Mixed {
+            let (plan, camera_levels, config) =
+                if matches!(pattern, LevelsArg::Camera | LevelsArg::Staircase) {
+                    let levels =
+                        mixvol::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis());
+                    let (plan, camera_levels) = three_level_plan(&grid, pattern, levels)?;
+                    (plan, camera_levels, config)
+                } else {
+                    // A two-level pattern: levels 0 and 1 through two slot classes (the
+                    // two-level cache's bytes and capacity).
+                    let two = MixedConfig {
+                        max_levels: 2,
+                        ..config
+                    };
+                    (level_pattern(&grid, pattern)?, false, two)
+                };
+            set_level_residency(renderer, args)?;
+            renderer.set_source(VolumeSource::Levels {
                 volume: volume.clone(),
+                levels: &plan,
                 config,
             })?;
-            let report = renderer.set_levels(&level_pattern(&grid, pattern)?)?;
-            println!(
-                "brick cache: {} hi + {} lo bricks of {}^3, {} uploaded ({:.1} MB), {} fixed up; pack {:.1} ms, upload+fixup {:.1} ms",
-                report.hi_bricks,
-                report.lo_bricks,
-                args.mixed.brick_size,
-                report.uploaded_bricks,
-                report.uploaded_bytes as f64 / 1e6,
-                report.fixup_bricks,
-                report.pack_ms,
-                report.update_ms
-            );
+            print_three_level(&grid, &plan, camera_levels, "");
             Ok(Scene {
                 volume: Some(volume),
                 streamer: None,
-                planned: false,
+                planned: camera_levels,
                 config: Some(config),
                 level_streamer: None,
             })

@@ -581,3 +581,57 @@ fn a_level_store_given_no_levels_is_planned_by_every_render() {
     }
     common::finish(ctx);
 }
+
+/// Issue 36, item 2 ("a cache too small drops the least important bricks, never an error"): a
+/// volume left to the camera (no levels given) whose cache cannot hold even the coarsest plan
+/// is attached with nothing drawn, not refused; the first planned render draws the bricks that
+/// fit (the rest counted as dropped) and matches the CPU reference for what it draws.
+#[test]
+fn a_cache_too_small_for_the_coarsest_plan_starts_empty_and_drops_bricks() {
+    let ctx = common::validated_context();
+    {
+        let mut rng = Rng(0x1e7e_1570_6900_0007);
+        // 6 x 6 x 4 bricks at two levels (two slot classes): the coarsest plan needs 18 slots
+        // of 10^3 f32 texels (4000 bytes); the cache gets 8.
+        let volume = Arc::new(textured_volume(&mut rng, UVec3::new(6 * N, 6 * N, 4 * N)));
+        let config = MixedConfig {
+            max_levels: 2,
+            ..config(8 * 4000)
+        };
+        let mut renderer = renderer_for(
+            &ctx,
+            VolumeSource::Levels {
+                volume: volume.clone(),
+                levels: &[],
+                config,
+            },
+        );
+        let slots = renderer.level_slot_count().unwrap();
+        assert!(slots < 18, "{slots} slots");
+        assert!(
+            renderer.brick_levels().unwrap().iter().all(Option::is_none),
+            "nothing drawn before the first update"
+        );
+        let frame = renderer.render(&camera(), &settings(), W, W).unwrap();
+        let report = frame.residency.as_ref().expect("planned");
+        let drawn: usize = report.per_level.iter().map(|l| l.drawn).sum();
+        assert!(drawn > 0 && report.plan.dropped > 0, "{report:?}");
+        assert!(report.plan.slots_used as u64 <= slots, "{report:?}");
+        // The CPU reference at the drawn levels, over the same two levels written to a store.
+        let path = temp_path("too-small");
+        write_level_store(
+            &path,
+            &volume,
+            N,
+            Some(2),
+            DownsampleFilter::Mean2,
+            &mut |_, _| {},
+        )
+        .unwrap();
+        let store = LevelStore::open(&path).unwrap();
+        assert_matches("dropped", &frame, &reference_frame(&renderer, &store));
+        drop(renderer);
+        let _ = std::fs::remove_file(&path);
+    }
+    common::finish(ctx);
+}

@@ -173,7 +173,9 @@ impl LevelState {
                 let texels = data
                     .read_stored(level, first, grid.brick_coords(brick))
                     .inspect_err(|_| failed_read = Some((level, first)))?;
-                uploaded_bytes += texel_bytes * texels.len();
+                // What the copy writes: the cache's part of the stored brick (its inner box
+                // at level 0 with two slot classes), as `upload_bytes_for` counts it.
+                uploaded_bytes += texel_bytes * (geometry.stored_edge(level) as usize).pow(3);
                 Ok(texels)
             },
         );
@@ -385,9 +387,10 @@ impl VolumePass {
             self.ctx.shared.info.limits.max_image_dimension3_d,
             u32::try_from(grid.brick_count()).unwrap_or(u32::MAX),
         )?;
-        // An empty plan: every brick at the coarsest level.
+        // An empty plan: every brick at the coarsest level (or none drawn, below).
+        let planned = levels.is_empty();
         let coarsest = vec![Some(data.level_count() - 1); grid.brick_count()];
-        let levels = if levels.is_empty() { &coarsest } else { levels };
+        let levels = if planned { &coarsest } else { levels };
         // The plan is checked before the cache is allocated.
         LevelPlan::new(&grid, data.level_count(), levels)?;
         let bricks = BrickGeometry::new(grid, facts.spacing)?;
@@ -448,6 +451,14 @@ impl VolumePass {
             failed: HashSet::new(),
             last_failed_read: None,
             first_failure: None,
+        };
+        // A source left to the camera whose cache cannot hold the coarsest plan starts with
+        // nothing drawn: the first update draws the most important bricks (never an error).
+        let nothing = vec![None; grid.brick_count()];
+        let levels = if planned && state.upload_bytes_for(levels).is_none() {
+            &nothing
+        } else {
+            levels
         };
         state.stage(levels)?;
         self.source = Source::Levels(Box::new(state));

@@ -433,11 +433,13 @@ impl VolumePass {
             ));
         };
         let budget = self.residency.upload_bytes_per_frame;
-        let least = MIN_STEP_BRICKS * state.stored_bytes(0);
+        // A brick and its neighbours, fewer in a grid of fewer bricks.
+        let step_bricks = MIN_STEP_BRICKS.min(state.bricks.grid().brick_count() as u64);
+        let least = step_bricks * state.stored_bytes(0);
         if budget < least {
             return Err(Error::InvalidInput(format!(
                 "upload budget of {budget} bytes per frame is below the largest single step, \
-                 {least} bytes ({MIN_STEP_BRICKS} level-0 stored bricks of {} bytes: a brick and \
+                 {least} bytes ({step_bricks} level-0 stored bricks of {} bytes: a brick and \
                  the neighbours it makes stale); a smaller budget could stop the cache short of \
                  the camera's levels: raise upload_bytes_per_frame",
                 state.stored_bytes(0)
@@ -532,7 +534,7 @@ struct LevelStep {
 
 /// The stored bricks of the largest single step of a level source, in level-0 stored bricks: a
 /// brick refined to level 0 (or coarsened from it) and its 26 level-0 neighbours, whose
-/// fixed-up borders go stale and are uploaded again. An upload budget of this many level-0
+/// fixed-up borders go stale and are uploaded again (a grid of fewer bricks: all of them). An upload budget of this many level-0
 /// stored bricks always lets some step move ([`VolumePass::update`] refuses less).
 pub const MIN_STEP_BRICKS: u64 = 27;
 

@@ -58,8 +58,9 @@ pub enum VolumeSource<'a> {
     /// level-0, eight level-1 or sixty-four level-2 bricks; `crate::cache::SlotGeometry`)
     /// at the levels the host gives, one per brick: `Some(0)` full resolution, `Some(k)` the
     /// vertex level `k` of [`crate::pyramid::LevelGrid::vertex_pyramid`], `None` not drawn (an
-    /// empty slice: every brick at the coarsest level, a start for
-    /// `VolumePass::update`). Face-, edge- and corner-adjacent drawn bricks must
+    /// empty slice: every brick at the coarsest level, a start for `VolumePass::update`, or
+    /// none drawn when the cache cannot hold that: the first update draws the most important
+    /// bricks). Face-, edge- and corner-adjacent drawn bricks must
     /// differ by at most one level; past
     /// level 2 (bricks of at least 8 voxels) the bricks of a level come in aligned blocks of
     /// [`crate::cache::block_bricks`]`(k)` per axis, each stored as one level-2-sized brick, up to

@@ -125,6 +125,11 @@ pub struct MixedArgs {
     /// drawn voxel; larger values draw coarser levels and take fewer slots.
     #[arg(long, default_value_t = 1.0)]
     pub voxel_px: f32,
+    /// The most levels an in-memory volume is drawn at, from the camera (--gpu-budget-mb,
+    /// --levels camera) or at the staircase (default: as many as its brick grid takes; 2: the
+    /// full-resolution level and the one below it only).
+    #[arg(long)]
+    pub level_count: Option<u32>,
 }
 
 /// Camera-driven residency: the budgets the planner draws a volume (or a brick store) under.
@@ -207,6 +212,27 @@ impl ResidencyArgs {
     /// scene.
     pub fn gpu_budgets(&self) -> Result<(u64, u64)> {
         self.budgets(self.gpu_budget_mb.unwrap_or(DEFAULT_GPU_BUDGET_MB))
+    }
+
+    /// [`ResidencyArgs::gpu_budgets`] of a level scene whose smallest residency step uploads
+    /// `least_upload` bytes: without `--upload-mb`, the upload share is at least that (an
+    /// eighth of the budget may be less for a small one), the cache gets the rest; with it,
+    /// the flag's value (the renderer refuses one below the step).
+    pub fn level_budgets(&self, least_upload: u64) -> Result<(u64, u64)> {
+        let (cache, upload) = self.gpu_budgets()?;
+        if self.upload_mb.is_some() || upload >= least_upload {
+            return Ok((cache, upload));
+        }
+        let gpu = cache + upload;
+        if least_upload >= gpu {
+            return Err(Error::InvalidInput(format!(
+                "--gpu-budget-mb {:.3} leaves no room for a cache beside the smallest residency \
+                 step of {least_upload} bytes (27 full-resolution bricks and their borders): \
+                 raise --gpu-budget-mb",
+                gpu as f64 / f64::from(1 << 20)
+            )));
+        }
+        Ok((gpu - least_upload, least_upload))
     }
 
     /// `(cache budget, upload budget per frame)` in bytes for a GPU budget of `gpu_mb` MiB.

@@ -26,13 +26,16 @@ pub fn level_scene(
 ) -> Result<Scene> {
     let pattern = args.mixed.levels.unwrap_or(LevelsArg::Camera);
     let grid = backend.grid();
+    let least = least_level_upload(&grid, backend.scalar().size_bytes() as u64);
+    let (cache, upload) = args.residency.level_budgets(least)?;
     let config = MixedConfig {
         brick_size: grid.brick_size(),
         transition,
+        cache_budget_bytes: cache,
         ..args.mixed.config(&args.residency)?
     };
     let (plan, camera_levels) = three_level_plan(&grid, pattern, backend.level_count())?;
-    set_level_residency(renderer, args)?;
+    set_level_residency(renderer, args, upload)?;
     // Stored bricks are read in the background: views step onto those in RAM.
     let streamer = Arc::new(LevelStreamer::new(
         backend.clone(),
@@ -82,11 +85,21 @@ pub fn three_level_plan(
     }
 }
 
-/// The residency of a three-level scene whose levels come from the camera: the upload share
-/// of `--gpu-budget-mb` (`--upload-mb`) as the per-step upload budget, `--voxel-px` as the
-/// target of the level choice, and `--weigh-by-value`.
-pub fn set_level_residency(renderer: &mut Renderer, args: &RenderArgs) -> Result<()> {
-    let (_, upload) = args.residency.gpu_budgets()?;
+/// The upload bytes of the largest single residency step of a level scene of `grid` with
+/// `scalar_bytes` bytes a texel: [`mixvol::embed::MIN_STEP_BRICKS`] (at most the grid's
+/// bricks) full-resolution stored bricks with two border texels a side (the most any cache
+/// keeps).
+pub fn least_level_upload(grid: &BrickGrid, scalar_bytes: u64) -> u64 {
+    let edge = u64::from(grid.brick_size()) + 4;
+    let bricks = mixvol::embed::MIN_STEP_BRICKS.min(grid.brick_count() as u64);
+    bricks * edge * edge * edge * scalar_bytes
+}
+
+/// The residency of a three-level scene whose levels come from the camera: `upload` (the
+/// upload share of `--gpu-budget-mb`, [`crate::args::ResidencyArgs::level_budgets`]) as the
+/// per-step upload budget, `--voxel-px` as the target of the level choice, and
+/// `--weigh-by-value`.
+pub fn set_level_residency(renderer: &mut Renderer, args: &RenderArgs, upload: u64) -> Result<()> {
     let voxel_px = args.mixed.voxel_px;
     if !(voxel_px.is_finite() && voxel_px > 0.0) {
         return Err(Error::InvalidInput(format!(

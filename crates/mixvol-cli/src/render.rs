@@ -12,7 +12,8 @@ use crate::input::{
     model_transform, open_input_with_meta, orientation_line, window_line, window_of, Input,
 };
 use crate::level_scene::{
-    level_scene, level_stream_line, print_three_level, set_level_residency, three_level_plan,
+    least_level_upload, level_scene, level_stream_line, print_three_level, set_level_residency,
+    three_level_plan,
 };
 use crate::levels::{level_pattern, per_level_counts};
 use crate::stats::{peak_rss_bytes, Summary};
@@ -84,6 +85,13 @@ pub fn set_up_scene(
         error_threshold: r.error_threshold,
         ..PlanOptions::default()
     };
+    if args.mixed.level_count.is_some() && !matches!(input, Input::Volume(_)) {
+        return Err(Error::InvalidInput(
+            "--level-count applies to a volume in memory; a store or a streamed image has its \
+             own levels (convert --all-levels --level-count N writes a level store of N)"
+                .into(),
+        ));
+    }
     match input {
         Input::Zarr {
             location, level, ..
@@ -182,33 +190,12 @@ pub fn set_up_scene(
         }
         Input::Volume(volume) => {
             let volume = volume.clone();
-            if r.gpu_budget_mb.is_some() && args.mixed.levels.is_none() {
-                let (cache, upload) = r.gpu_budgets()?;
-                let config = MixedConfig {
-                    cache_budget_bytes: cache,
-                    transition,
-                    ..args.mixed.config(&args.residency)?
-                };
-                renderer.set_residency_config(ResidencyConfig {
-                    upload_bytes_per_frame: upload,
-                    ram_bytes: None,
-                    options,
-                    ..ResidencyConfig::default()
-                });
-                renderer.set_source(VolumeSource::Mixed {
-                    volume: volume.clone(),
-                    config,
-                })?;
-                print_cache(renderer, &config, upload, None);
-                return Ok(Scene {
-                    volume: Some(volume),
-                    streamer: None,
-                    planned: true,
-                    config: Some(config),
-                    level_streamer: None,
-                });
-            }
-            let Some(pattern) = args.mixed.levels else {
+            // A volume under a GPU budget is drawn at levels chosen from the camera.
+            let pattern = args
+                .mixed
+                .levels
+                .or(r.gpu_budget_mb.map(|_| LevelsArg::Camera));
+            let Some(pattern) = pattern else {
                 if r.upload_mb.is_some() {
                     // Review D29: it used to be ignored without a word.
                     return Err(Error::InvalidInput(
@@ -233,20 +220,50 @@ pub fn set_up_scene(
             let grid = BrickGrid::new(volume.dims(), args.mixed.brick_size)?;
             let (plan, camera_levels, config) =
                 if matches!(pattern, LevelsArg::Camera | LevelsArg::Staircase) {
-                    let levels =
+                    let all =
                         mixvol::cache::pyramid_levels(grid.brick_size(), grid.bricks_per_axis());
+                    let levels = match args.mixed.level_count {
+                        Some(0) => {
+                            return Err(Error::InvalidInput(
+                                "--level-count 0: expected at least 1".into(),
+                            ))
+                        }
+                        Some(count) => count.min(all),
+                        None => all,
+                    };
                     let (plan, camera_levels) = three_level_plan(&grid, pattern, levels)?;
+                    let config = MixedConfig {
+                        max_levels: levels,
+                        ..config
+                    };
                     (plan, camera_levels, config)
                 } else {
                     // A two-level pattern: levels 0 and 1 through two slot classes (the
                     // two-level cache's bytes and capacity).
+                    if args.mixed.level_count.is_some_and(|count| count != 2) {
+                        return Err(Error::InvalidInput(format!(
+                            "--levels {pattern:?} draws two levels; --level-count applies to \
+                             --levels camera, --levels staircase and --gpu-budget-mb"
+                        )));
+                    }
                     let two = MixedConfig {
                         max_levels: 2,
                         ..config
                     };
                     (level_pattern(&grid, pattern)?, false, two)
                 };
-            set_level_residency(renderer, args)?;
+            // Levels from the camera step under the upload cap: it must hold the smallest step.
+            let least = if camera_levels {
+                least_level_upload(&grid, volume.scalar_type().size_bytes() as u64)
+            } else {
+                0
+            };
+            let (cache, upload) = r.level_budgets(least)?;
+            let config = MixedConfig {
+                cache_budget_bytes: cache,
+                ..config
+            };
+            set_level_residency(renderer, args, upload)?;
             renderer.set_source(VolumeSource::Levels {
                 volume: volume.clone(),
                 levels: &plan,

@@ -14,8 +14,9 @@ use std::path::PathBuf;
 use std::process::Command;
 
 /// The scene of every soak here: a 64^3 u16 Marschner-Lobb volume in bricks of 8 (512 bricks)
-/// through a cache of 108 slots (21 % of the bricks hi-res), 8 kB of level changes per frame,
-/// at 32x32 pixels.
+/// at levels chosen from the camera, two levels (two slot classes), under a 0.35 MiB GPU budget
+/// of which 0.09 MiB uploads per frame (the smallest step: 27 level-0 bricks of 12^3 u16), so
+/// that part of the bricks fit at level 0 and the camera decides which, at 32x32 pixels.
 const SCENE: &[&str] = &[
     "bench",
     "--volume",
@@ -26,8 +27,10 @@ const SCENE: &[&str] = &[
     "u16",
     "--brick-size",
     "8",
+    "--level-count",
+    "2",
     "--upload-mb",
-    "0.008",
+    "0.09",
     "--width",
     "32",
     "--height",
@@ -79,7 +82,7 @@ fn a_short_soak_is_clean_flat_and_changes_residency() {
     let csv = dir.join("soak.csv");
     let (code, text) = soak(
         FRAMES,
-        "0.26",
+        "0.35",
         &[
             "--soak-log",
             csv.to_str().unwrap(),
@@ -113,7 +116,7 @@ fn a_short_soak_is_clean_flat_and_changes_residency() {
     assert!(changes_after >= 100, "{changes_after} level changes: {s}");
     assert!(u64_at(s, "/frames_uploading") >= 100, "{s}");
     let gpu_bound = u64_at(s, "/gpu_growth_bound");
-    // The cache image of 108 u16 slots of 8^3 (plus its apron) is under 300 kB.
+    // The cache image (0.17 MiB of u16 slots of 10^3) and the largest upload are under 300 kB.
     assert!(gpu_bound > 0 && gpu_bound <= 512 << 10, "{s}");
 
     // The curve, from the CSV: one sample per frame (400 frames: sample every frame), every
@@ -187,8 +190,10 @@ fn a_soak_fails_on_a_still_scene_and_on_a_validation_message() {
     let dir = temp_dir("fails");
     let csv = dir.join("soak.csv");
     let log = ["--soak-log", csv.to_str().unwrap()];
-    // A budget that holds every brick hi-res: after the first frames nothing changes.
-    let (code, text) = soak(150, "64", &log, &[]);
+    // A budget that holds every brick and a target every level meets (drawn voxels up to
+    // 1000 px): after the first frames nothing changes.
+    let still: Vec<&str> = log.iter().copied().chain(["--voxel-px", "1000"]).collect();
+    let (code, text) = soak(150, "64", &still, &[]);
     assert_eq!(code, 1, "{text}");
     assert!(
         text.contains("soak failed: no brick changed level after the warm-up"),
@@ -197,7 +202,7 @@ fn a_soak_fails_on_a_still_scene_and_on_a_validation_message() {
     // One deliberately invalid Vulkan call: the layer's own message, and the soak fails.
     let (code, text) = soak(
         20,
-        "0.26",
+        "0.35",
         &log,
         &[("MIXVOL_TEST_INVALID_VULKAN_CALL", "1")],
     );

@@ -327,3 +327,65 @@ fn a_streamed_render_with_failed_fetches_never_writes_a_blank_image_with_exit_0(
         "{text}"
     );
 }
+
+/// Review H3: a level store behind HTTP renders through the CLI as the local file does: routed
+/// to the level store (not the Zarr loader), its stored bricks streamed in the background, the
+/// frame matching the CPU reference over the levels read back, validation-clean.
+#[test]
+fn a_level_store_over_http_renders_and_matches_the_cpu_reference() {
+    let dir = TempDir::new("cli-level-http");
+    let volume = mixvol::volume::SyntheticField::MarschnerLobb
+        .generate(glam::UVec3::splat(32), mixvol::volume::ScalarType::U8)
+        .unwrap();
+    mixvol::store::write_level_store(
+        &dir.0.join("v.mvl"),
+        &volume,
+        8,
+        None,
+        mixvol::bricks::DownsampleFilter::Mean2,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let server = range_server(&dir.0);
+    let url = format!("{}/ok/v.mvl", server.base());
+    let png = dir.0.join("r.png");
+    let out = mixvol(
+        &[
+            "render",
+            "--volume",
+            &url,
+            "--width",
+            "32",
+            "--height",
+            "32",
+            "--frames",
+            "1",
+            "--compare",
+            "--validation",
+            "-o",
+            png.to_str().unwrap(),
+        ],
+        &[],
+    );
+    let text = ok(&out);
+    assert!(text.contains("(level store)"), "{text}");
+    assert!(text.contains("level stream:"), "{text}");
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("cpu reference:"))
+        .unwrap_or_else(|| panic!("no comparison in:\n{text}"));
+    let max: f64 = line
+        .split("difference ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("{line}"));
+    // The tolerance of the local level-store renders (tests/residency.rs).
+    assert!(max < 0.06, "{line}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("validation: 0 warnings/errors")
+            || text.contains("validation: 0 warnings/errors"),
+        "{text}"
+    );
+    assert!(png.exists());
+}

@@ -90,11 +90,31 @@ const BACKGROUND: [u8; 3] = [20, 20, 26];
 
 /// A `render --compare --validation` run's verdict: the frame within the CPU reference's
 /// tolerances, validation-clean, and the PNG `png` showing the volume over a fifth of it.
+/// The printed comparison of the GPU frame with the CPU reference, judged by the volume's
+/// scalar type (review M8): an f32 volume at the library's tolerances (6/255 largest, 1e-3
+/// mean; measured 2026-12-07: 0.5/255 and 4.8e-4, the PNG's rounding); u8 and u16 at the
+/// bound measured 2026-12-01 for a u8 plan (0.045 largest, 2.5e-3 mean: lavapipe filters
+/// 8-bit textures in 8-bit fixed point) with a margin.
 fn assert_matches_reference(text: &str, png: &Path) {
     let max = number_after(text, "max per-channel difference");
     let mean = number_after(text, "mean");
-    assert!(max < 0.06, "GPU and CPU reference differ by {max}\n{text}");
-    assert!(mean < 4e-3, "mean difference {mean}\n{text}");
+    let is_f32 = text
+        .lines()
+        .find(|l| l.starts_with("volume:"))
+        .is_some_and(|l| l.contains(" F32"));
+    let (max_bound, mean_bound) = if is_f32 {
+        (6.0 / 255.0, 1e-3)
+    } else {
+        (0.06, 4e-3)
+    };
+    assert!(
+        max < max_bound,
+        "GPU and CPU reference differ by {max} (bound {max_bound})\n{text}"
+    );
+    assert!(
+        mean < mean_bound,
+        "mean difference {mean} (bound {mean_bound})\n{text}"
+    );
     assert!(text.contains("validation: 0 warnings/errors"), "{text}");
     assert!(covered(&pixels(png), BACKGROUND) > 0.2, "{text}");
 }

@@ -221,8 +221,9 @@ fn a_soak_fails_on_a_still_scene_and_on_a_validation_message() {
 /// A soak of a level store drawn through the three-level cache at levels chosen from the camera
 /// every frame, its stored bricks streamed in the background (issue 19's "validation-clean soak
 /// with residency changes across all levels"): two 300-frame soaks (drawn voxels of at most 2
-/// and 4 pixels) are validation-clean, leave no allocation, change levels all along, and
-/// between them draw every level from 0 to 4.
+/// and 4 pixels) are validation-clean, leave no allocation, change levels all along, keep GPU
+/// bytes, allocations and RSS within bounds computed here from their curves, and between them
+/// draw every level from 0 to 4.
 #[test]
 fn a_three_level_soak_is_clean_across_the_levels() {
     let dir = temp_dir("levels");
@@ -270,6 +271,37 @@ fn a_three_level_soak_is_clean_across_the_levels() {
         assert_eq!(u64_at(s, "/validation_problems"), 0, "{s}");
         let changes_after = u64_at(s, "/level_changes_after_warm_up");
         assert!(changes_after >= 100, "{changes_after} level changes: {s}");
+        // The curve re-read here, against bounds computed here (review M10: not the soak's own
+        // verdict): after the warm-up GPU bytes grow at most by the staging of one upload
+        // (--upload-mb 1: 1 MiB), allocations stay, RSS stays within the streamer's RAM
+        // budget (--ram-budget-mb 8) plus 2 MiB.
+        let warm = u64_at(s, "/warm_up_frames");
+        let curve = std::fs::read_to_string(&csv).unwrap();
+        let mut lines = curve.lines();
+        let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+        let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+        let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+        let num = |row: &[&str], name: &str| -> u64 { row[col(name)].parse().unwrap() };
+        let after: Vec<&Vec<&str>> = rows.iter().filter(|r| num(r, "frame") >= warm).collect();
+        assert!(after.len() >= 2, "{curve}");
+        let at_warm = after[0];
+        for r in &after {
+            let frame = num(r, "frame");
+            assert!(
+                num(r, "gpu_allocated_bytes") <= num(at_warm, "gpu_allocated_bytes") + (1 << 20),
+                "frame {frame}: GPU bytes grew past one upload's staging\n{curve}"
+            );
+            assert_eq!(
+                num(r, "live_allocations"),
+                num(at_warm, "live_allocations"),
+                "frame {frame}\n{curve}"
+            );
+            assert!(
+                num(r, "rss_bytes") <= num(at_warm, "rss_bytes") + (10 << 20),
+                "frame {frame}: RSS grew past the RAM budget + 2 MiB\n{curve}"
+            );
+            assert_eq!(num(r, "validation_problems"), 0, "{curve}");
+        }
         let line = text
             .lines()
             .find_map(|l| l.strip_prefix("soak: levels drawn {"))

@@ -436,6 +436,35 @@ fn irregular_spacing_and_mixed_orientations_are_refused() {
         }
         other => panic!("{other}"),
     }
+    // The MNI series with one slice copied under a second name (review M9: a copied file, or
+    // two echoes at one position): refused, naming both files and the position, not loaded as
+    // a longer volume.
+    let dup = fixtures().join("mni_lps_duplicate");
+    let _ = std::fs::remove_dir_all(&dup);
+    std::fs::create_dir_all(&dup).unwrap();
+    let mut copied = None;
+    for f in std::fs::read_dir(&src).unwrap() {
+        let f = f.unwrap().path();
+        std::fs::copy(&f, dup.join(f.file_name().unwrap())).unwrap();
+        copied.get_or_insert(f);
+    }
+    let copied = copied.unwrap();
+    let twin = dup.join("ZZ_copy.dcm");
+    std::fs::copy(&copied, &twin).unwrap();
+    match dicom_error(load_volume_with_meta(&dup), "duplicate") {
+        e @ DicomError::DuplicatePosition { .. } => {
+            let DicomError::DuplicatePosition { first, second, .. } = &e else {
+                unreachable!()
+            };
+            let names = [first.file_name().unwrap(), second.file_name().unwrap()];
+            assert!(
+                names.contains(&twin.file_name().unwrap())
+                    && names.contains(&copied.file_name().unwrap()),
+                "{e}"
+            );
+        }
+        other => panic!("{other}"),
+    }
     // The scout series of patient 98892001: two slices in different orientations.
     match dicom_error(
         load_volume_with_meta(&dicomdir().join("98892001/CT2N")),

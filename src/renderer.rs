@@ -11,7 +11,6 @@ use crate::gpu::{
 };
 use crate::optics::TransferFunction;
 use crate::plan::FramePlan;
-use crate::scene::Transition;
 use crate::scene::{Camera, ModelTransform, RaycastParams, RenderSettings};
 use ash::vk;
 use glam::{Vec3, Vec4};
@@ -361,26 +360,16 @@ impl Renderer {
     /// Samples the GPU-reconstructed mixed-resolution field at volume points (hi-res voxel units)
     /// with the ray-caster's own functions; `None` where a point lies in an absent brick.
     pub fn probe_field(&mut self, points: &[Vec3]) -> Result<Vec<Option<f32>>> {
-        let Some(state) = self.pass.mixed_state_mut() else {
+        let Some((gpu, dims, brick_size, smooth)) = self.pass.probe_target() else {
             return Err(Error::InvalidInput(
                 "probe_field needs a brick-cache source (set_source) first".into(),
             ));
         };
         if self.probe.is_none() {
-            let smooth = state.config.transition == Transition::Smooth;
             self.probe = Some(FieldProbe::new(&self.ctx.shared, smooth)?);
         }
         let probe = self.probe.as_ref().expect("created above");
-        let dims = state.source.grid().dims();
-        let brick_size = state.config.brick_size;
-        probe.sample(
-            &mut self.submitter,
-            &mut state.gpu,
-            0,
-            dims,
-            brick_size,
-            points,
-        )
+        probe.sample(&mut self.submitter, gpu, 0, dims, brick_size, points)
     }
 
     /// Reads the GPU brick cache back as normalised values (for tests).

@@ -17,7 +17,7 @@ use mixvol::reference::{self, LevelField, LevelReferenceCache};
 use mixvol::renderer::{Frame, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Transition};
 use mixvol::store::{write_level_store, LevelStore};
-use mixvol::volume::{ScalarType, SyntheticField, Volume};
+use mixvol::volume::{ScalarType, SyntheticField, Volume, VoxelData};
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -632,6 +632,144 @@ fn a_cache_too_small_for_the_coarsest_plan_starts_empty_and_drops_bricks() {
         assert_matches("dropped", &frame, &reference_frame(&renderer, &store));
         drop(renderer);
         let _ = std::fs::remove_file(&path);
+    }
+    common::finish(ctx);
+}
+
+/// Points on and beside brick faces (where levels meet), and anywhere, inside `dims`.
+fn critical_points(rng: &mut Rng, dims: UVec3, count: usize) -> Vec<Vec3> {
+    let coord = |rng: &mut Rng, extent: u32| -> f32 {
+        let b = rng.below(extent / N + 1) as f32 * N as f32;
+        let v = match rng.below(5) {
+            0 => b,
+            1 => b + 0.5 * (rng.unit() - 0.5),
+            2 => b - 0.5,
+            3 => b + 0.5,
+            _ => rng.unit() * extent as f32,
+        };
+        v.clamp(0.02, extent as f32 - 0.02)
+    };
+    (0..count)
+        .map(|_| Vec3::new(coord(rng, dims.x), coord(rng, dims.y), coord(rng, dims.z)))
+        .collect()
+}
+
+/// Review M6: the renderer's own level cache, probed at points (`Renderer::probe_field`,
+/// the ray-caster's functions): after each of several camera-driven steps (incremental uploads,
+/// bricks moved to make room, partial re-fixups) the field at brick faces and inside bricks
+/// equals the CPU mirror of the same levels (`LevelReferenceCache`) within 2e-3 for an f32
+/// store and is C0 (points a thousandth of a voxel apart differ by the field's slope only);
+/// for a u8 store it stays within lavapipe's 8-bit filtering of the mirror built from the u8
+/// texels, and jumps across faces by no more than that filtering and the half step
+/// `docs/cache-layout.md` allows (lavapipe's 1/255 output rounding hides the half step itself).
+#[test]
+fn the_renderers_level_cache_probes_as_its_cpu_mirror() {
+    let ctx = common::validated_context();
+    {
+        let mut rng = Rng(0x1e7e_1570_6900_0008);
+        let dims = UVec3::new(6 * N, 5 * N, 4 * N);
+        for scalar in [ScalarType::F32, ScalarType::U8] {
+            let volume = textured_volume(&mut rng, dims);
+            let volume = if scalar == ScalarType::U8 {
+                // The same texture in [0, 1], stored as u8.
+                let VoxelData::F32(values) = volume.data() else {
+                    unreachable!()
+                };
+                let bytes = values.iter().map(|v| (v * 255.0).round() as u8).collect();
+                Volume::new(dims, Vec3::ONE, VoxelData::U8(bytes)).unwrap()
+            } else {
+                volume
+            };
+            let (path, store) = stored(&volume, &format!("probe-{scalar:?}"));
+            // A cache for about half the bricks at level 0: steps move and re-fix bricks.
+            let bytes = scalar.size_bytes() as u64;
+            let budget = 70 * 12 * 12 * 12 * bytes;
+            let mut renderer = renderer_for(
+                &ctx,
+                VolumeSource::LevelStore {
+                    store: store.clone(),
+                    levels: &[],
+                    config: config(budget),
+                },
+            );
+            renderer.set_residency_config(ResidencyConfig {
+                upload_bytes_per_frame: 40 * 12 * 12 * 12 * bytes,
+                ..ResidencyConfig::default()
+            });
+            let grids = store.read_grids().unwrap();
+            let classes = classes_for_levels(store.level_count());
+            let geometry = SlotGeometry::new(N, classes, UVec3::splat(128)).unwrap();
+            let (mut worst, mut jump) = (0.0f32, 0.0f32);
+            for step in 0..6 {
+                let angle = step as f32 * 0.9;
+                let camera = Camera::perspective(
+                    Vec3::new(1.4 * angle.cos(), 0.7, 1.4 * angle.sin()),
+                    Vec3::ZERO,
+                    40.0,
+                );
+                // Render (plans, uploads, fixes up), then probe what the cache holds.
+                renderer.render(&camera, &settings(), W, W).unwrap();
+                let levels = renderer.brick_levels().unwrap().to_vec();
+                let field = LevelField::new(&store.grid(), &grids, &levels).unwrap();
+                let mirror = LevelReferenceCache::build_stored_as(
+                    &field,
+                    &geometry,
+                    Transition::Smooth,
+                    scalar,
+                )
+                .unwrap();
+                let points = critical_points(&mut rng, dims, 1500);
+                let gpu = renderer.probe_field(&points).unwrap();
+                for (p, g) in points.iter().zip(&gpu) {
+                    let cpu = reference::sample_mixed(&mirror.view(), *p, Transition::Smooth);
+                    match (g, cpu) {
+                        (Some(g), Some(c)) => worst = worst.max((g - c).abs()),
+                        (g, c) => assert_eq!(
+                            g.is_some(),
+                            c.is_some(),
+                            "{scalar:?} step {step} {p}: residency differs"
+                        ),
+                    }
+                }
+                // Jumps across faces: the same points nudged both ways along five directions.
+                let eps = 1e-3f32;
+                let mut pairs = Vec::new();
+                for p in &points {
+                    for d in [
+                        Vec3::X,
+                        Vec3::Y,
+                        Vec3::Z,
+                        Vec3::ONE,
+                        Vec3::new(1.0, -1.0, 1.0),
+                    ] {
+                        pairs.push(*p + eps * d);
+                        pairs.push(*p - eps * d);
+                    }
+                }
+                let values = renderer.probe_field(&pairs).unwrap();
+                for pair in values.chunks_exact(2) {
+                    if let (Some(a), Some(b)) = (pair[0], pair[1]) {
+                        jump = jump.max((a - b).abs());
+                    }
+                }
+            }
+            eprintln!("{scalar:?}: largest |gpu - cpu mirror| {worst}, largest jump {jump}");
+            // Measured 2026-12-07: f32 1.1e-6 and a largest jump of 1.3e-3; u8 1.44/255 and
+            // 2/255.
+            let (bound, jump_bound) = match scalar {
+                // C0: a jump only of the field's slope (at most about 0.75 per voxel in every
+                // direction here) over the 2 * sqrt(3) * eps between the two points.
+                ScalarType::F32 => (2e-3, 5e-3),
+                // lavapipe filters UNORM8 texels in 8-bit fixed point and rounds what it returns
+                // to 1/255: up to 1.5 steps from the mirror, and two such roundings across a
+                // face, on top of the half step a transition may jump by.
+                _ => (2.5 / 255.0, 2.5 / 255.0),
+            };
+            assert!(worst < bound, "{scalar:?}: {worst} >= {bound}");
+            assert!(jump < jump_bound, "{scalar:?}: jump {jump} >= {jump_bound}");
+            drop(renderer);
+            let _ = std::fs::remove_file(&path);
+        }
     }
     common::finish(ctx);
 }

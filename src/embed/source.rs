@@ -581,6 +581,24 @@ impl VolumePass {
         }
     }
 
+    /// The brick cache of a brick-cache source (two-level or level) with what a field probe
+    /// needs: the volume's dimensions, the brick size and whether transitions are smooth.
+    pub(crate) fn probe_target(&mut self) -> Option<(&mut GpuBrickCache, UVec3, u32, bool)> {
+        match &mut self.source {
+            Source::Mixed(m) => Some((
+                &mut m.gpu,
+                m.source.grid().dims(),
+                m.config.brick_size,
+                m.config.transition == Transition::Smooth,
+            )),
+            Source::Levels(l) => {
+                let (dims, n, smooth) = (l.dims, l.brick_size, l.transition == Transition::Smooth);
+                Some((&mut l.gpu, dims, n, smooth))
+            }
+            _ => None,
+        }
+    }
+
     pub(crate) fn mixed_state_mut(&mut self) -> Option<&mut MixedState> {
         match &mut self.source {
             Source::Mixed(m) => Some(m),

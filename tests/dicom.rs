@@ -465,6 +465,47 @@ fn irregular_spacing_and_mixed_orientations_are_refused() {
         }
         other => panic!("{other}"),
     }
+    // Without positions (review M9, D14): InstanceNumber orders the slices, numerically (1..n
+    // in position order, file names shuffled: the same voxels as the positioned series); with
+    // slices lacking it too, the series is refused, counting them.
+    let by_number = load(&fixtures().join("mni_by_number"));
+    let positioned = load(&src);
+    assert_eq!(by_number.volume.dims(), positioned.volume.dims());
+    // Per slice, the sum of its voxels (the positioned series is stored flipped within a slice
+    // into RAS, not across slices: slice k holds the same voxels; string order of the numbers
+    // would permute the slices).
+    let slice_sums = |v: &mixvol::volume::Volume| -> Vec<f64> {
+        let d = v.dims();
+        (0..d.z)
+            .map(|z| {
+                let mut sum = 0.0f64;
+                for y in 0..d.y {
+                    for x in 0..d.x {
+                        sum += f64::from(v.value(x, y, z));
+                    }
+                }
+                sum
+            })
+            .collect()
+    };
+    let (a, b) = (
+        slice_sums(&by_number.volume),
+        slice_sums(&positioned.volume),
+    );
+    assert!(a == b, "ordered by InstanceNumber as by position");
+    match dicom_error(
+        load_volume_with_meta(&fixtures().join("mni_unordered")),
+        "unordered",
+    ) {
+        e @ DicomError::Unordered {
+            missing: 4,
+            count: 4,
+            ..
+        } => {
+            assert!(e.to_string().contains("cannot be ordered"), "{e}")
+        }
+        other => panic!("{other}"),
+    }
     // The scout series of patient 98892001: two slices in different orientations.
     match dicom_error(
         load_volume_with_meta(&dicomdir().join("98892001/CT2N")),

@@ -174,6 +174,22 @@ pub enum DicomError {
         /// Their position along the slice normal (or InstanceNumber).
         position: f64,
     },
+    /// A series without slice positions whose slices cannot be ordered by InstanceNumber
+    /// (review D14).
+    #[error(
+        "{folder}: {missing} of the {count} slices have neither ImagePositionPatient nor \
+         InstanceNumber (the first: {first}): they cannot be ordered into a stack"
+    )]
+    Unordered {
+        /// The folder or DICOMDIR.
+        folder: PathBuf,
+        /// The first slice without an InstanceNumber.
+        first: PathBuf,
+        /// Slices without one.
+        missing: usize,
+        /// Slices in the series.
+        count: usize,
+    },
     /// A slice disagrees with the series' first slice on an attribute that must be shared.
     #[error(
         "{folder}: {file} has {field} {found} but {reference} has {expected}: the files of a \

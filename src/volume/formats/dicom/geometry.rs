@@ -134,18 +134,25 @@ pub(super) fn arrange(
         // No geometry: InstanceNumber orders the slices.
         let mut order: Vec<usize> = (0..n).collect();
         if n > 1 {
-            let mut keyed = Vec::with_capacity(n);
-            for (i, (path, s)) in slices.iter().enumerate() {
-                let k = s.instance_number.ok_or_else(|| {
-                    inconsistent(
-                        path,
-                        "InstanceNumber",
-                        "a number (needed to order slices without ImagePositionPatient)".into(),
-                        "none".into(),
-                    )
-                })?;
-                keyed.push((k, i));
+            let missing: Vec<&PathBuf> = slices
+                .iter()
+                .filter(|(_, s)| s.instance_number.is_none())
+                .map(|(path, _)| path)
+                .collect();
+            if let Some(first) = missing.first() {
+                return Err(DicomError::Unordered {
+                    folder: folder.to_path_buf(),
+                    first: first.to_path_buf(),
+                    missing: missing.len(),
+                    count: n,
+                }
+                .into());
             }
+            let mut keyed: Vec<_> = slices
+                .iter()
+                .enumerate()
+                .filter_map(|(i, (_, s))| s.instance_number.map(|k| (k, i)))
+                .collect();
             keyed.sort();
             for w in keyed.windows(2) {
                 if w[0].0 == w[1].0 {

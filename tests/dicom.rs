@@ -506,6 +506,14 @@ fn irregular_spacing_and_mixed_orientations_are_refused() {
         }
         other => panic!("{other}"),
     }
+    // Sheared by 0.5 mm per slice (a gantry tilt): refused, not loaded as a straight stack.
+    match dicom_error(
+        load_volume_with_meta(&fixtures().join("mni_sheared")),
+        "sheared",
+    ) {
+        e @ DicomError::Sheared { .. } => assert!(e.to_string().contains("gantry tilt"), "{e}"),
+        other => panic!("{other}"),
+    }
     // The scout series of patient 98892001: two slices in different orientations.
     match dicom_error(
         load_volume_with_meta(&dicomdir().join("98892001/CT2N")),

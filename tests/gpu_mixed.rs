@@ -64,23 +64,6 @@ fn config(transition: Transition) -> MixedConfig {
     }
 }
 
-fn critical_points(rng: &mut Rng, dims: UVec3, count: usize) -> Vec<Vec3> {
-    let coord = |rng: &mut Rng, extent: u32| -> f32 {
-        let b = rng.below(extent / N + 1) as f32 * N as f32;
-        let v = match rng.below(5) {
-            0 => b,
-            1 => b + 0.5 * (rng.unit() - 0.5),
-            2 => b - 0.5,
-            3 => b + 0.5,
-            _ => rng.unit() * extent as f32,
-        };
-        v.clamp(0.02, extent as f32 - 0.02)
-    };
-    (0..count)
-        .map(|_| Vec3::new(coord(rng, dims.x), coord(rng, dims.y), coord(rng, dims.z)))
-        .collect()
-}
-
 #[test]
 fn cache_contents_after_upload_and_fixup_match_the_reference() {
     let ctx = common::validated_context();
@@ -170,7 +153,7 @@ fn gpu_field_matches_reference_and_is_continuous() {
                     transition,
                 )
                 .unwrap();
-                let points = critical_points(&mut rng, dims, 4000);
+                let points = common::critical_points(&mut rng, N, dims, 4000);
                 let gpu = renderer.probe_field(&points).unwrap();
                 for (p, g) in points.iter().zip(&gpu) {
                     let cpu = sample_mixed(&reference.view(), *p, transition);
@@ -407,7 +390,7 @@ fn a_hundred_residency_changes_stay_validation_clean() {
                 Transition::Smooth,
             )
             .unwrap();
-            let points = critical_points(&mut rng, volume.dims(), 150);
+            let points = common::critical_points(&mut rng, N, volume.dims(), 150);
             let gpu = renderer.probe_field(&points).unwrap();
             for (p, g) in points.iter().zip(&gpu) {
                 let cpu = sample_mixed(&reference.view(), *p, Transition::Smooth);

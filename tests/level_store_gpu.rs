@@ -636,24 +636,6 @@ fn a_cache_too_small_for_the_coarsest_plan_starts_empty_and_drops_bricks() {
     common::finish(ctx);
 }
 
-/// Points on and beside brick faces (where levels meet), and anywhere, inside `dims`.
-fn critical_points(rng: &mut Rng, dims: UVec3, count: usize) -> Vec<Vec3> {
-    let coord = |rng: &mut Rng, extent: u32| -> f32 {
-        let b = rng.below(extent / N + 1) as f32 * N as f32;
-        let v = match rng.below(5) {
-            0 => b,
-            1 => b + 0.5 * (rng.unit() - 0.5),
-            2 => b - 0.5,
-            3 => b + 0.5,
-            _ => rng.unit() * extent as f32,
-        };
-        v.clamp(0.02, extent as f32 - 0.02)
-    };
-    (0..count)
-        .map(|_| Vec3::new(coord(rng, dims.x), coord(rng, dims.y), coord(rng, dims.z)))
-        .collect()
-}
-
 /// Review M6: the renderer's own level cache, probed at points (`Renderer::probe_field`,
 /// the ray-caster's functions): after each of several camera-driven steps (incremental uploads,
 /// bricks moved to make room, partial re-fixups) the field at brick faces and inside bricks
@@ -718,7 +700,7 @@ fn the_renderers_level_cache_probes_as_its_cpu_mirror() {
                     scalar,
                 )
                 .unwrap();
-                let points = critical_points(&mut rng, dims, 1500);
+                let points = common::critical_points(&mut rng, N, dims, 1500);
                 let gpu = renderer.probe_field(&points).unwrap();
                 for (p, g) in points.iter().zip(&gpu) {
                     let cpu = reference::sample_mixed(&mirror.view(), *p, Transition::Smooth);

@@ -33,6 +33,26 @@ fn every_stored(store: &LevelStore) -> Vec<(u32, UVec3)> {
     out
 }
 
+/// A level store of Marschner-Lobb at `dims` in `scalar` written as `v.mvl` in `dir`, and the
+/// file opened.
+fn local_store(dir: &TempDir, dims: UVec3, scalar: ScalarType) -> (std::path::PathBuf, LevelStore) {
+    let volume = SyntheticField::MarschnerLobb
+        .generate(dims, scalar)
+        .unwrap();
+    let path = dir.0.join("v.mvl");
+    write_level_store(
+        &path,
+        &volume,
+        N,
+        None,
+        DownsampleFilter::Mean2,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let local = LevelStore::open(&path).unwrap();
+    (path, local)
+}
+
 fn assert_same_store(remote: &LevelStore, local: &LevelStore) {
     assert_eq!(remote.header(), local.header());
     for (level, first) in every_stored(local) {
@@ -51,20 +71,7 @@ fn assert_same_store(remote: &LevelStore, local: &LevelStore) {
 #[test]
 fn a_remote_level_store_reads_as_the_local_file() {
     let dir = TempDir::new("level-store");
-    let volume = SyntheticField::MarschnerLobb
-        .generate(UVec3::new(40, 24, 32), ScalarType::U16)
-        .unwrap();
-    let path = dir.0.join("v.mvl");
-    write_level_store(
-        &path,
-        &volume,
-        N,
-        None,
-        DownsampleFilter::Mean2,
-        &mut |_, _| {},
-    )
-    .unwrap();
-    let local = LevelStore::open(&path).unwrap();
+    let (path, local) = local_store(&dir, UVec3::new(40, 24, 32), ScalarType::U16);
 
     // Over HTTP with range requests.
     let server = range_server(&dir.0);
@@ -113,20 +120,7 @@ fn a_remote_level_store_reads_as_the_local_file() {
 #[test]
 fn a_remote_level_store_under_faults_and_through_the_streamer() {
     let dir = TempDir::new("level-store-faults");
-    let volume = SyntheticField::MarschnerLobb
-        .generate(UVec3::new(32, 24, 16), ScalarType::U8)
-        .unwrap();
-    let path = dir.0.join("v.mvl");
-    write_level_store(
-        &path,
-        &volume,
-        N,
-        None,
-        DownsampleFilter::Mean2,
-        &mut |_, _| {},
-    )
-    .unwrap();
-    let local = LevelStore::open(&path).unwrap();
+    let (path, local) = local_store(&dir, UVec3::new(32, 24, 16), ScalarType::U8);
     let server = range_server(&dir.0);
     let stored = every_stored(&local);
 

@@ -245,3 +245,22 @@ pub fn step_levels(
         .expect("a level source's update chooses")
         .clone())
 }
+
+/// `count` points inside `dims` (voxel units) where levels meet or not: on the faces of bricks of
+/// `brick` voxels, half a voxel either side, within half a voxel of a face, or anywhere.
+pub fn critical_points(rng: &mut Rng, brick: u32, dims: glam::UVec3, count: usize) -> Vec<Vec3> {
+    let coord = |rng: &mut Rng, extent: u32| -> f32 {
+        let b = rng.below(extent / brick + 1) as f32 * brick as f32;
+        let v = match rng.below(5) {
+            0 => b,
+            1 => b + 0.5 * (rng.unit() - 0.5),
+            2 => b - 0.5,
+            3 => b + 0.5,
+            _ => rng.unit() * extent as f32,
+        };
+        v.clamp(0.02, extent as f32 - 0.02)
+    };
+    (0..count)
+        .map(|_| Vec3::new(coord(rng, dims.x), coord(rng, dims.y), coord(rng, dims.z)))
+        .collect()
+}

@@ -71,7 +71,8 @@ mod tables;
 
 pub use frames::PassTimings;
 pub use residency::{
-    FrameReport, LevelCounts, ResidencyConfig, BUDGET_DRIVEN_TARGET_PIXELS, MIN_STEP_BRICKS,
+    largest_step_bytes, FrameReport, LevelCounts, ResidencyConfig, BUDGET_DRIVEN_TARGET_PIXELS,
+    MIN_STEP_BRICKS,
 };
 pub use source::{MixedConfig, ResidencyReport, VolumeSource};
 

@@ -433,9 +433,9 @@ impl VolumePass {
             ));
         };
         let budget = self.residency.upload_bytes_per_frame;
-        // A brick and its neighbours, fewer in a grid of fewer bricks.
-        let step_bricks = MIN_STEP_BRICKS.min(state.bricks.grid().brick_count() as u64);
-        let least = step_bricks * state.stored_bytes(0);
+        let bricks = state.bricks.grid().brick_count();
+        let step_bricks = MIN_STEP_BRICKS.min(bricks as u64);
+        let least = largest_step_bytes(state.stored_bytes(0), bricks);
         if budget < least {
             return Err(Error::InvalidInput(format!(
                 "upload budget of {budget} bytes per frame is below the largest single step, \
@@ -537,6 +537,13 @@ struct LevelStep {
 /// fixed-up borders go stale and are uploaded again (a grid of fewer bricks: all of them). An upload budget of this many level-0
 /// stored bricks always lets some step move ([`VolumePass::update`] refuses less).
 pub const MIN_STEP_BRICKS: u64 = 27;
+
+/// The bytes of the largest single step of a level source of `bricks` bricks whose level-0
+/// stored brick takes `level0_bytes` (as the cache copies it): [`MIN_STEP_BRICKS`] of them, or
+/// every brick of a smaller grid. [`VolumePass::update`] refuses an upload budget below it.
+pub fn largest_step_bytes(level0_bytes: u64, bricks: usize) -> u64 {
+    MIN_STEP_BRICKS.min(bricks as u64) * level0_bytes
+}
 
 /// Failed stored-brick reads [`VolumePass::update`] plans around within one call
 /// (each read once); past them the call keeps the drawn levels and goes on at the next.

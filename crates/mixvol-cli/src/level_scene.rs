@@ -86,13 +86,11 @@ pub fn three_level_plan(
 }
 
 /// The upload bytes of the largest single residency step of a level scene of `grid` with
-/// `scalar_bytes` bytes a texel: [`mixvol::embed::MIN_STEP_BRICKS`] (at most the grid's
-/// bricks) full-resolution stored bricks with two border texels a side (the most any cache
-/// keeps).
+/// `scalar_bytes` bytes a texel ([`mixvol::embed::largest_step_bytes`]), for full-resolution
+/// stored bricks with two border texels a side (the most any cache keeps).
 pub fn least_level_upload(grid: &BrickGrid, scalar_bytes: u64) -> u64 {
     let edge = u64::from(grid.brick_size()) + 4;
-    let bricks = mixvol::embed::MIN_STEP_BRICKS.min(grid.brick_count() as u64);
-    bricks * edge * edge * edge * scalar_bytes
+    mixvol::embed::largest_step_bytes(edge * edge * edge * scalar_bytes, grid.brick_count())
 }
 
 /// The residency of a three-level scene whose levels come from the camera: `upload` (the

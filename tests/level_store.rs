@@ -402,7 +402,14 @@ fn the_slab_writer_writes_the_same_bytes_as_the_volume_writer() {
             "levels built on disk are removed"
         );
         // A budget one byte short is refused, and nothing is written.
-        let needed = level_slab_bytes(dims, scalar.size_bytes() as u64, N, reader.scratch_bytes());
+        let stored = LevelStore::open(&from_slabs).unwrap().header().stored_count;
+        let needed = level_slab_bytes(
+            dims,
+            scalar.size_bytes() as u64,
+            N,
+            stored,
+            reader.scratch_bytes(),
+        );
         let mut reader = open_raw_slabs(&raw, &desc).unwrap();
         let short = dir.join("short.mvl");
         assert!(matches!(

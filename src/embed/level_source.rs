@@ -460,7 +460,21 @@ impl VolumePass {
         } else {
             levels
         };
-        state.stage(levels)?;
+        match state.stage(levels) {
+            Ok(_) => {}
+            // A stored brick of the coarsest plan of a source left to the camera failed to
+            // read (a corrupt brick, a failed fetch): it starts with nothing drawn, and the
+            // updates step around the failed brick, counting it (never an error here).
+            Err(e) if planned => {
+                let Some(key) = state.last_failed_read.take() else {
+                    return Err(e);
+                };
+                state.first_failure.get_or_insert_with(|| e.to_string());
+                state.failed.insert(key);
+                state.stage(&nothing)?;
+            }
+            Err(e) => return Err(e),
+        }
         self.source = Source::Levels(Box::new(state));
         Ok(())
     }

@@ -33,6 +33,7 @@ pub mod levels;
 pub mod reader;
 pub mod slab_writer;
 pub mod streamer;
+pub mod upgrade;
 pub mod writer;
 
 pub use backend::BrickBackend;
@@ -45,6 +46,7 @@ pub use levels::{
 pub use reader::BrickStore;
 pub use slab_writer::{plan_slab_write, slab_store_desc, write_store_from_slabs, SlabPlan};
 pub use streamer::{BrickStreamer, StreamStats, StreamerConfig};
+pub use upgrade::BrickStoreSlabs;
 pub use writer::{
     write_store, write_store_from_volume, write_store_from_volume_with_progress,
     write_store_with_threads, StoreDesc, WriteSummary,

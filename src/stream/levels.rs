@@ -34,7 +34,7 @@
 //! the level drawn before).
 
 use super::coarser::Coarser;
-use super::{reported_range, StreamError};
+use super::{reported_range, ChunkCacheStats, StreamError};
 use crate::bricks::{quantize_to, BrickGrid, ValueRange};
 use crate::cache::{
     block_origin, min_brick_size_for_levels, pyramid_levels, stored_brick_edge, stored_first_sample,
@@ -59,6 +59,9 @@ pub struct ZarrLevelsConfig {
     pub chunk_cache_bytes: usize,
     /// The normalised value range of a float image (required for one); `None`: `[0, 1]`.
     pub value_range: Option<ValueRange>,
+    /// The image level drawn as vertex level 0 (its voxels are level 0's stored bricks; the
+    /// coarser vertex levels read this level or coarser ones). 0: the image's full resolution.
+    pub base_level: usize,
 }
 
 impl Default for ZarrLevelsConfig {
@@ -69,6 +72,7 @@ impl Default for ZarrLevelsConfig {
             concurrency: 8,
             chunk_cache_bytes: 256 << 20,
             value_range: None,
+            base_level: 0,
         }
     }
 }
@@ -112,7 +116,7 @@ impl ZarrLevels {
     ) -> Result<Self, StreamError> {
         let invalid =
             |field: &'static str, message: String| StreamError::InvalidConfig { field, message };
-        let base = ZarrChunks::open(location, 0, options)?;
+        let base = ZarrChunks::open(location, config.base_level, options)?;
         let name = base.root().display().to_string();
         let grid = BrickGrid::new(base.dims(), config.brick_size)
             .map_err(|e| invalid("brick_size", e.to_string()))?;
@@ -134,18 +138,20 @@ impl ZarrLevels {
         let range = reported_range(config.value_range, scalar, &name)?;
         // The coarsest image level within 2^k of level 0's spacing, per vertex level.
         let s0 = base.spacing();
+        // factors[i]: image level `base_level + i`.
         let mut factors = vec![1.0f32];
-        for m in 1..base.level_count() {
+        for m in config.base_level + 1..base.level_count() {
             let s = base.open_level(m)?.spacing();
             factors.push((s / s0).max_element());
         }
         let image_level_of: Vec<usize> = (0..levels)
             .map(|k| {
                 let reach = (1u64 << k) as f32 * 1.001;
-                (0..factors.len())
+                let i = (0..factors.len())
                     .rev()
-                    .find(|&m| factors[m] <= reach)
-                    .unwrap_or(0)
+                    .find(|&i| factors[i] <= reach)
+                    .unwrap_or(0);
+                config.base_level + i
             })
             .collect();
         let mut used: Vec<usize> = image_level_of.clone();
@@ -175,6 +181,23 @@ impl ZarrLevels {
     /// The image level each vertex level is read from (index: vertex level).
     pub fn image_levels(&self) -> &[usize] {
         &self.image_level_of
+    }
+
+    /// The counters of the chunk caches of every image level read, summed (`peak_bytes`: the
+    /// sum of each cache's peak, an upper bound of the peak of their sum).
+    pub fn cache_stats(&self) -> ChunkCacheStats {
+        let mut sum = ChunkCacheStats::default();
+        for s in self.samplers.iter().map(Coarser::cache_stats) {
+            sum.budget_bytes += s.budget_bytes;
+            sum.resident_bytes += s.resident_bytes;
+            sum.peak_bytes += s.peak_bytes;
+            sum.resident_chunks += s.resident_chunks;
+            sum.hits += s.hits;
+            sum.fetches += s.fetches;
+            sum.evictions += s.evictions;
+            sum.failed_chunks += s.failed_chunks;
+        }
+        sum
     }
 
     /// Bytes fetched so far, over every image level read.

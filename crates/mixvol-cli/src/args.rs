@@ -148,17 +148,13 @@ pub struct ResidencyArgs {
     pub upload_mb: Option<f64>,
     /// Levels chosen from the camera: weigh each brick's on-screen voxel size by the width of
     /// its value range (a fraction of the volume's), so bricks of narrow range are drawn
-    /// coarser and bricks of one value only as fine as their neighbours force (two-level
-    /// residency always weighs by value).
+    /// coarser and bricks of one value only as fine as their neighbours force.
     #[arg(long)]
     pub weigh_by_value: bool,
-    /// MiB of RAM for the bricks a brick store streams in.
+    /// MiB of RAM for the stored bricks a level store or a streamed image reads in the
+    /// background (a streamed image gives half of it to decoded chunks).
     #[arg(long, default_value_t = 512.0)]
     pub ram_budget_mb: f64,
-    /// Screen-space error (pixels x value range) below which a brick is not refined; 0 refines
-    /// whatever the budget allows.
-    #[arg(long, default_value_t = 0.0)]
-    pub error_threshold: f32,
     /// Exit 1 and write no image when a brick the view wants failed to load (a corrupt stored
     /// brick, a failed fetch) and is drawn at a coarser level instead (without it: a warning
     /// on stderr; a view that draws nothing because of failed loads is always an error).
@@ -320,15 +316,16 @@ pub struct RenderArgs {
     /// The raw file's multi-byte values are big-endian.
     #[arg(long)]
     pub big_endian: bool,
-    /// Resolution level of an OME-Zarr image (index into its multiscales datasets, 0 = finest).
+    /// Resolution level of an OME-Zarr image (index into its multiscales datasets, 0 = finest):
+    /// the level loaded, or with --stream the finest level drawn.
     #[arg(long)]
     pub zarr_level: Option<usize>,
-    /// Stream the OME-Zarr image (a folder, s3:// or http(s)://) chunk by chunk through
-    /// camera-driven residency instead of loading it: only the chunks of the bricks the planner
-    /// asks for are fetched (half of --ram-budget-mb caches decoded chunks, half packed bricks;
-    /// MIXVOL_REMOTE_CONCURRENCY requests in flight, default 8). Needs --window for float
-    /// images. With --levels camera (or staircase) the image is drawn at every level through
-    /// the three-level cache, each level read from the image's own pyramid.
+    /// Stream the OME-Zarr image (a folder, s3:// or http(s)://) chunk by chunk instead of
+    /// loading it: drawn at every level through the level cache at levels chosen from the
+    /// camera (or --levels staircase), each level read from the image's own pyramid; only the
+    /// chunks of the bricks the planner asks for are fetched (half of --ram-budget-mb caches
+    /// decoded chunks, half stored bricks; MIXVOL_REMOTE_CONCURRENCY requests in flight,
+    /// default 8). Needs --window for float images.
     #[arg(long)]
     pub stream: bool,
     /// Image, channel and time point of an OME-TIFF or ImageJ hyperstack (default 0 each).
@@ -573,7 +570,8 @@ impl TiffSelectArgs {
     }
 }
 
-/// `mixvol convert`: a volume into a brick store, read in slabs under a RAM budget.
+/// `mixvol convert`: a volume into a level store (every level as the level cache stores it),
+/// read in slabs under a RAM budget.
 #[derive(Args, Debug)]
 pub struct ConvertArgs {
     /// The volume to convert: a file with a header (.nii, .nii.gz, .nrrd, .nhdr, .den, a JSON
@@ -583,14 +581,17 @@ pub struct ConvertArgs {
     /// with the AWS_* environment variables, http(s)://HOST/PATH.zarr; MIXVOL_REMOTE_TIMEOUT_MS
     /// / _RETRIES bound each fetch), a headerless raw file (described by
     /// --dims, --scalar, --spacing, --header-bytes, --big-endian), or a synthetic field (ml,
-    /// sphere, wall; generated whole at --dims, --scalar).
+    /// sphere, wall; generated whole at --dims, --scalar). A two-level brick store written by
+    /// an earlier mixvol is upgraded: its voxels are read back from its level-0 bricks.
     pub input: String,
-    /// The brick store file to write (refused if it exists, unless --force).
+    /// The level store file to write (refused if it exists, unless --force), drawn by
+    /// `mixvol render --volume STORE` at levels chosen from the camera.
     pub store: PathBuf,
     /// Brick edge in voxels (a power of two).
     #[arg(long, default_value_t = 32)]
     pub brick_size: u32,
-    /// Filter building the low-res bricks: mean2, lamar, box4, bspline4.
+    /// Filter building level 1 from level 0 (recorded in the store): mean2, lamar, box4,
+    /// bspline4; every coarser level is the vertex pyramid's tent or mean.
     #[arg(long, default_value = "mean2", value_parser = parse_filter)]
     pub filter: mixvol::bricks::DownsampleFilter,
     /// Dimensions x,y,z of a headerless raw file or a synthetic field (default 128,128,128).
@@ -608,7 +609,8 @@ pub struct ConvertArgs {
     /// The headerless raw file's multi-byte values are big-endian.
     #[arg(long)]
     pub big_endian: bool,
-    /// RAM budget in MiB for the voxels being bricked (slab, read buffers, worker buffers).
+    /// RAM budget in MiB for the write (slabs of level 0, the coarser levels' planes, read
+    /// buffers), checked before any work.
     #[arg(long, default_value_t = 512)]
     pub ram_budget_mb: u64,
     /// Level of an OME-Zarr image to convert (index into its multiscales datasets; 0 = finest).
@@ -621,16 +623,13 @@ pub struct ConvertArgs {
     /// SeriesInstanceUID or its SeriesNumber.
     #[arg(long)]
     pub series: Option<String>,
-    /// Write a level store instead: every level of the volume as the three-level cache stores
-    /// it, drawn by `mixvol render STORE` at levels chosen from the camera. The volume is read
-    /// whole: it plus about 1.25 bytes per voxel must fit --ram-budget-mb. --filter builds
-    /// level 1 (recorded in the store); every coarser level is the vertex pyramid's tent or
-    /// mean.
-    #[arg(long)]
+    /// Accepted for scripts written before level stores became the only format: every store
+    /// holds all levels.
+    #[arg(long, hide = true)]
     pub all_levels: bool,
-    /// Levels of a level store (default: 0-2 and block levels until one block covers the
-    /// longest axis; more than 3 need bricks of at least 8).
-    #[arg(long, requires = "all_levels")]
+    /// Levels of the store (default: 0-2 and block levels until one block covers the longest
+    /// axis; more than 3 need bricks of at least 8).
+    #[arg(long)]
     pub level_count: Option<u32>,
     /// Replace an existing STORE (atomically, once the new store is complete).
     #[arg(long)]

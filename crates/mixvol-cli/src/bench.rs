@@ -4,7 +4,7 @@
 //! `--soak N` it soaks the renderer for N frames instead (`soak`).
 
 use crate::args::{BenchArgs, LevelsArg};
-use crate::input::{is_brick_store, load_volume};
+use crate::input::{load_volume, store_kind};
 use crate::level_scene::three_level_plan;
 use crate::levels::{level_pattern, swapped};
 use crate::stats::Summary;
@@ -48,7 +48,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
     }
     if r.camera_path.is_path()
         || r.residency.gpu_budget_mb.is_some()
-        || is_brick_store(std::path::Path::new(&r.volume))
+        || store_kind(std::path::Path::new(&r.volume)).is_some()
     {
         return crate::path_bench::bench_path(args);
     }

@@ -1,32 +1,28 @@
-//! `mixvol convert INPUT STORE`: any supported volume into a brick store, in bounded RAM.
+//! `mixvol convert INPUT STORE`: any supported volume into a level store, in bounded RAM
+//! (the writing itself: [`crate::convert_levels`]).
 //!
-//! Files with a header (NRRD raw / gzip, NIfTI `.nii` / `.nii.gz`, raw or gzip data with a JSON
-//! sidecar, `.den`), one level of an OME-Zarr image and headerless raw data are read slab by
-//! slab ([`mixvol::store::write_store_from_slabs`]) under `--ram-budget-mb`; synthetic fields and
-//! DICOM series (sorted and reoriented as a whole) are loaded whole, after checking that they fit
-//! the budget. Everything is checked before any
-//! work (the store's brick size, the budget against the slab the brick size needs, an existing
-//! STORE without `--force`); the store is written to `STORE.partial` and renamed at the end, so a
-//! failed convert leaves nothing under STORE (with `--force`, an existing STORE stays as it was).
+//! This module checks what is asked before any work (an existing STORE without `--force`, a
+//! STORE that is not a regular file, INPUT naming STORE or a level store) and opens INPUT:
+//! files with a header (NRRD raw / gzip, NIfTI `.nii` / `.nii.gz`, raw or gzip data with a JSON
+//! sidecar, `.den`), TIFF stacks, one level of an OME-Zarr image, headerless raw data and a
+//! two-level brick store written by an earlier mixvol (upgraded: its voxels are read back from
+//! its level-0 bricks) are read slab by slab; synthetic fields and DICOM series (sorted and
+//! reoriented as a whole) are loaded whole, after checking that they fit the budget. The store
+//! is written to a temporary file and renamed at the end, so a failed convert leaves nothing
+//! under STORE (with `--force`, an existing STORE stays as it was).
 
 use crate::args::ConvertArgs;
-use crate::stats::peak_rss_bytes;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use mixvol::store::{
-    plan_slab_write, slab_store_desc, write_store_from_slabs,
-    write_store_from_volume_with_progress, SlabPlan, StoreDesc, WriteSummary,
-};
+use mixvol::store::{BrickStore, BrickStoreSlabs};
 use mixvol::volume::formats::zarr::ZarrSlabs;
 use mixvol::volume::formats::{
     load_dicom, DicomOptions, FileFormat, LoadedVolume, RemoteOptions, SeriesSelector, TiffSlabs,
     ZarrLocation,
 };
-use mixvol::volume::{open_raw_slabs, open_slabs, RawDescriptor, SlabReader, SyntheticField};
+use mixvol::volume::{open_raw_slabs, open_slabs, RawDescriptor, SlabReader};
 use mixvol::{Error, Result};
-use serde_json::json;
 use std::io::IsTerminal;
 use std::path::Path;
-use std::time::Instant;
 
 /// Runs `mixvol convert`.
 pub fn convert(args: &ConvertArgs) -> Result<()> {
@@ -40,11 +36,13 @@ pub fn convert(args: &ConvertArgs) -> Result<()> {
             )));
         }
     }
-    // A store is converted already (review D23): say so instead of "no known header".
-    if let Some(kind) = crate::input::store_kind(Path::new(&args.input)) {
+    // A level store is converted already (review D23): say so instead of "no known header".
+    // A two-level brick store is read back and upgraded.
+    if crate::input::store_kind(Path::new(&args.input)) == Some("level store") {
         return Err(Error::InvalidInput(format!(
-            "INPUT {} is a {kind} (mixvol's own format, converted already): render it with \
-             `mixvol render --volume {}`; convert reads volume files, DICOM series and Zarr",
+            "INPUT {} is a level store (mixvol's own format, converted already): render it with \
+             `mixvol render --volume {}`; convert reads volume files, DICOM series, Zarr and \
+             the two-level brick stores of earlier versions",
             args.input, args.input
         )));
     }
@@ -64,77 +62,7 @@ pub fn convert(args: &ConvertArgs) -> Result<()> {
             args.ram_budget_mb
         ))
     })?;
-    if args.all_levels {
-        return crate::convert_levels::convert_levels(args, budget);
-    }
-    let filter = args.filter;
-    let start = Instant::now();
-    let (summary, input_bytes, plan, what) = if let Some(field) = SyntheticField::parse(&args.input)
-    {
-        let dims = args.dims.unwrap_or(glam::UVec3::splat(128));
-        let scalar = args.scalar.unwrap_or(mixvol::volume::ScalarType::U8);
-        let bytes =
-            u64::from(dims.x) * u64::from(dims.y) * u64::from(dims.z) * scalar.size_bytes() as u64;
-        if bytes > budget {
-            return Err(Error::InvalidInput(format!(
-                "INPUT {}: a synthetic field of {}x{}x{} {scalar:?} voxels is generated whole \
-                 ({} MiB), more than --ram-budget-mb {}",
-                args.input,
-                dims.x,
-                dims.y,
-                dims.z,
-                bytes.div_ceil(1 << 20),
-                args.ram_budget_mb
-            )));
-        }
-        let volume = field.generate(dims, scalar)?;
-        let bar = progress_bar();
-        let summary = write_store_from_volume_with_progress(
-            store,
-            &volume,
-            args.brick_size,
-            filter,
-            &mut |done, total| update(&bar, done, total),
-        )?;
-        bar.finish_and_clear();
-        (summary, bytes, None, format!("synthetic {}", args.input))
-    } else if let Some(loaded) = load_dicom_input(args, budget)? {
-        let bytes = loaded.volume.data().as_bytes().len() as u64;
-        let bar = progress_bar();
-        let summary = write_store_from_volume_with_progress(
-            store,
-            &loaded.volume,
-            args.brick_size,
-            filter,
-            &mut |done, total| update(&bar, done, total),
-        )?;
-        bar.finish_and_clear();
-        let what = format!(
-            "{} (DICOM series, {:?}, loaded whole)",
-            args.input, loaded.meta.stored
-        );
-        (summary, bytes, None, what)
-    } else {
-        let mut reader = open_input(args)?;
-        let desc = slab_store_desc(&*reader, args.brick_size, filter);
-        let plan = plan_slab_write(
-            &desc,
-            reader.scalar(),
-            reader.scratch_bytes(),
-            budget,
-            mixvol::bricks::available_threads(),
-        )?;
-        let input_bytes = input_voxel_bytes(&*reader);
-        let what = describe_input(&*reader);
-        print_plan(&desc, &plan);
-        let bar = progress_bar();
-        let summary = write_store_from_slabs(store, desc, &mut *reader, budget, &mut |d, t| {
-            update(&bar, d, t)
-        })?;
-        bar.finish_and_clear();
-        (summary, input_bytes, Some(plan), what)
-    };
-    report(args, &summary, input_bytes, plan, &what, start)
+    crate::convert_levels::convert_levels(args, budget)
 }
 
 /// Loads INPUT whole when it is a DICOM series (a folder of DICOM files, a DICOMDIR or a `.dcm`
@@ -222,6 +150,15 @@ pub(crate) fn open_input(args: &ConvertArgs) -> Result<Box<dyn SlabReader + Send
     } else {
         Path::new(&args.input)
     };
+    if crate::input::store_kind(path) == Some("brick store") {
+        if args.level.is_some() || args.tiff.options().is_some() {
+            return Err(Error::InvalidInput(format!(
+                "INPUT {} is a brick store: --level and --tiff-* do not apply to it",
+                args.input
+            )));
+        }
+        return Ok(Box::new(BrickStoreSlabs::new(BrickStore::open(path)?)));
+    }
     let format = FileFormat::detect(path);
     if let Some(options) = args.tiff.options() {
         if format != Some(FileFormat::Tiff) {
@@ -272,15 +209,6 @@ pub(crate) fn open_input(args: &ConvertArgs) -> Result<Box<dyn SlabReader + Send
     )?)
 }
 
-/// Bytes of the input's voxels as stored (decoded, for compressed files).
-fn input_voxel_bytes(reader: &dyn SlabReader) -> u64 {
-    let d = reader.dims();
-    let size = reader
-        .meta()
-        .map_or(reader.scalar().size_bytes(), |m| m.stored.size_bytes());
-    u64::from(d.x) * u64::from(d.y) * u64::from(d.z) * size as u64
-}
-
 /// `path (format, stored type)` for the summary.
 pub(crate) fn describe_input(reader: &dyn SlabReader) -> String {
     match reader.meta() {
@@ -297,24 +225,6 @@ pub(crate) fn describe_input(reader: &dyn SlabReader) -> String {
             reader.scalar()
         ),
     }
-}
-
-fn print_plan(desc: &StoreDesc, plan: &SlabPlan) {
-    println!(
-        "plan: {}x{}x{} voxels, bricks of {}, slab of {} planes ({:.1} MiB) + reader {:.1} MiB + \
-         {} worker(s) x {:.1} MiB = {:.1} MiB of the {:.0} MiB budget",
-        desc.dims.x,
-        desc.dims.y,
-        desc.dims.z,
-        desc.brick_size,
-        plan.planes,
-        mib(plan.slab_bytes),
-        mib(plan.reader_bytes),
-        plan.threads,
-        mib(plan.worker_bytes),
-        mib(plan.total_bytes),
-        mib(plan.budget_bytes)
-    );
 }
 
 pub(crate) fn mib(bytes: u64) -> f64 {
@@ -342,65 +252,4 @@ pub(crate) fn update(bar: &ProgressBar, done: u64, total: u64) {
         bar.set_length(total);
     }
     bar.set_position(done);
-}
-
-/// Prints the summary and writes `--stats-json`.
-fn report(
-    args: &ConvertArgs,
-    summary: &WriteSummary,
-    input_bytes: u64,
-    plan: Option<SlabPlan>,
-    what: &str,
-    start: Instant,
-) -> Result<()> {
-    let h = &summary.header;
-    let seconds = start.elapsed().as_secs_f64().max(1e-9);
-    let peak = peak_rss_bytes();
-    let input_mb_s = input_bytes as f64 / 1e6 / seconds;
-    let store_mb_s = h.file_size as f64 / 1e6 / seconds;
-    println!("input: {what}");
-    println!(
-        "store: {} ({}x{}x{} voxels, {:?}, bricks of {}, {:?}): {} bricks ({}x{}x{}), {:.1} MiB",
-        summary.path.display(),
-        h.dims.x,
-        h.dims.y,
-        h.dims.z,
-        h.scalar,
-        h.brick_size,
-        h.filter,
-        h.brick_count,
-        h.grid().bricks_per_axis().x,
-        h.grid().bricks_per_axis().y,
-        h.grid().bricks_per_axis().z,
-        mib(h.file_size)
-    );
-    println!(
-        "time: {seconds:.2} s on {} thread(s): input {input_mb_s:.1} MB/s, store {store_mb_s:.1} MB/s; \
-         peak RSS {}",
-        summary.threads,
-        peak.map_or("unknown".into(), |p| format!("{:.1} MiB", mib(p)))
-    );
-    if let Some(path) = &args.stats_json {
-        let stats = json!({
-            "input": what,
-            "store": summary.path,
-            "dims": h.dims.to_array(),
-            "scalar": format!("{:?}", h.scalar),
-            "brick_size": h.brick_size,
-            "filter": format!("{:?}", h.filter),
-            "bricks": h.brick_count,
-            "store_bytes": h.file_size,
-            "input_bytes": input_bytes,
-            "seconds": seconds,
-            "input_mb_per_s": input_mb_s,
-            "store_mb_per_s": store_mb_s,
-            "threads": summary.threads,
-            "peak_rss_bytes": peak,
-            "ram_budget_bytes": args.ram_budget_mb * (1 << 20),
-            "plan_bytes": plan.map(|p| p.total_bytes),
-            "slab_planes": plan.map(|p| p.planes),
-        });
-        crate::files::write_text("the stats JSON", path, &format!("{stats:#}\n"))?;
-    }
-    Ok(())
 }

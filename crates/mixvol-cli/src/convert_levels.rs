@@ -1,4 +1,4 @@
-//! `mixvol convert INPUT STORE --all-levels`: any supported volume into a level store (every
+//! `mixvol convert INPUT STORE`: any supported volume into a level store (every
 //! level, as the three-level cache stores it; `mixvol::store::levels`).
 //!
 //! Files (and OME-Zarr images) are read slab by slab: level 0 streams through a window of
@@ -22,7 +22,7 @@ use std::time::Instant;
 /// volume, up to about 1.2 for one of 8^3 voxels (a vertex level has one more sample per axis).
 const WRITER_BYTES_PER_VOXEL: f64 = 1.25;
 
-/// Runs `mixvol convert --all-levels` under a RAM budget of `budget` bytes.
+/// Runs `mixvol convert` under a RAM budget of `budget` bytes.
 pub fn convert_levels(args: &ConvertArgs, budget: u64) -> Result<()> {
     // `convert` checked the destination and that INPUT is not STORE.
     let store = args.store.as_path();

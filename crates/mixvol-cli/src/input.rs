@@ -6,7 +6,7 @@ use crate::parse::parse_floats;
 use mixvol::gpu::GpuContext;
 use mixvol::scene::ModelTransform;
 use mixvol::store::levels::LEVEL_MAGIC;
-use mixvol::store::{BrickStore, LevelStore, MAGIC};
+use mixvol::store::{LevelStore, MAGIC};
 use mixvol::volume::formats::{
     load_dicom, load_tiff_with, load_zarr_at, load_zarr_level, DicomOptions, FileFormat,
     RemoteOptions, SeriesSelector, ZarrLocation,
@@ -167,10 +167,8 @@ const KNOWN_FORMATS: &str =
 pub enum Input {
     /// An in-memory volume (a file, raw data or a synthetic field).
     Volume(Arc<Volume>),
-    /// A brick store (`mixvol convert` writes them), opened and validated.
-    Store(Box<BrickStore>),
-    /// A level store (`mixvol convert --all-levels` writes them), opened and checked: drawn
-    /// through the three-level cache at levels chosen from the camera or `--levels staircase`.
+    /// A level store (`mixvol convert` writes them), opened and checked: drawn through the
+    /// level cache at levels chosen from the camera or `--levels staircase`.
     LevelStore(Arc<LevelStore>),
     /// An OME-Zarr image streamed chunk by chunk (`--stream`): where it is, its level, and
     /// what its metadata says (dimensions, scalar type).
@@ -191,7 +189,7 @@ impl Input {
     pub fn volume(&self) -> Option<&Volume> {
         match self {
             Input::Volume(v) => Some(v),
-            Input::Store(_) | Input::LevelStore(_) | Input::Zarr { .. } => None,
+            Input::LevelStore(_) | Input::Zarr { .. } => None,
         }
     }
 }
@@ -220,9 +218,14 @@ pub fn store_kind(path: &Path) -> Option<&'static str> {
     }
 }
 
-/// True when `path` is a regular file that starts with the brick store's magic bytes.
-pub fn is_brick_store(path: &Path) -> bool {
-    magic_of(path) == Some(MAGIC)
+/// The error for a two-level brick store given to a command that draws it: the format is read
+/// only by `mixvol convert`, which upgrades it to a level store.
+pub fn upgrade_error(path: &str) -> Error {
+    Error::InvalidInput(format!(
+        "{path} is a two-level brick store (MIXVOLBS), which mixvol no longer draws: upgrade it \
+         to a level store with `mixvol convert {path} NEW.mvl` (every voxel is kept; the \
+         coarser levels are built anew)"
+    ))
 }
 
 /// Opens `--volume`: a brick store when the file is one, else [`load_volume`]; with the
@@ -286,7 +289,7 @@ pub fn open_input_with_meta(args: &RenderArgs) -> Result<(Input, Option<VolumeMe
         if magic == Some(LEVEL_MAGIC) {
             return Ok((Input::LevelStore(Arc::new(LevelStore::open(path)?)), None));
         }
-        return Ok((Input::Store(Box::new(BrickStore::open(path)?)), None));
+        return Err(upgrade_error(&args.volume));
     }
     let (volume, meta) = load_volume_with_meta(args)?;
     Ok((Input::Volume(Arc::new(volume)), meta))

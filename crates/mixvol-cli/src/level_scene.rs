@@ -52,10 +52,10 @@ pub fn level_scene(
     print_three_level(&grid, &plan, camera_levels, note);
     Ok(Scene {
         volume: None,
-        streamer: None,
         planned: camera_levels,
         config: Some(config),
         level_streamer: Some(streamer),
+        zarr: None,
     })
 }
 

@@ -146,8 +146,8 @@ pub fn bench_path(args: &BenchArgs) -> Result<()> {
     for run in &mut runs {
         for k in 1..=MAX_SETTLE_FRAMES {
             let frame = run.renderer.render(last, &settings, r.width, r.height)?;
-            let streamed = match &run.scene.streamer {
-                Some(s) => s.wait_settled(Duration::from_secs(2)),
+            let streamed = match &run.scene.level_streamer {
+                Some(s) => s.wait_idle(Duration::from_secs(2)),
                 None => true,
             };
             if frame.residency.is_none_or(|f| f.plan.is_settled()) && streamed {

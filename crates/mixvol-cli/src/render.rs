@@ -17,17 +17,14 @@ use crate::level_scene::{
 };
 use crate::levels::{level_pattern, per_level_counts};
 use crate::stats::{peak_rss_bytes, Summary};
-pub use crate::stream::Streaming;
 use mixvol::bricks::BrickGrid;
 use mixvol::gpu::{ContextDesc, GpuContext, MessageLog};
 use mixvol::optics::TransferFunction;
-use mixvol::plan::PlanOptions;
 use mixvol::pyramid::LevelGrid;
-use mixvol::renderer::{
-    Frame, FrameReport, MixedConfig, Renderer, ResidencyConfig, TargetFormat, VolumeSource,
-};
+use mixvol::renderer::{Frame, FrameReport, MixedConfig, Renderer, TargetFormat, VolumeSource};
 use mixvol::scene::{Camera, RenderSettings, Transition};
-use mixvol::store::{BrickStore, BrickStreamer, LevelStreamer, StreamerConfig};
+use mixvol::store::LevelStreamer;
+use mixvol::stream::ZarrLevels;
 use mixvol::volume::Volume;
 use mixvol::{Error, Result};
 use mixvol_experiments::oracle::{reference_frame, Drawn};
@@ -37,16 +34,10 @@ use std::time::Duration;
 /// Most frames a single view renders while camera-driven residency converges.
 const MAX_CONVERGE_FRAMES: usize = 200;
 
-/// How long a frame waits for a streaming store to load what the plan asked for, while a
-/// single view converges.
-const STREAM_WAIT: Duration = Duration::from_secs(2);
-
 /// What the renderer draws and how its residency is driven.
 pub struct Scene {
     /// The in-memory volume (absent for a brick store).
     pub volume: Option<Arc<Volume>>,
-    /// The streamer of a brick store or of a streamed OME-Zarr image.
-    pub streamer: Option<Arc<dyn Streaming>>,
     /// Whether the camera drives residency (else a plain texture or a fixed pattern).
     pub planned: bool,
     /// The brick-cache configuration, when one is used.
@@ -54,6 +45,8 @@ pub struct Scene {
     /// The background reader of a level store or of an image's pyramid drawn through the
     /// three-level cache (the CPU reference of `--compare` reads its levels back).
     pub level_streamer: Option<Arc<LevelStreamer>>,
+    /// The streamed OME-Zarr image the level streamer reads (its chunk counters).
+    pub zarr: Option<Arc<ZarrLevels>>,
 }
 
 /// The views of `--orbit`, `--dolly`, `--path`, or the single `--eye` view.
@@ -81,14 +74,10 @@ pub fn set_up_scene(
     transition: Transition,
 ) -> Result<Scene> {
     let r = &args.residency;
-    let options = PlanOptions {
-        error_threshold: r.error_threshold,
-        ..PlanOptions::default()
-    };
     if args.mixed.level_count.is_some() && !matches!(input, Input::Volume(_)) {
         return Err(Error::InvalidInput(
             "--level-count applies to a volume in memory; a store or a streamed image has its \
-             own levels (convert --all-levels --level-count N writes a level store of N)"
+             own levels (convert --level-count N writes a level store of N)"
                 .into(),
         ));
     }
@@ -96,86 +85,20 @@ pub fn set_up_scene(
         Input::Zarr {
             location, level, ..
         } => {
-            if matches!(
-                args.mixed.levels,
-                Some(LevelsArg::Camera | LevelsArg::Staircase)
-            ) {
-                // Every level of the image's own pyramid, through the three-level cache.
-                if *level != 0 {
-                    return Err(Error::InvalidInput(format!(
-                        "--zarr-level {level} streams one level through the two-level cache; \
-                         --levels camera draws every level of the image from level 0"
-                    )));
-                }
-                let ram = r.ram_bytes()?;
-                let brick_size = args.mixed.config(&args.residency)?.brick_size;
-                let window = window_of(args, None)?;
-                let backend = crate::stream::open_zarr_levels(location, brick_size, ram, window)?;
-                let note = " from the image's pyramid";
-                return level_scene(renderer, args, backend, ram / 2, transition, note);
-            }
-            if args.mixed.levels.is_some() {
-                return Err(Error::InvalidInput(
-                    "--levels applies to in-memory volumes; a streamed image is drawn with \
-                     camera-driven residency (--gpu-budget-mb)"
-                        .into(),
-                ));
-            }
-            let (cache, upload) = r.gpu_budgets()?;
+            // Every level of the image's own pyramid from `--zarr-level` down, through the
+            // level cache.
             let ram = r.ram_bytes()?;
-            let config = MixedConfig {
-                cache_budget_bytes: cache,
-                transition,
-                ..args.mixed.config(&args.residency)?
+            let brick_size = args.mixed.config(&args.residency)?.brick_size;
+            let window = window_of(args, None)?;
+            let zarr = crate::stream::open_zarr_levels(location, *level, brick_size, ram, window)?;
+            let note = if *level == 0 {
+                " from the image's pyramid".to_string()
+            } else {
+                format!(" from the image's pyramid, level {level} down")
             };
-            let streamer = crate::stream::open_streamed(
-                location,
-                *level,
-                &config,
-                ram,
-                window_of(args, None)?,
-            )?;
-            // Half of the RAM budget caches decoded chunks: the planner plans the other half.
-            let residency = ResidencyConfig {
-                upload_bytes_per_frame: upload,
-                ram_bytes: Some(ram / 2),
-                options,
-                ..ResidencyConfig::default()
-            };
-            planned_scene(renderer, streamer, config, residency, ram)
-        }
-        Input::Store(store) => {
-            if args.mixed.levels.is_some() {
-                return Err(Error::InvalidInput(
-                    "--levels applies to in-memory volumes; a brick store is drawn with \
-                     camera-driven residency (--gpu-budget-mb)"
-                        .into(),
-                ));
-            }
-            let (cache, upload) = r.gpu_budgets()?;
-            let ram = r.ram_bytes()?;
-            let config = MixedConfig {
-                brick_size: store.header().brick_size,
-                filter: store.filter(),
-                cache_budget_bytes: cache,
-                transition,
-                max_levels: 0,
-            };
-            // Each scene streams through its own reader of the store.
-            let streamer = Arc::new(BrickStreamer::new(
-                BrickStore::open(store.path())?,
-                StreamerConfig {
-                    ram_budget_bytes: usize::try_from(ram).unwrap_or(usize::MAX),
-                    record_load_order: false,
-                },
-            )?);
-            let residency = ResidencyConfig {
-                upload_bytes_per_frame: upload,
-                ram_bytes: Some(ram),
-                options,
-                ..ResidencyConfig::default()
-            };
-            planned_scene(renderer, streamer, config, residency, ram)
+            let mut scene = level_scene(renderer, args, zarr.clone(), ram / 2, transition, &note)?;
+            scene.zarr = Some(zarr);
+            Ok(scene)
         }
         Input::LevelStore(store) => {
             let note = format!(" from {} levels on disk", store.level_count());
@@ -207,10 +130,10 @@ pub fn set_up_scene(
                 renderer.set_source(VolumeSource::Volume(&volume))?;
                 return Ok(Scene {
                     volume: Some(volume),
-                    streamer: None,
                     planned: false,
                     config: None,
                     level_streamer: None,
+                    zarr: None,
                 });
             };
             let config = MixedConfig {
@@ -272,55 +195,12 @@ pub fn set_up_scene(
             print_three_level(&grid, &plan, camera_levels, "");
             Ok(Scene {
                 volume: Some(volume),
-                streamer: None,
                 planned: camera_levels,
                 config: Some(config),
                 level_streamer: None,
+                zarr: None,
             })
         }
-    }
-}
-
-/// Draws `streamer` (a brick store's or a streamed image's) through camera-driven residency
-/// under `residency`, and prints the cache set-up (`ram`: the whole RAM budget).
-fn planned_scene<S: Streaming + 'static>(
-    renderer: &mut Renderer,
-    streamer: Arc<S>,
-    config: MixedConfig,
-    residency: ResidencyConfig,
-    ram: u64,
-) -> Result<Scene> {
-    let upload = residency.upload_bytes_per_frame;
-    renderer.set_residency_config(residency);
-    renderer.set_source(VolumeSource::Bricks {
-        source: streamer.clone(),
-        config,
-    })?;
-    print_cache(renderer, &config, upload, Some(ram));
-    Ok(Scene {
-        volume: None,
-        streamer: Some(streamer),
-        planned: true,
-        config: Some(config),
-        level_streamer: None,
-    })
-}
-
-fn print_cache(renderer: &Renderer, config: &MixedConfig, upload: u64, ram: Option<u64>) {
-    if let Some(cache) = renderer.brick_cache() {
-        let grid = cache.grid();
-        let hi_slots = cache.geometry().slot_count();
-        println!(
-            "camera-driven residency: {} bricks of {}^3, cache of {} slots ({:.1} MB budget; {:.0} % of the bricks fit hi-res), upload budget {:.2} MB/frame{}",
-            grid.brick_count(),
-            config.brick_size,
-            hi_slots,
-            config.cache_budget_bytes as f64 / 1e6,
-            100.0 * (hi_slots as f64 / grid.brick_count().max(1) as f64).min(1.0),
-            upload as f64 / 1e6,
-            ram.map(|r| format!(", RAM budget {:.1} MB", r as f64 / 1e6))
-                .unwrap_or_default()
-        );
     }
 }
 
@@ -440,22 +320,8 @@ pub fn render(args: &RenderArgs) -> Result<()> {
     // limits before it is generated.
     crate::input::check_plain_synthetic(args, &ctx)?;
     let (input, meta) = open_input_with_meta(args)?;
-    let zarr_levels = matches!(
-        args.mixed.levels,
-        Some(LevelsArg::Camera | LevelsArg::Staircase)
-    );
-    if args.compare
-        && (matches!(input, Input::Store(_)) || matches!(input, Input::Zarr { .. }) && !zarr_levels)
-    {
-        return Err(Error::InvalidInput(
-            "--compare needs the volume in memory for the CPU reference; render the source file \
-             (with --gpu-budget-mb) instead of its brick store"
-                .into(),
-        ));
-    }
     let (dims, scalar, volume_for_window) = match &input {
         Input::Volume(v) => (v.dims(), v.scalar_type(), Some(&**v)),
-        Input::Store(s) => (s.grid().dims(), s.scalar(), None),
         Input::LevelStore(s) => (s.header().dims, s.header().scalar, None),
         Input::Zarr { dims, scalar, .. } => (*dims, *scalar, None),
     };
@@ -533,8 +399,6 @@ pub fn render(args: &RenderArgs) -> Result<()> {
 struct Converged {
     /// Residency updates run.
     steps: usize,
-    /// Whether it settled within [`MAX_CONVERGE_FRAMES`] (a level source: nothing waits).
-    settled: bool,
     /// The last update's report.
     last: FrameReport,
     /// Bytes all the updates uploaded.
@@ -544,11 +408,9 @@ struct Converged {
 }
 
 /// Runs camera-driven residency updates of one view ([`Renderer::update`]: plan, uploads and
-/// fixups, no drawing) until they converge, at most [`MAX_CONVERGE_FRAMES`]. A two-level
-/// source converges when nothing uploads or is deferred and its streamer has nothing left to
-/// load; a level source when nothing waits, or when a step after the first moves nothing once
-/// its reader is idle (what is left failed to read or does not fit the RAM budget: no later
-/// step could move either).
+/// fixups, no drawing) until they converge, at most [`MAX_CONVERGE_FRAMES`]: when nothing
+/// waits, or when a step after the first moves nothing once the reader is idle (what is left
+/// failed to read or does not fit the RAM budget: no later step could move either).
 fn converge(
     renderer: &mut Renderer,
     scene: &Scene,
@@ -559,9 +421,8 @@ fn converge(
     let start = std::time::Instant::now();
     let (width, height) = (args.width, args.height);
     let mut uploaded = 0u64;
-    let done = |steps: usize, settled: bool, last: FrameReport, uploaded: u64| Converged {
+    let done = |steps: usize, last: FrameReport, uploaded: u64| Converged {
         steps,
-        settled,
         last,
         uploaded,
         ms: start.elapsed().as_secs_f64() * 1e3,
@@ -571,55 +432,23 @@ fn converge(
         let before = renderer.brick_levels().map(<[_]>::to_vec);
         let report = renderer.update(camera, settings, width, height)?;
         uploaded += report.residency.uploaded_bytes as u64;
-        if let Some(before) = before {
-            // A level source.
-            let moved = renderer.brick_levels() != Some(before.as_slice());
-            if report.waiting == 0 || (!moved && step > 1) {
-                let settled = report.waiting == 0;
-                return Ok(done(step, settled, report, uploaded));
-            }
-            if let Some(streamer) = &scene.level_streamer {
-                // Let the reader catch up before the next step.
-                streamer.wait_idle(Duration::from_secs(60));
-            }
-            last = report;
-            continue;
+        let moved = renderer.brick_levels().map(<[_]>::to_vec) != before;
+        if report.waiting == 0 || (!moved && step > 1) {
+            return Ok(done(step, report, uploaded));
         }
-        let source_done = match &scene.streamer {
-            Some(s) => s.wait_settled(STREAM_WAIT),
-            None => true,
-        };
-        if report.plan.is_settled() && source_done {
-            // Settled and the source has nothing left to load: one more plan would be the same.
-            let again = renderer.update(camera, settings, width, height)?;
-            uploaded += again.residency.uploaded_bytes as u64;
-            if again.plan.is_settled() {
-                return Ok(done(step + 1, true, again, uploaded));
-            }
-            last = again;
-        } else {
-            last = report;
+        if let Some(streamer) = &scene.level_streamer {
+            // Let the reader catch up before the next step.
+            streamer.wait_idle(Duration::from_secs(60));
         }
+        last = report;
     }
-    Ok(done(MAX_CONVERGE_FRAMES, false, last, uploaded))
+    Ok(done(MAX_CONVERGE_FRAMES, last, uploaded))
 }
 
 /// Prints how one view's residency converged: the levels of a level source (bricks per level,
-/// slots, the largest drawn voxel, steps, what still waits, the reader's counts), or the
-/// frames a two-level source took.
+/// slots, the largest drawn voxel, steps, what still waits, the reader's counts).
 fn print_converged(renderer: &Renderer, scene: &Scene, c: &Converged) {
     let Some(levels) = renderer.brick_levels() else {
-        if c.settled {
-            println!("residency converged after {} frames", c.steps);
-        } else {
-            println!(
-                "residency still changing after {} frames (showing the last)",
-                c.steps
-            );
-        }
-        if let Some(s) = &scene.streamer {
-            println!("{}", s.summary());
-        }
         return;
     };
     let plan = &c.last.plan;
@@ -646,6 +475,9 @@ fn print_converged(renderer: &Renderer, scene: &Scene, c: &Converged) {
         if let Some(e) = streamer.first_failure() {
             println!("level stream: first failed read: {e}");
         }
+    }
+    if let Some(zarr) = &scene.zarr {
+        println!("{}", crate::stream::chunk_line(zarr));
     }
 }
 

@@ -90,9 +90,10 @@ const CASES: &[Case] = &[
     Case { name: "render --frames 0", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--frames", "0"], env: NO_ENV, code: 1, fragments: &["--frames 0: expected 1 to 100000 frames"], absent: &[] },
     // Issue 42, item 8 (review D20, D23, D24): the real cause, or the folder made.
     Case { name: "--frames-dir naming a file", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--orbit", "2", "--frames-dir", "{d}/small.raw"], env: NO_ENV, code: 1, fragments: &["--frames-dir", "small.raw is a file, not a folder"], absent: &["File exists"] },
-    Case { name: "convert a brick store", args: &["convert", "{d}/made.mvb", "{d}/again.mvb"], env: NO_ENV, code: 1, fragments: &["made.mvb is a brick store", "converted already", "mixvol render --volume"], absent: &["no known header"] },
-    Case { name: "convert a level store", args: &["convert", "{d}/made.mvl", "{d}/again.mvb"], env: NO_ENV, code: 1, fragments: &["made.mvl is a level store", "converted already"], absent: &["no known header"] },
-    Case { name: "convert into folders not made yet", args: &["convert", "ml", "{d}/nodir/sub/x.mvb", "--dims", "16,16,16"], env: NO_ENV, code: 0, fragments: &["nodir/sub/x.mvb (16x16x16 voxels"], absent: &[] },
+    Case { name: "convert a damaged old brick store", args: &["convert", "{d}/made.mvb", "{d}/again.mvl"], env: NO_ENV, code: 1, fragments: &["made.mvb", "brick store"], absent: &["no known header", "panicked"] },
+    Case { name: "render an old brick store", args: &["render", "--volume", "{d}/made.mvb"], env: NO_ENV, code: 1, fragments: &["made.mvb is a two-level brick store", "made.mvb NEW.mvl`"], absent: &["headerless raw"] },
+    Case { name: "convert a level store", args: &["convert", "{d}/made.mvl", "{d}/again.mvl"], env: NO_ENV, code: 1, fragments: &["made.mvl is a level store", "converted already", "mixvol render --volume"], absent: &["no known header"] },
+    Case { name: "convert into folders not made yet", args: &["convert", "ml", "{d}/nodir/sub/x.mvl", "--dims", "16,16,16"], env: NO_ENV, code: 0, fragments: &["nodir/sub/x.mvl (16x16x16 voxels"], absent: &[] },
     // Issue 42, item 8 (review D17, D29): option variables are checked by name, never ignored,
     // and not called synthetic-field parameters.
     Case { name: "MIXVOL_HOST_MEMORY_MB not a number", args: &["render", "--volume", "ml", "--dims", "8,8,8"], env: &[("MIXVOL_HOST_MEMORY_MB", "abc")], code: 1, fragments: &["environment variable MIXVOL_HOST_MEMORY_MB=\"abc\": expected a whole number of MiB"], absent: &[] },
@@ -100,7 +101,7 @@ const CASES: &[Case] = &[
     Case { name: "MIXVOL_REMOTE_RETRIES not a number", args: &["render", "--volume", "http://127.0.0.1:9/img.zarr"], env: &[("MIXVOL_REMOTE_RETRIES", "abc")], code: 1, fragments: &["environment variable MIXVOL_REMOTE_RETRIES=\"abc\": expected a whole number"], absent: &["synthetic field"] },
     // Issue 42, item 8 (review D19): a JSON or CSV output that fails to write is named as what
     // it is, not as an image.
-    Case { name: "--stats-json on a full device", args: &["convert", "ml", "{d}/stats.mvb", "--dims", "16,16,16", "--stats-json", "/dev/full"], env: NO_ENV, code: 1, fragments: &["cannot write the stats JSON /dev/full"], absent: &["image"] },
+    Case { name: "--stats-json on a full device", args: &["convert", "ml", "{d}/stats.mvl", "--dims", "16,16,16", "--stats-json", "/dev/full"], env: NO_ENV, code: 1, fragments: &["cannot write the stats JSON /dev/full"], absent: &["image"] },
     Case { name: "bench --json on a full device", args: &["bench", "--volume", "ml", "--dims", "8,8,8", "--frames", "1", "--width", "16", "--height", "16", "--json", "/dev/full"], env: NO_ENV, code: 1, fragments: &["cannot write the results JSON /dev/full"], absent: &["cannot write image"] },
     Case { name: "the frame log on a full device", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--width", "16", "--height", "16", "--frame-log", "/dev/full"], env: NO_ENV, code: 1, fragments: &["cannot write the frame log /dev/full"], absent: &["cannot write image"] },
     // Issue 42, item 8 (review D29): a background colour outside [0, 1] is refused (NaN gave
@@ -115,10 +116,10 @@ const CASES: &[Case] = &[
     Case { name: "a gzip Zarr chunk that inflates past its size (D9)", args: &["render", "--volume", "{d}/gzip_bomb.zarr"], env: NO_ENV, code: 1, fragments: &["gzip_bomb.zarr/0.0.0", "inflates past the 64 bytes the chunk holds"], absent: &["panicked"] },
     // Issue 42, item 3 (review D4): convert replaces only a regular file, even with --force.
     Case { name: "convert onto a FIFO with --force", args: &["convert", "ml", "{d}/store.fifo", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store.fifo", "not a regular file", "even with --force"], absent: &[] },
-    Case { name: "convert onto a link with --force", args: &["convert", "ml", "{d}/store_link.mvbs", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store_link.mvbs", "symbolic link"], absent: &[] },
+    Case { name: "convert onto a link with --force", args: &["convert", "ml", "{d}/store_link.mvl", "--dims", "16,16,16", "--force"], env: NO_ENV, code: 1, fragments: &["store_link.mvl", "symbolic link"], absent: &[] },
     // Issue 42, items 1 and 5 (review D1, D6): a brick that fails its check is an outcome the
     // caller sees: with --strict the image is refused, naming the failure.
-    Case { name: "corrupt stored bricks under --strict", args: &["render", "--volume", "{d}/corrupt.mvbs", "--gpu-budget-mb", "0.3", "--width", "16", "--height", "16", "--frames", "1", "--strict", "-o", "{d}/strict.png"], env: NO_ENV, code: 1, fragments: &["bricks failed to load", "is corrupt", "--strict", "no image written"], absent: &["wrote "] },
+    Case { name: "corrupt stored bricks under --strict", args: &["render", "--volume", "{d}/corrupt.mvl", "--gpu-budget-mb", "0.3", "--width", "16", "--height", "16", "--frames", "1", "--strict", "-o", "{d}/strict.png"], env: NO_ENV, code: 1, fragments: &["bricks failed to load", "is corrupt", "--strict", "no image written"], absent: &["wrote "] },
     Case { name: "--device matching nothing", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--device", "no-such-gpu-x"], env: NO_ENV, code: 1, fragments: &["matching 'no-such-gpu-x'", "devices present: "], absent: &["rejected: []"] },
 ];
 
@@ -177,7 +178,7 @@ fn fixtures(d: &Path) {
     std::fs::write(d.join("made.mvb"), b"MIXVOLBS and then not a store").unwrap();
     std::fs::write(d.join("made.mvl"), b"MIXVOLLV and then not a store").unwrap();
     std::fs::write(d.join("damaged.mvb"), b"MIXVOLBX and then a store's bytes").unwrap();
-    std::os::unix::fs::symlink(d.join("small.raw"), d.join("store_link.mvbs")).unwrap();
+    std::os::unix::fs::symlink(d.join("small.raw"), d.join("store_link.mvl")).unwrap();
     std::fs::write(
         d.join("fifo_data.nhdr"),
         nrrd_header("uint8", "4 4 4", "raw", Some("data.fifo")),
@@ -237,22 +238,25 @@ fn fixtures(d: &Path) {
     file.extend_from_slice(&floats);
     std::fs::write(d.join("nan.nrrd"), file).unwrap();
     std::fs::create_dir(d.join("plain_folder")).unwrap();
-    // A brick store of 32^3 voxels whose every stored brick has one byte flipped.
+    // A level store of 32^3 voxels whose every level-0 stored brick (the first in the file)
+    // has one byte flipped: the coarser levels still read.
     let volume = mixvol::volume::SyntheticField::MarschnerLobb
         .generate(glam::UVec3::splat(32), mixvol::volume::ScalarType::U8)
         .unwrap();
-    let store = d.join("corrupt.mvbs");
-    let summary = mixvol::store::write_store_from_volume(
+    let store = d.join("corrupt.mvl");
+    let summary = mixvol::store::write_level_store(
         &store,
         &volume,
         16,
+        None,
         mixvol::bricks::DownsampleFilter::Mean2,
+        &mut |_, _| {},
     )
     .unwrap();
     let h = summary.header;
     let mut bytes = std::fs::read(&store).unwrap();
-    for brick in 0..u64::from(h.brick_count) {
-        let at = h.data_offset + brick * (h.hi_brick_bytes + h.lo_brick_bytes) + 7;
+    for brick in 0..8 {
+        let at = h.data_offset + brick * h.stored_bytes(0) + 7;
         bytes[at as usize] ^= 0x5A;
     }
     std::fs::write(&store, &bytes).unwrap();

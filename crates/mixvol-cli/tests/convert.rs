@@ -1,20 +1,20 @@
 //! `mixvol convert INPUT STORE`, run as a user runs it.
 //!
-//! - A 96 MiB NRRD converted under `--ram-budget-mb 16`: the process's peak RSS (`VmHWM`, which
-//!   the command reports in `--stats-json`) stays far below the file size.
-//! - Every slab-read format (headerless raw, NRRD raw and gzip, NIfTI `.nii` and `.nii.gz`,
-//!   OME-Zarr): the converted store is byte for byte the store the library writes from the fully
-//!   loaded volume.
+//! - A 96 MiB NRRD converted under `--ram-budget-mb 40`: the process's peak RSS (`VmHWM`, which
+//!   the command reports in `--stats-json`) stays within its baseline plus the budget.
+//! - Every slab-read format (headerless raw, NRRD gzip, NIfTI `.nii.gz`, OME-Zarr): the
+//!   converted level store is byte for byte the one the library writes from the fully loaded
+//!   volume.
 //! - Failures (gzip cut mid-way, an unwritable destination, an existing STORE without --force, a
 //!   budget too small) exit non-zero, name the file, and leave neither STORE nor STORE.partial.
-//! - A converted store that is cut or corrupted gives typed errors: truncation names the first
-//!   missing brick, table corruption the checksum field, a read under a cut file the brick.
-//!   Altered brick bytes fail their level's CRC-32 when read, naming the brick and the level
-//!   (format version 2).
+//! - A two-level brick store of an earlier version (a checked-in fixture) is upgraded; cut or
+//!   corrupted, it gives typed errors: truncation names the first missing brick, table
+//!   corruption the checksum field, a read under a cut file the brick, altered brick bytes
+//!   their level's CRC-32 (naming the brick and the level).
 use flate2::write::GzEncoder;
 use flate2::Compression;
 use mixvol::bricks::{DownsampleFilter, Level};
-use mixvol::store::{write_level_store, write_store_from_volume, BrickStore, StoreError};
+use mixvol::store::{write_level_store, BrickStore, LevelStore, StoreError};
 use mixvol::volume::{load_raw, load_volume, RawDescriptor, ScalarType};
 use serde_json::{json, Value};
 use std::io::Write;
@@ -207,14 +207,18 @@ fn file_larger_than_the_budget_converts_with_bounded_peak_rss() {
     let file_len = file.len() as u64;
     let input = dir.write("big.nrrd", &file);
     drop(file);
-    let store = dir.join("big.mvbs");
+    let store = dir.join("big.mvl");
     let stats = dir.join("stats.json");
+    // Bricks of 16: the level writer holds a window of 16 + 12 level-0 planes as f32 (28 MiB)
+    // and the store's table.
     let out = convert(
         &input,
         &store,
         &[
-            "--ram-budget-mb",
+            "--brick-size",
             "16",
+            "--ram-budget-mb",
+            "40",
             "--stats-json",
             stats.to_str().unwrap(),
         ],
@@ -225,15 +229,25 @@ fn file_larger_than_the_budget_converts_with_bounded_peak_rss() {
     assert!(stdout.contains("peak RSS"), "{stdout}");
     let s: Value = serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
     let peak = s["peak_rss_bytes"].as_u64().expect("peak RSS measured");
-    let planned = s["plan_bytes"].as_u64().unwrap();
-    assert!(planned <= 16 << 20, "plan {planned} over the budget");
-    // The voxels alone are 96 MiB; the process (code and libraries included) stays under 40 MiB.
+    assert_eq!(s["ram_budget_bytes"].as_u64(), Some(40 << 20));
+    // The process's own baseline: a convert of 8^3 voxels.
+    let tiny = dir.join("tiny.json");
+    let out = Command::new(env!("CARGO_BIN_EXE_mixvol"))
+        .args(["convert", "ml", dir.join("tiny.mvl").to_str().unwrap()])
+        .args(["--dims", "8,8,8", "--brick-size", "8", "--stats-json"])
+        .arg(&tiny)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    let t: Value = serde_json::from_str(&std::fs::read_to_string(&tiny).unwrap()).unwrap();
+    let baseline = t["peak_rss_bytes"].as_u64().unwrap();
+    // The voxels alone are 96 MiB: the process holds the baseline and the budget at most.
     assert!(
-        peak < 40 << 20 && peak < file_len / 2,
-        "peak RSS {peak} bytes for a {file_len}-byte file under a 16 MiB budget"
+        peak < baseline + (40 << 20) && peak < file_len * 3 / 5,
+        "peak RSS {peak} bytes (baseline {baseline}) for a {file_len}-byte file under a 40 MiB \
+         budget"
     );
-    assert!(s["input_mb_per_s"].as_f64().unwrap() > 0.0);
-    let opened = BrickStore::open(&store).unwrap();
+    let opened = LevelStore::open(&store).unwrap();
     assert_eq!(opened.header().dims.to_array(), [512, 512, 384]);
     assert_eq!(
         s["store_bytes"].as_u64(),
@@ -241,98 +255,7 @@ fn file_larger_than_the_budget_converts_with_bounded_peak_rss() {
     );
 }
 
-/// Converts `input` with the CLI and asserts the store equals `write_store_from_volume` of the
-/// loaded volume, for two brick sizes and filters.
-fn assert_cli_store_identical(
-    dir: &TempDir,
-    tag: &str,
-    input: &Path,
-    volume: &mixvol::volume::Volume,
-    extra: &[&str],
-) {
-    for (n, filter, name) in [
-        (8, DownsampleFilter::Mean2, "mean2"),
-        (16, DownsampleFilter::BSpline4, "bspline4"),
-    ] {
-        let ours = dir.join(&format!("{tag}-{n}.mvbs"));
-        let theirs = dir.join(&format!("{tag}-{n}-mem.mvbs"));
-        let n_text = n.to_string();
-        let mut args = vec![
-            "--brick-size",
-            &n_text,
-            "--filter",
-            name,
-            "--ram-budget-mb",
-            "8",
-        ];
-        args.extend_from_slice(extra);
-        let out = convert(input, &ours, &args);
-        assert!(out.status.success(), "{tag}: {}", text(&out));
-        write_store_from_volume(&theirs, volume, n, filter).unwrap();
-        let (a, b) = (
-            std::fs::read(&ours).unwrap(),
-            std::fs::read(&theirs).unwrap(),
-        );
-        assert!(
-            a == b,
-            "{tag} n={n}: the converted store differs from the in-memory one"
-        );
-    }
-}
-
-#[test]
-fn converted_stores_equal_the_in_memory_path_for_every_format() {
-    let dir = TempDir::new("formats");
-    let dims = [45u64, 38, 27];
-    let data = u16_voxels(dims);
-
-    let raw = dir.write("v.bin", &data);
-    let desc = RawDescriptor {
-        dims: glam::UVec3::new(45, 38, 27),
-        scalar: ScalarType::U16,
-        spacing: glam::Vec3::new(1.0, 1.0, 2.0),
-        header_bytes: 0,
-        big_endian: false,
-    };
-    let volume = load_raw(&raw, &desc).unwrap();
-    assert_cli_store_identical(
-        &dir,
-        "raw",
-        &raw,
-        &volume,
-        &[
-            "--dims",
-            "45,38,27",
-            "--scalar",
-            "u16",
-            "--spacing",
-            "1,1,2",
-        ],
-    );
-
-    let mut nrrd = nrrd_header("ushort", dims, "raw");
-    nrrd.extend_from_slice(&data);
-    let path = dir.write("v.nrrd", &nrrd);
-    assert_cli_store_identical(&dir, "nrrd", &path, &load_volume(&path).unwrap(), &[]);
-
-    let mut nrrd_gz = nrrd_header("ushort", dims, "gzip");
-    nrrd_gz.extend(gzip(&data));
-    let path = dir.write("v-gz.nrrd", &nrrd_gz);
-    assert_cli_store_identical(&dir, "nrrd-gz", &path, &load_volume(&path).unwrap(), &[]);
-
-    let nii = nifti_u16(dims, &data);
-    let path = dir.write("v.nii", &nii);
-    assert_cli_store_identical(&dir, "nii", &path, &load_volume(&path).unwrap(), &[]);
-    let path = dir.write("v.nii.gz", &gzip(&nii));
-    assert_cli_store_identical(&dir, "nii-gz", &path, &load_volume(&path).unwrap(), &[]);
-
-    let root = dir.join("v.ome.zarr");
-    zarr_u16(&root, dims, &data);
-    let volume = load_volume(&root).unwrap();
-    assert_cli_store_identical(&dir, "zarr", &root, &volume, &["--level", "0"]);
-}
-
-/// `convert --all-levels` of every format (a forward-only gzip stream and an OME-Zarr image
+/// `convert` of every format (a forward-only gzip stream and an OME-Zarr image
 /// included) writes, read in slabs under a small RAM budget, the very level store
 /// `write_level_store` writes from the loaded volume; `--filter` builds its level 1.
 #[test]
@@ -343,7 +266,7 @@ fn converted_level_stores_equal_the_in_memory_path_for_every_format() {
     let check = |tag: &str, input: &Path, volume: &mixvol::volume::Volume, extra: &[&str]| {
         let ours = dir.join(&format!("{tag}.mvl"));
         let theirs = dir.join(&format!("{tag}-mem.mvl"));
-        let mut args = vec!["--brick-size", "8", "--all-levels", "--ram-budget-mb", "2"];
+        let mut args = vec!["--brick-size", "8", "--ram-budget-mb", "3"];
         args.extend_from_slice(extra);
         let out = convert(input, &ours, &args);
         assert!(out.status.success(), "{tag}: {}", text(&out));
@@ -413,7 +336,7 @@ fn converted_level_stores_equal_the_in_memory_path_for_every_format() {
         &raw,
         &dir.join("tight.mvl"),
         &[
-            &["--brick-size", "8", "--all-levels", "--ram-budget-mb", "0"][..],
+            &["--brick-size", "8", "--ram-budget-mb", "0"][..],
             &raw_args,
         ]
         .concat(),
@@ -433,7 +356,7 @@ fn failed_converts_leave_nothing_and_name_the_file() {
     let gz = gzip(&data);
     cut.extend_from_slice(&gz[..gz.len() * 2 / 3]);
     let input = dir.write("cut.nrrd", &cut);
-    let store = dir.join("cut.mvbs");
+    let store = dir.join("cut.mvl");
     let out = convert(&input, &store, &["--brick-size", "8"]);
     assert!(!out.status.success(), "{}", text(&out));
     let err = String::from_utf8_lossy(&out.stderr);
@@ -445,15 +368,15 @@ fn failed_converts_leave_nothing_and_name_the_file() {
     whole.extend_from_slice(&data);
     let input = dir.write("ok.nrrd", &whole);
     let blocker = dir.write("not-a-folder", b"x");
-    let store = blocker.join("ok.mvbs");
+    let store = blocker.join("ok.mvl");
     let out = convert(&input, &store, &[]);
     assert!(!out.status.success(), "{}", text(&out));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("ok.mvbs"), "{err}");
+    assert!(err.contains("ok.mvl"), "{err}");
     assert_nothing_at(&store);
 
     // A budget that cannot hold one slab: refused before anything is created.
-    let store = dir.join("small-budget.mvbs");
+    let store = dir.join("small-budget.mvl");
     let out = convert(&input, &store, &["--ram-budget-mb", "0"]);
     assert!(!out.status.success(), "{}", text(&out));
     let err = String::from_utf8_lossy(&out.stderr);
@@ -461,18 +384,18 @@ fn failed_converts_leave_nothing_and_name_the_file() {
     assert_nothing_at(&store);
 
     // An existing STORE is kept without --force and replaced with it.
-    let store = dir.write("existing.mvbs", b"precious");
+    let store = dir.write("existing.mvl", b"precious");
     let out = convert(&input, &store, &[]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--force"));
     assert_eq!(std::fs::read(&store).unwrap(), b"precious");
     let out = convert(&input, &store, &["--force"]);
     assert!(out.status.success(), "{}", text(&out));
-    BrickStore::open(&store).unwrap();
+    LevelStore::open(&store).unwrap();
 
     // Review D4: with or without --force, STORE is replaced only when it is a regular file: a
     // FIFO stays a FIFO, a link and the file it points to stay as they were.
-    let fifo = dir.join("pipe.mvbs");
+    let fifo = dir.join("pipe.mvl");
     assert!(Command::new("mkfifo")
         .arg(&fifo)
         .status()
@@ -482,20 +405,20 @@ fn failed_converts_leave_nothing_and_name_the_file() {
     assert!(!out.status.success(), "{}", text(&out));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
-        err.contains("pipe.mvbs") && err.contains("not a regular file"),
+        err.contains("pipe.mvl") && err.contains("not a regular file"),
         "{err}"
     );
     assert!(std::os::unix::fs::FileTypeExt::is_fifo(
         &std::fs::symlink_metadata(&fifo).unwrap().file_type()
     ));
     let kept = dir.write("kept.bin", b"precious");
-    let link = dir.join("link.mvbs");
+    let link = dir.join("link.mvl");
     std::os::unix::fs::symlink(&kept, &link).unwrap();
     let out = convert(&input, &link, &["--force"]);
     assert!(!out.status.success(), "{}", text(&out));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
-        err.contains("link.mvbs") && err.contains("symbolic link"),
+        err.contains("link.mvl") && err.contains("symbolic link"),
         "{err}"
     );
     assert_eq!(std::fs::read(&kept).unwrap(), b"precious");
@@ -503,16 +426,15 @@ fn failed_converts_leave_nothing_and_name_the_file() {
         .unwrap()
         .file_type()
         .is_symlink());
-    // Review D3: a link at STORE.partial is not written through, for both kinds of store.
-    for name in ["through.mvbs", "through.mvl"] {
+    // Review D3: a link at STORE.partial is not written through (`--all-levels`, the old
+    // spelling of the default, is still accepted).
+    for (name, extra) in [
+        ("through.mvl", &[][..]),
+        ("again.mvl", &["--all-levels"][..]),
+    ] {
         let store = dir.join(name);
         let partial = dir.join(&format!("{name}.partial"));
         std::os::unix::fs::symlink(&kept, &partial).unwrap();
-        let extra: &[&str] = if name.ends_with(".mvl") {
-            &["--all-levels"]
-        } else {
-            &[]
-        };
         let out = convert(&input, &store, extra);
         assert!(out.status.success(), "{}", text(&out));
         assert_eq!(std::fs::read(&kept).unwrap(), b"precious", "{name}");
@@ -531,45 +453,90 @@ fn failed_converts_leave_nothing_and_name_the_file() {
     // A synthetic field larger than the budget is refused before it is generated.
     let out = convert(
         Path::new("ml"),
-        &dir.join("ml.mvbs"),
+        &dir.join("ml.mvl"),
         &["--dims", "512,512,512", "--ram-budget-mb", "16"],
     );
     assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("generated whole"));
-    assert_nothing_at(&dir.join("ml.mvbs"));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("built from the whole volume"));
+    assert_nothing_at(&dir.join("ml.mvl"));
 
     // A missing input and a headerless file without --dims name the file.
-    let out = convert(&dir.join("missing.nrrd"), &dir.join("m.mvbs"), &[]);
+    let out = convert(&dir.join("missing.nrrd"), &dir.join("m.mvl"), &[]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("missing.nrrd"));
     let bare = dir.write("bare.bin", &data);
-    let out = convert(&bare, &dir.join("b.mvbs"), &[]);
+    let out = convert(&bare, &dir.join("b.mvl"), &[]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("bare.bin") && err.contains("--dims"), "{err}");
-    assert_nothing_at(&dir.join("b.mvbs"));
+    assert_nothing_at(&dir.join("b.mvl"));
+}
+
+/// A two-level brick store written by an earlier version (`tests/fixtures/brick_stores`, 20 x 12
+/// x 9 u8 voxels of the `ml` field, bricks of 8).
+fn old_store() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures/brick_stores/ml_u8.mvbs")
 }
 
 #[test]
-fn cut_or_corrupted_stores_give_typed_errors() {
-    let dir = TempDir::new("corrupt");
-    let dims = [40u64, 24, 24];
-    let mut nrrd = nrrd_header("ushort", dims, "raw");
-    nrrd.extend_from_slice(&u16_voxels(dims));
-    let input = dir.write("v.nrrd", &nrrd);
-    let store = dir.join("v.mvbs");
-    let out = convert(&input, &store, &["--brick-size", "8"]);
+fn an_old_brick_store_is_upgraded_and_refused_by_render_with_the_command() {
+    let dir = TempDir::new("upgrade");
+    let old = old_store();
+    // `render` does not draw it: it names the command that upgrades it.
+    let out = Command::new(env!("CARGO_BIN_EXE_mixvol"))
+        .args(["render", "--volume", old.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("two-level brick store") && err.contains("mixvol convert"),
+        "{err}"
+    );
+    // `convert` upgrades it: the level store of the volume it holds (the field regenerated
+    // here), byte for byte.
+    let upgraded = dir.join("up.mvl");
+    let out = convert(&old, &upgraded, &["--brick-size", "8"]);
     assert!(out.status.success(), "{}", text(&out));
-    let good = std::fs::read(&store).unwrap();
-    let opened = BrickStore::open(&store).unwrap();
+    assert!(text(&out).contains("level store:"), "{}", text(&out));
+    let volume = mixvol::volume::SyntheticField::parse("ml")
+        .unwrap()
+        .generate(glam::UVec3::new(20, 12, 9), ScalarType::U8)
+        .unwrap();
+    let direct = dir.join("direct.mvl");
+    write_level_store(
+        &direct,
+        &volume,
+        8,
+        None,
+        DownsampleFilter::Mean2,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert!(
+        std::fs::read(&upgraded).unwrap() == std::fs::read(&direct).unwrap(),
+        "the upgraded store differs from the level store of its volume"
+    );
+    // Options of other inputs are refused on it.
+    let out = convert(&old, &dir.join("x.mvl"), &["--level", "1"]);
+    assert!(!out.status.success());
+    assert!(text(&out).contains("is a brick store"), "{}", text(&out));
+}
+
+#[test]
+fn cut_or_corrupted_old_stores_give_typed_errors() {
+    let dir = TempDir::new("corrupt");
+    let good = std::fs::read(old_store()).unwrap();
+    let opened = BrickStore::open(old_store()).unwrap();
     let header = *opened.header();
+    assert_eq!(opened.brick_count(), 12);
     let pair = header.hi_brick_bytes + header.lo_brick_bytes;
     drop(opened);
 
-    // Cut inside brick 17: opening names the field and the first brick cut off.
+    // Cut inside brick 7: opening names the field and the first brick cut off.
     let cut = dir.write(
         "cut.mvbs",
-        &good[..(header.data_offset + 17 * pair + 5) as usize],
+        &good[..(header.data_offset + 7 * pair + 5) as usize],
     );
     match BrickStore::open(&cut) {
         Err(
@@ -578,7 +545,7 @@ fn cut_or_corrupted_stores_give_typed_errors() {
             },
         ) => {
             let m = e.to_string();
-            assert!(m.contains("brick 17 of") && m.contains("cut.mvbs"), "{m}");
+            assert!(m.contains("brick 7 of") && m.contains("cut.mvbs"), "{m}");
         }
         other => panic!("{other:?}"),
     }
@@ -602,15 +569,16 @@ fn cut_or_corrupted_stores_give_typed_errors() {
         .write(true)
         .open(&live)
         .unwrap()
-        .set_len(header.data_offset + 20 * pair)
+        .set_len(header.data_offset + 9 * pair)
         .unwrap();
-    assert!(opened.read_brick(19, Level::Lo).is_ok());
-    let e = opened.read_brick(21, Level::Hi).unwrap_err();
+    assert!(opened.read_brick(8, Level::Lo).is_ok());
+    let e = opened.read_brick(10, Level::Hi).unwrap_err();
     assert!(matches!(e, StoreError::Io { .. }), "{e:?}");
-    assert!(e.to_string().contains("brick 21 level Hi"), "{e}");
+    assert!(e.to_string().contains("brick 10 level Hi"), "{e}");
 
     // Every brick level carries a CRC-32: a flipped texel is an error naming the brick and the
-    // level when that level is read; its other level still reads.
+    // level when that level is read; its other level still reads. Upgrading it fails, naming
+    // the brick, and leaves nothing.
     let mut flipped = good.clone();
     let at = (header.data_offset + 5 * pair + 3) as usize;
     flipped[at] ^= 0xFF;
@@ -629,11 +597,20 @@ fn cut_or_corrupted_stores_give_typed_errors() {
         "{e:?}"
     );
     assert!(e.to_string().contains("brick 5 level Hi"), "{e}");
-    let orig = BrickStore::open(&store).unwrap();
+    let orig = BrickStore::open(old_store()).unwrap();
     assert_eq!(
         opened.read_brick(5, Level::Lo).unwrap(),
         orig.read_brick(5, Level::Lo).unwrap()
     );
+    let target = dir.join("flipped.mvl");
+    let out = convert(&path, &target, &["--brick-size", "8"]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(
+        text(&out).contains("flipped.mvbs") && text(&out).contains("brick 5 level Hi"),
+        "{}",
+        text(&out)
+    );
+    assert_nothing_at(&target);
 }
 
 #[test]

@@ -140,9 +140,9 @@ fn convert_writes_a_dicom_series_as_the_store_of_the_same_volume_from_nifti() {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("dicom-cli-convert");
     std::fs::create_dir_all(&dir).unwrap();
     let (ours, theirs, small) = (
-        dir.join("mni-ct-dicom.mvbs"),
-        dir.join("mni-ct-nifti.mvbs"),
-        dir.join("too-small.mvbs"),
+        dir.join("mni-ct-dicom.mvl"),
+        dir.join("mni-ct-nifti.mvl"),
+        dir.join("too-small.mvl"),
     );
     for f in [&ours, &theirs, &small] {
         let _ = std::fs::remove_file(f);
@@ -162,11 +162,13 @@ fn convert_writes_a_dicom_series_as_the_store_of_the_same_volume_from_nifti() {
     // The same values from NIfTI, bricked in memory (the NIfTI slab reader refuses a file
     // whose scl_slope / scl_inter must be applied).
     let volume = mixvol::volume::load_volume(&fixtures().join("mni_ct.nii")).unwrap();
-    mixvol::store::write_store_from_volume(
+    mixvol::store::write_level_store(
         &theirs,
         &volume,
         16,
+        None,
         mixvol::bricks::DownsampleFilter::Mean2,
+        &mut |_, _| {},
     )
     .unwrap();
     assert!(
@@ -186,7 +188,7 @@ fn convert_writes_a_dicom_series_as_the_store_of_the_same_volume_from_nifti() {
         stderr.contains("DICOM series") && stderr.contains("loaded whole"),
         "{stderr}"
     );
-    assert!(!small.exists() && !dir.join("too-small.mvbs.partial").exists());
+    assert!(!small.exists() && !dir.join("too-small.mvl.partial").exists());
     // --series on another input is refused by name.
     let out = convert(&fixtures().join("mni_ct.nii"), &small, &["--series", "5"]);
     assert_eq!(out.status.code(), Some(1));

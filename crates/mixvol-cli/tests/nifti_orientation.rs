@@ -232,7 +232,7 @@ fn render_prints_the_orientation_of_a_las_file() {
     let out = mixvol()
         .arg("convert")
         .arg(&las)
-        .arg(tmp("las.mvs"))
+        .arg(tmp("las.mvl"))
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);

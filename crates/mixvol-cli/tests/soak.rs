@@ -230,7 +230,7 @@ fn a_three_level_soak_is_clean_across_the_levels() {
     let store = dir.join("ml.mvl");
     let out = Command::new(env!("CARGO_BIN_EXE_mixvol"))
         .args(["convert", "ml", store.to_str().unwrap()])
-        .args(["--dims", "128,128,128", "--brick-size", "8", "--all-levels"])
+        .args(["--dims", "128,128,128", "--brick-size", "8"])
         .output()
         .unwrap();
     assert!(out.status.success(), "{out:?}");

@@ -110,8 +110,8 @@ fn number_after(text: &str, key: &str) -> f64 {
 /// `render --stream --levels camera` draws a multiscale image at every level through the
 /// three-level cache without converting it: vertex levels past level 0 are read from image
 /// level 1, the stored bricks stream in the background, and the frame matches the CPU
-/// reference over the same levels under the validation layers. Without `--levels`, `--compare`
-/// on a streamed image is still refused.
+/// reference over the same levels under the validation layers. `--zarr-level 1` draws the
+/// image from its level 1 down the same way.
 #[test]
 fn cli_streams_a_pyramid_at_every_level() {
     // Its own folder: temp_dir() clears the other test's.
@@ -175,12 +175,33 @@ fn cli_streams_a_pyramid_at_every_level() {
     assert!(number_after(&text, "mean") < 4e-3, "{text}");
     assert!(text.contains("validation: 0 warnings/errors"), "{text}");
 
-    let refused = render(&root, &png, &["--stream", "--compare"]);
-    assert!(!refused.status.success());
-    assert!(String::from_utf8_lossy(&refused.stderr).contains("--compare"));
-    let one_level = ["--stream", "--levels", "camera", "--zarr-level", "1"];
-    let refused = render(&root, &png, &one_level);
-    assert!(!refused.status.success());
-    assert!(String::from_utf8_lossy(&refused.stderr).contains("--zarr-level 1"));
+    // `--levels camera` is what `--stream` does anyway; `--zarr-level 1` draws from level 1
+    // down: its voxels are level 0's stored bricks, every coarser vertex level reads it too.
+    let from_level_1 = [
+        "--stream",
+        "--zarr-level",
+        "1",
+        "--brick-size",
+        "4",
+        "--voxel-px",
+        "3",
+        "--compare",
+        "--validation",
+    ];
+    let out = render(&root, &png, &from_level_1);
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("16x12x16"), "{text}");
+    assert!(text.contains("read from image levels [1, 1, 1]"), "{text}");
+    assert!(text.contains("level 1 down"), "{text}");
+    assert!(
+        number_after(&text, "max per-channel difference") < 0.06,
+        "{text}"
+    );
+    assert!(text.contains("validation: 0 warnings/errors"), "{text}");
+    let two_level = render(&root, &png, &["--stream", "--levels", "all-hi"]);
+    assert!(!two_level.status.success());
+    assert!(String::from_utf8_lossy(&two_level.stderr).contains("two-level pattern"));
     std::fs::remove_dir_all(&dir).ok();
 }

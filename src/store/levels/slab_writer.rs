@@ -15,8 +15,11 @@
 //! level being built or read (checked against the budget before any work). Disk: the temporary
 //! files of two adjacent levels at a time, at most about half a byte per voxel (level 1 as f32).
 
+use super::format::{LevelEntry, LEVEL_ENTRY_BYTES};
 use super::plane_file::{downsample_file, PlaneFile, PlaneFileWriter, PlaneWindow};
-use super::writer::{assemble_level_store, check_level_desc, LevelWriteSummary, TexelSink};
+use super::writer::{
+    assemble_level_store, check_level_desc, LevelWriteSummary, TexelSink, WRITE_BUFFER_BYTES,
+};
 use crate::bricks::DownsampleFilter;
 use crate::bricks::{BrickGrid, ValueRange};
 use crate::cache::{block_bricks, stored_brick_edge, stored_bricks_per_axis, stored_first_sample};
@@ -31,8 +34,15 @@ use std::path::{Path, PathBuf};
 const SLAB_PLANES: u32 = 8;
 
 /// Bytes [`write_level_store_from_slabs`] needs for a volume of `dims` voxels of
-/// `voxel_bytes` each in bricks of `brick_size`, with a reader holding `reader_bytes`.
-pub fn level_slab_bytes(dims: UVec3, voxel_bytes: u64, brick_size: u32, reader_bytes: u64) -> u64 {
+/// `voxel_bytes` each in bricks of `brick_size`, written as `stored_count` stored bricks (the
+/// header's count), with a reader holding `reader_bytes`.
+pub fn level_slab_bytes(
+    dims: UVec3,
+    voxel_bytes: u64,
+    brick_size: u32,
+    stored_count: u64,
+    reader_bytes: u64,
+) -> u64 {
     let plane = u64::from(dims.x) * u64::from(dims.y);
     let window = plane * u64::from(brick_size + 4 + SLAB_PLANES) * 4;
     let slab = plane * u64::from(SLAB_PLANES) * voxel_bytes;
@@ -40,7 +50,10 @@ pub fn level_slab_bytes(dims: UVec3, voxel_bytes: u64, brick_size: u32, reader_b
     // plane reads, whichever is more; coarser levels hold fewer, smaller planes.
     let level1 = LevelGrid::covering_dims(1, SamplePlacement::Vertex, dims).as_u64vec3();
     let level1_window = level1.x * level1.y * u64::from((brick_size / 2 + 1).max(3) + 1) * 4;
-    window + slab + level1_window + reader_bytes
+    // The table: an entry per stored brick while writing, then its encoding, and the file's
+    // write buffer.
+    let table = stored_count * (std::mem::size_of::<LevelEntry>() as u64 + LEVEL_ENTRY_BYTES);
+    window + slab + level1_window + table + WRITE_BUFFER_BYTES as u64 + reader_bytes
 }
 
 /// Writes every level of the volume `reader` reads (levels `0..levels`; `None`: the default)
@@ -72,6 +85,7 @@ pub fn write_level_store_from_slabs(
         dims,
         reader.scalar().size_bytes() as u64,
         brick_size,
+        header.stored_count,
         reader.scratch_bytes(),
     );
     if needed > ram_budget {
@@ -79,9 +93,9 @@ pub fn write_level_store_from_slabs(
             needed,
             budget: ram_budget,
             message: format!(
-                "a window of {} z planes of {}x{} voxels as f32 (level 1 and coarser are built \
-                 on disk)",
-                brick_size + 4,
+                "a window of {} z planes of {}x{} voxels as f32 (a row of bricks and a slab; \
+                 level 1 and coarser are built on disk)",
+                brick_size + 4 + SLAB_PLANES,
                 dims.x,
                 dims.y
             ),
@@ -99,8 +113,10 @@ pub fn write_level_store_from_slabs(
             for bz in 0..bricks.z {
                 let first = (n * bz) as i32 - 2;
                 let last = (n * bz + n + 1).min(dims.z - 1);
+                // Planes neither this row of bricks nor level 1 reads go before the next are
+                // read: the window holds the row's n + 4 planes, and at most a slab more.
+                planes.drop_before((first.max(0) as u32).min(level1.oldest_needed()));
                 planes.load_through(last, &mut |p, planes| level1.plane_ready(p, planes))?;
-                planes.drop_before(first.max(0) as u32);
                 for by in 0..bricks.y {
                     for bx in 0..bricks.x {
                         let start = IVec3::new((n * bx) as i32 - 2, (n * by) as i32 - 2, first);
@@ -135,6 +151,8 @@ struct Planes<'a> {
     read: u32,
     raw: VoxelData,
     value_range: ValueRange,
+    /// Buffers of dropped planes, reused for the next planes read.
+    spare: Vec<Vec<f32>>,
 }
 
 impl<'a> Planes<'a> {
@@ -149,6 +167,7 @@ impl<'a> Planes<'a> {
             read: 0,
             raw,
             value_range: ValueRange::EMPTY,
+            spare: Vec::new(),
         }
     }
 
@@ -171,9 +190,11 @@ impl<'a> Planes<'a> {
             })?;
             self.reader.read_slab(self.read..end, out)?;
             for k in 0..(end - self.read) as usize {
-                let values: Vec<f32> = (k * plane..(k + 1) * plane)
-                    .map(|i| self.raw.normalized(i))
-                    .collect();
+                // A dropped plane's buffer is reused: fresh plane-sized allocations freed in
+                // turn fragment the heap, and the process would hold far more than the window.
+                let mut values = self.spare.pop().unwrap_or_default();
+                values.clear();
+                values.extend((k * plane..(k + 1) * plane).map(|i| self.raw.normalized(i)));
                 for &v in &values {
                     self.value_range.include(v);
                 }
@@ -188,10 +209,15 @@ impl<'a> Planes<'a> {
 
     /// Drops the planes before `z`.
     fn drop_before(&mut self, z: u32) {
-        while self.first < z && !self.window.is_empty() {
-            self.window.pop_front();
+        while self.first < z {
+            let Some(plane) = self.window.pop_front() else {
+                break;
+            };
+            self.spare.push(plane);
             self.first += 1;
         }
+        // Enough spares for the planes of one slab.
+        self.spare.truncate(SLAB_PLANES as usize);
     }
 
     /// Voxel `v`, clamped to the volume (its plane must be in the window).
@@ -234,6 +260,16 @@ impl LevelOne {
             out: PlaneFileWriter::create(path, 1, dims)?,
             next: 0,
         })
+    }
+
+    /// The first voxel plane a level-1 plane still to be built reads (its lowest tap).
+    fn oldest_needed(&self) -> u32 {
+        level_one_taps(self.filter, self.next as i32)
+            .iter()
+            .map(|&(k, _)| k)
+            .min()
+            .unwrap_or(0)
+            .max(0) as u32
     }
 
     /// Builds every level-1 plane whose voxel planes have all arrived once plane `p` has.

@@ -24,6 +24,9 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+/// The store file's write buffer.
+pub(super) const WRITE_BUFFER_BYTES: usize = 1 << 20;
+
 /// What [`write_level_store`] wrote.
 #[derive(Clone, Debug)]
 pub struct LevelWriteSummary {
@@ -232,7 +235,7 @@ pub(super) fn assemble_level_store(
         }
     };
     let result = (|| {
-        let mut out = BufWriter::with_capacity(1 << 20, &file);
+        let mut out = BufWriter::with_capacity(WRITE_BUFFER_BYTES, &file);
         out.seek(SeekFrom::Start(header.data_offset))
             .map_err(io("seek to the texels"))?;
         let grid = header.grid().ok_or_else(|| StoreError::InvalidDesc {
@@ -244,7 +247,7 @@ pub(super) fn assemble_level_store(
             partial: &partial,
             scalar: header.scalar,
             offset: header.data_offset,
-            entries: Vec::new(),
+            entries: Vec::with_capacity(usize::try_from(header.stored_count).unwrap_or(0)),
             total: stored_per_level(&grid, header.levels).iter().sum(),
             progress,
         };

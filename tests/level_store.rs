@@ -189,7 +189,11 @@ fn a_damaged_store_is_an_error_naming_what_is_wrong() {
         let p = dir.join("bad.mvl");
         std::fs::write(&p, bytes).unwrap();
         match LevelStore::open(&p) {
-            Err(StoreError::Format { field, .. }) => field,
+            // Named as what it is (review D22: level-store errors said "brick store").
+            Err(e @ StoreError::Format { field, .. }) => {
+                assert!(e.to_string().starts_with("level store "), "{e}");
+                field
+            }
             other => panic!("expected a format error, got {other:?}"),
         }
     };
@@ -232,10 +236,16 @@ fn a_damaged_store_is_an_error_naming_what_is_wrong() {
     assert_eq!(field_of(&filter), "filter");
     assert_eq!(field_of(&good[..40]), "header_size");
     // A folder is not a store.
-    assert!(matches!(
-        LevelStore::open(&dir),
-        Err(StoreError::Io { action: "open", .. })
-    ));
+    match LevelStore::open(&dir) {
+        Err(e @ StoreError::Io { action: "open", .. }) => {
+            assert!(e.to_string().starts_with("level store "), "{e}");
+            assert!(
+                e.to_string().contains("a level store is a regular file"),
+                "{e}"
+            );
+        }
+        other => panic!("expected an open error, got {other:?}"),
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -101,6 +101,8 @@ fn missing_chunks_larger_than_the_array_cost_no_chunk_sized_buffer() {
     let (v, peak) = peak_during(|| load_zarr(&v3).unwrap());
     assert_eq!(v.volume.dims().to_array(), [1, 1, 1]);
     assert!(matches!(v.volume.data(), VoxelData::U16(d) if d == &[1234]));
+    // The loader says none of the chunks exists (review D7), for the caller to report.
+    assert_eq!(v.meta.chunks_found, Some((0, 1)));
     assert!(
         peak < BOUND,
         "v3 1x1x1 load peaked at {peak} bytes (bound {BOUND})"

@@ -20,6 +20,7 @@
 //! field at fault in [`StoreError::Format`]; they never panic on any input.
 
 use super::StoreError;
+use super::BRICK_STORE;
 use crate::bricks::{
     hi_res_brick_extent, low_res_brick_extent, BrickGrid, DownsampleFilter, ValueRange,
     MAX_BRICK_SIZE,
@@ -140,9 +141,11 @@ pub fn filter_from_id(id: u32) -> Option<DownsampleFilter> {
     }
 }
 
-/// The filter whose id is the `u32` at `offset` of a header read from `path`; an unknown id is
-/// a [`StoreError::Format`] naming the field `filter` (both store formats read it so).
+/// The filter whose id is the `u32` at `offset` of a header read from `path` (a store of
+/// `kind`); an unknown id is a [`StoreError::Format`] naming the field `filter` (both store
+/// formats read it so).
 pub(crate) fn parse_filter_field(
+    kind: &'static str,
     bytes: &[u8],
     offset: usize,
     path: &Path,
@@ -150,6 +153,7 @@ pub(crate) fn parse_filter_field(
     let raw = le_u32(bytes, offset);
     filter_from_id(raw).ok_or_else(|| {
         format_error(
+            kind,
             path,
             "filter",
             format!("unknown filter id {raw} (0 = mean2, 1 = lamar, 2 = box4, 3 = bspline4)"),
@@ -343,8 +347,14 @@ pub(crate) fn le_f32(b: &[u8], at: usize) -> f32 {
 }
 
 /// Builds a [`StoreError::Format`].
-pub(crate) fn format_error(path: &Path, field: &'static str, message: String) -> StoreError {
+pub(crate) fn format_error(
+    kind: &'static str,
+    path: &Path,
+    field: &'static str,
+    message: String,
+) -> StoreError {
     StoreError::Format {
+        kind,
         path: path.to_path_buf(),
         field,
         message,
@@ -359,7 +369,8 @@ pub(crate) fn format_error(path: &Path, field: &'static str, message: String) ->
 /// layout and `actual_len`), `value_range`, `reserved`. The checksum is checked by
 /// [`parse_tables`] once the tables are read.
 pub fn parse_header(bytes: &[u8], actual_len: u64, path: &Path) -> Result<StoreHeader, StoreError> {
-    let err = |field: &'static str, message: String| format_error(path, field, message);
+    let err =
+        |field: &'static str, message: String| format_error(BRICK_STORE, path, field, message);
     if bytes.len() < MAGIC.len() || bytes[..MAGIC.len()] != MAGIC {
         return Err(err(
             "magic",
@@ -422,7 +433,7 @@ pub fn parse_header(bytes: &[u8], actual_len: u64, path: &Path) -> Result<StoreH
             format!("unknown scalar type id {scalar_raw} (0 = u8, 1 = u16, 2 = f32)"),
         )
     })?;
-    let filter = parse_filter_field(bytes, 36, path)?;
+    let filter = parse_filter_field(BRICK_STORE, bytes, 36, path)?;
     let spacing = Vec3::new(le_f32(bytes, 40), le_f32(bytes, 44), le_f32(bytes, 48));
     if !(spacing.is_finite() && spacing.min_element() > 0.0) {
         return Err(err(
@@ -601,7 +612,8 @@ pub fn parse_tables(
     offsets_bytes: &[u8],
     path: &Path,
 ) -> Result<StoreTables, StoreError> {
-    let err = |field: &'static str, message: String| format_error(path, field, message);
+    let err =
+        |field: &'static str, message: String| format_error(BRICK_STORE, path, field, message);
     let count = header.brick_count as usize;
     if ranges_bytes.len() as u64 != count as u64 * RANGE_ENTRY_BYTES
         || offsets_bytes.len() as u64 != count as u64 * OFFSET_ENTRY_BYTES

@@ -54,12 +54,20 @@ pub use writer::{
 
 use std::path::PathBuf;
 
-/// Errors from writing, opening, reading and streaming brick stores.
+/// What a [`StoreError::Io`] or [`StoreError::Format`] names the file as.
+pub const BRICK_STORE: &str = "brick store";
+/// What a [`StoreError::Io`] or [`StoreError::Format`] names a level store as (review D22: its
+/// errors said "brick store").
+pub const LEVEL_STORE: &str = "level store";
+
+/// Errors from writing, opening, reading and streaming brick and level stores.
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
     /// The operating system refused an operation on the store file.
-    #[error("brick store {path}: {action}: {source}")]
+    #[error("{kind} {path}: {action}: {source}")]
     Io {
+        /// The kind of store ([`BRICK_STORE`], [`LEVEL_STORE`]).
+        kind: &'static str,
         /// The store file.
         path: PathBuf,
         /// What was being done (`open`, `read header`, `write bricks`, ...).
@@ -68,9 +76,11 @@ pub enum StoreError {
         #[source]
         source: std::io::Error,
     },
-    /// The file is not a valid brick store: a field of the header or of a table is wrong.
-    #[error("brick store {path}: field `{field}`: {message}")]
+    /// The file is not a valid store: a field of the header or of a table is wrong.
+    #[error("{kind} {path}: field `{field}`: {message}")]
     Format {
+        /// The kind of store ([`BRICK_STORE`], [`LEVEL_STORE`]).
+        kind: &'static str,
         /// The store file.
         path: PathBuf,
         /// The field at fault, as `docs/brick-store.md` names it (`magic`, `version`, `dims`,

@@ -5,6 +5,7 @@ use super::format::{
     OFFSET_ENTRY_BYTES, RANGE_ENTRY_BYTES,
 };
 use super::StoreError;
+use super::BRICK_STORE;
 use crate::bricks::{BrickGrid, DownsampleFilter, Level, ValueRange};
 use crate::volume::ScalarType;
 use glam::Vec3;
@@ -39,12 +40,13 @@ impl BrickStore {
         let io = |action: &'static str| {
             let p = path.clone();
             move |source| StoreError::Io {
+                kind: BRICK_STORE,
                 path: p,
                 action,
                 source,
             }
         };
-        let (file, len) = open_regular_file(&path, "a brick store")?;
+        let (file, len) = open_regular_file(&path, BRICK_STORE)?;
         let mut header_bytes = [0u8; HEADER_SIZE];
         let head_len = (len.min(HEADER_SIZE as u64)) as usize;
         file.read_exact_at(&mut header_bytes[..head_len], 0)
@@ -61,7 +63,7 @@ impl BrickStore {
             .map_err(io("read offsets"))?;
         let tables = parse_tables(&header, &header_bytes, &ranges_bytes, &offsets_bytes, &path)?;
         let grid = BrickGrid::new(header.dims, header.brick_size)
-            .map_err(|e| format_error(&path, "dims", e.to_string()))?;
+            .map_err(|e| format_error(BRICK_STORE, &path, "dims", e.to_string()))?;
         Ok(Self {
             path,
             file,
@@ -166,6 +168,7 @@ impl BrickStore {
         let offset = self.level_offset(brick, level)?;
         if out.len() != self.level_bytes(level) {
             return Err(StoreError::Io {
+                kind: BRICK_STORE,
                 path: self.path.clone(),
                 action: "read brick",
                 source: std::io::Error::new(
@@ -181,6 +184,7 @@ impl BrickStore {
         self.file
             .read_exact_at(out, offset)
             .map_err(|source| StoreError::Io {
+                kind: BRICK_STORE,
                 path: self.path.clone(),
                 action: "read brick",
                 // The OS error, with the brick it happened on.
@@ -220,21 +224,26 @@ fn le_to_native(bytes: &mut [u8], scalar: ScalarType) {
     }
 }
 
-/// Opens `path`, which must be a regular file (`what` names it in the error: "a brick store"),
-/// checking the type first (opening a FIFO would block); returns the file and its length.
-pub(super) fn open_regular_file(path: &Path, what: &str) -> Result<(File, u64), StoreError> {
+/// Opens `path`, which must be a regular file (`kind` names it in the error:
+/// [`BRICK_STORE`], [`LEVEL_STORE`](super::LEVEL_STORE)), checking the type first (opening a
+/// FIFO would block); returns the file and its length.
+pub(super) fn open_regular_file(
+    path: &Path,
+    kind: &'static str,
+) -> Result<(File, u64), StoreError> {
     let io = |action: &'static str| {
         move |source| StoreError::Io {
+            kind,
             path: path.to_path_buf(),
             action,
             source,
         }
     };
-    let kind = std::fs::metadata(path).map_err(io("open"))?;
-    if !kind.is_file() {
+    let meta = std::fs::metadata(path).map_err(io("open"))?;
+    if !meta.is_file() {
         return Err(io("open")(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
-            format!("not a regular file (a folder, FIFO or device); {what} is a regular file"),
+            format!("not a regular file (a folder, FIFO or device); a {kind} is a regular file"),
         )));
     }
     let file = File::open(path).map_err(io("open"))?;

@@ -25,6 +25,7 @@ use super::format::{
     encode_ranges, finish_checksum, StoreHeader,
 };
 use super::StoreError;
+use super::BRICK_STORE;
 use crate::bricks::kernel::texel::Texel;
 use crate::bricks::{
     BrickBox, BrickError, BrickGrid, BrickKernel, DownsampleFilter, PackOutputs, TexelsMut,
@@ -189,10 +190,11 @@ pub(super) fn assemble(
             desc.brick_size
         ),
     })?;
-    let (file, partial) = create_partial(path)?;
+    let (file, partial) = create_partial(BRICK_STORE, path)?;
     let io = |action: &'static str| {
         let p = partial.clone();
         move |source| StoreError::Io {
+            kind: BRICK_STORE,
             path: p,
             action,
             source,
@@ -229,7 +231,7 @@ pub(super) fn assemble(
         Ok(())
     })();
     drop(file);
-    commit_partial(&partial, path, result)?;
+    commit_partial(BRICK_STORE, &partial, path, result)?;
     Ok(WriteSummary {
         path: path.to_path_buf(),
         header,
@@ -278,6 +280,7 @@ pub fn write_store_from_volume_with_progress(
 /// Ends a write into `partial` (already closed) whose outcome is `result`: on success renames it
 /// to `path`; on any error (or a failed rename) removes it, so nothing half-written stays.
 pub(super) fn commit_partial(
+    kind: &'static str,
     partial: &Path,
     path: &Path,
     result: Result<(), StoreError>,
@@ -290,6 +293,7 @@ pub(super) fn commit_partial(
     std::fs::rename(partial, path).map_err(|source| {
         let _ = std::fs::remove_file(partial);
         StoreError::Io {
+            kind,
             path: path.to_path_buf(),
             action: "rename the finished store into place",
             source,
@@ -302,11 +306,15 @@ pub(super) fn commit_partial(
 /// exclusively, so that nothing already there (a file, or a link the write would follow) is
 /// opened. Errors: `path` exists and is not a regular file or a link (a folder, a device, a FIFO
 /// or a socket is never replaced), or the file cannot be created.
-pub(crate) fn create_partial(path: &Path) -> Result<(File, PathBuf), StoreError> {
+pub(crate) fn create_partial(
+    kind: &'static str,
+    path: &Path,
+) -> Result<(File, PathBuf), StoreError> {
     if let Ok(meta) = std::fs::symlink_metadata(path) {
-        let kind = meta.file_type();
-        if !(kind.is_file() || kind.is_symlink()) {
+        let file_type = meta.file_type();
+        if !(file_type.is_file() || file_type.is_symlink()) {
             return Err(StoreError::Io {
+                kind,
                 path: path.to_path_buf(),
                 action: "replace the store",
                 source: std::io::Error::new(
@@ -324,6 +332,7 @@ pub(crate) fn create_partial(path: &Path) -> Result<(File, PathBuf), StoreError>
         .create_new(true)
         .open(&partial)
         .map_err(|source| StoreError::Io {
+            kind,
             path: partial.clone(),
             action: "create",
             source,
@@ -463,6 +472,7 @@ pub(super) fn pack_chunks(
                         let offset = canonical_brick_offset(header, first);
                         file.write_all_at(&worker.out, offset).map_err(|source| {
                             StoreError::Io {
+                                kind: BRICK_STORE,
                                 path: path.to_path_buf(),
                                 action: "write bricks",
                                 source,

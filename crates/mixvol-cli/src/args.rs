@@ -299,7 +299,7 @@ pub struct RenderArgs {
     /// fetch), a brick store (streamed from disk under --ram-budget-mb), a level store (a
     /// file, or s3://.../STORE.mvl, http(s)://.../STORE.mvl read with range requests), or a
     /// headerless raw file (then --dims, --scalar, --spacing describe it).
-    #[arg(long, default_value = "ml")]
+    #[arg(long, default_value = "ml", value_parser = parse_source)]
     pub volume: String,
     /// Dimensions x,y,z: of the synthetic field, or of the raw file.
     #[arg(long, default_value = "128,128,128", value_parser = parse_uvec3)]
@@ -532,6 +532,18 @@ impl MixedArgs {
     /// The brick-cache configuration of `--brick-size`, the cache's share of `--gpu-budget-mb`
     /// ([`ResidencyArgs::gpu_budgets`]) and `--transition`.
     pub fn config(&self, residency: &ResidencyArgs) -> Result<MixedConfig> {
+        // One stated range for every brick-cache scene (review D21: two messages disagreed).
+        let (min, max) = (
+            mixvol::cache::MIN_BRICK_SIZE,
+            mixvol::bricks::MAX_BRICK_SIZE,
+        );
+        let n = self.brick_size;
+        if !(n.is_power_of_two() && (min..=max).contains(&n)) {
+            return Err(Error::InvalidInput(format!(
+                "--brick-size {n}: expected a power of two between {min} and {max} (the brick \
+                 cache's bricks)"
+            )));
+        }
         Ok(MixedConfig {
             brick_size: self.brick_size,
             cache_budget_bytes: residency.gpu_budgets()?.0,
@@ -583,6 +595,7 @@ pub struct ConvertArgs {
     /// --dims, --scalar, --spacing, --header-bytes, --big-endian), or a synthetic field (ml,
     /// sphere, wall; generated whole at --dims, --scalar). A two-level brick store written by
     /// an earlier mixvol is upgraded: its voxels are read back from its level-0 bricks.
+    #[arg(value_parser = parse_source)]
     pub input: String,
     /// The level store file to write (refused if it exists, unless --force), drawn by
     /// `mixvol render --volume STORE` at levels chosen from the camera.
@@ -637,6 +650,17 @@ pub struct ConvertArgs {
     /// Also write the summary (sizes, MB/s, peak RSS) as JSON to this path.
     #[arg(long)]
     pub stats_json: Option<PathBuf>,
+}
+
+/// A volume, store or URL to read: any text but an empty one (review D28: "" was looked up as
+/// a file and reported as "cannot read volume file : No such file").
+fn parse_source(s: &str) -> std::result::Result<String, String> {
+    if s.trim().is_empty() {
+        return Err(
+            "empty: expected a file, folder, URL or synthetic field (ml, sphere, wall)".into(),
+        );
+    }
+    Ok(s.to_string())
 }
 
 fn parse_filter(s: &str) -> std::result::Result<mixvol::bricks::DownsampleFilter, String> {

@@ -145,7 +145,16 @@ pub fn load_path(path: &Path, base: &Camera) -> Result<Vec<Camera>> {
         )));
     }
     let text = std::fs::read_to_string(path).map_err(|e| what(format!("cannot read: {e}")))?;
-    let json: PathJson = serde_json::from_str(&text).map_err(|e| what(e.to_string()))?;
+    // The top level first (review D28: an array was "invalid length 1, expected struct
+    // PathJson"): what the file must be, then serde's word on the fields.
+    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| what(e.to_string()))?;
+    if !value.is_object() {
+        return Err(what(
+            "the path file must be a JSON object with \"keyframes\" (and optionally \"frames\")"
+                .into(),
+        ));
+    }
+    let json: PathJson = serde_json::from_value(value).map_err(|e| what(e.to_string()))?;
     if json.keyframes.is_empty() {
         return Err(what("keyframes: expected at least one keyframe".into()));
     }

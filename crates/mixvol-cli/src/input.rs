@@ -24,7 +24,34 @@ pub fn load_volume(args: &RenderArgs) -> Result<Volume> {
 
 /// [`load_volume`], with the file's metadata (`None` for synthetic fields and headerless raw
 /// data).
+///
+/// A Zarr level none of whose chunks exists is an error, one with some missing a warning on
+/// stderr (review D7: both gave a blank or partly blank image, exit 0, without a word).
 pub fn load_volume_with_meta(args: &RenderArgs) -> Result<(Volume, Option<VolumeMeta>)> {
+    let (volume, meta) = load_any_volume(args)?;
+    if let Some((found, total)) = meta.as_ref().and_then(|m| m.chunks_found) {
+        let why = "missing chunks, or chunks stored under other names than the array's \
+                   dimension_separator / chunk_key_encoding says";
+        if found == 0 && total > 0 {
+            return Err(Error::InvalidInput(format!(
+                "{}: none of the {total} chunks of the level exists, so every voxel would be the \
+                 fill value ({why}, or a server that answers 404 for them)",
+                args.volume
+            )));
+        }
+        if found < total {
+            eprintln!(
+                "warning: {}: {found} of {total} chunks exist; the rest read as the fill value \
+                 ({why})",
+                args.volume
+            );
+        }
+    }
+    Ok((volume, meta))
+}
+
+/// [`load_volume_with_meta`] before the check of a Zarr level's chunks.
+fn load_any_volume(args: &RenderArgs) -> Result<(Volume, Option<VolumeMeta>)> {
     // A URL is never looked up as a local file: s3:// and http(s):// name remote OME-Zarr
     // images (timeouts and retries from MIXVOL_REMOTE_*), file:// a local path.
     let local;

@@ -120,6 +120,18 @@ const CASES: &[Case] = &[
     // Issue 42, items 1 and 5 (review D1, D6): a brick that fails its check is an outcome the
     // caller sees: with --strict the image is refused, naming the failure.
     Case { name: "corrupt stored bricks under --strict", args: &["render", "--volume", "{d}/corrupt.mvl", "--gpu-budget-mb", "0.3", "--width", "16", "--height", "16", "--frames", "1", "--strict", "-o", "{d}/strict.png"], env: NO_ENV, code: 1, fragments: &["bricks failed to load", "is corrupt", "--strict", "no image written"], absent: &["wrote "] },
+    // Issue 42, item 8 (review D21, D22, D28): one stated brick-size range, a level store's
+    // errors named as such, an empty source and a path file that is not an object named.
+    Case { name: "--brick-size 2 with a brick cache", args: &["render", "--volume", "ml", "--dims", "64,64,64", "--gpu-budget-mb", "4", "--brick-size", "2"], env: NO_ENV, code: 1, fragments: &["--brick-size 2: expected a power of two between 4 and 1024"], absent: &[] },
+    Case { name: "--brick-size 0 with a brick cache", args: &["render", "--volume", "ml", "--dims", "64,64,64", "--gpu-budget-mb", "4", "--brick-size", "0"], env: NO_ENV, code: 1, fragments: &["--brick-size 0: expected a power of two between 4 and 1024"], absent: &["between 2 and"] },
+    Case { name: "a level store cut short", args: &["render", "--volume", "{d}/cut.mvl"], env: NO_ENV, code: 1, fragments: &["level store ", "cut.mvl", "field `file_size`"], absent: &["brick store"] },
+    Case { name: "an empty --volume", args: &["render", "--volume", ""], env: NO_ENV, code: 2, fragments: &["'--volume <VOLUME>': empty: expected a file, folder, URL or synthetic field"], absent: &["cannot read volume file"] },
+    Case { name: "an empty convert INPUT", args: &["convert", "", "{d}/empty.mvl"], env: NO_ENV, code: 2, fragments: &["empty: expected a file, folder, URL"], absent: &[] },
+    Case { name: "a path file holding an array", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--path", "{d}/array_top.json"], env: NO_ENV, code: 1, fragments: &["array_top.json", "must be a JSON object with \"keyframes\""], absent: &["expected struct PathJson"] },
+    // Issue 42, item 6 (review D7): a Zarr level whose chunks are all absent is an error, one
+    // with some absent a warning (both gave a blank image, exit 0, without a word).
+    Case { name: "Zarr chunks under another separator", args: &["render", "--volume", "{d}/separator.zarr", "--width", "16", "--height", "16"], env: NO_ENV, code: 1, fragments: &["separator.zarr", "none of the 1 chunks of the level exists", "dimension_separator"], absent: &["wrote "] },
+    Case { name: "Zarr level with a chunk absent", args: &["render", "--volume", "{d}/half.zarr", "--width", "16", "--height", "16"], env: NO_ENV, code: 0, fragments: &["warning: ", "half.zarr: 1 of 2 chunks exist; the rest read as the fill value"], absent: &[] },
     Case { name: "--device matching nothing", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--device", "no-such-gpu-x"], env: NO_ENV, code: 1, fragments: &["matching 'no-such-gpu-x'", "devices present: "], absent: &["rejected: []"] },
 ];
 
@@ -261,6 +273,23 @@ fn fixtures(d: &Path) {
     }
     std::fs::write(&store, &bytes).unwrap();
     std::fs::write(d.join("v.xyz"), [0u8; 64]).unwrap();
+    // A Zarr v2 array whose .zarray says "/" while its chunk is stored as 0.0.0, and one of
+    // two chunks with only the first written.
+    zarr_u8(&d.join("separator.zarr"), "[4,4,4]", "[4,4,4]");
+    let zarray = std::fs::read_to_string(d.join("separator.zarr/.zarray")).unwrap();
+    std::fs::write(
+        d.join("separator.zarr/.zarray"),
+        zarray.replace(r#""order":"C""#, r#""order":"C","dimension_separator":"/""#),
+    )
+    .unwrap();
+    std::fs::write(d.join("separator.zarr/0.0.0"), [9u8; 64]).unwrap();
+    zarr_u8(&d.join("half.zarr"), "[8,4,4]", "[4,4,4]");
+    std::fs::write(d.join("half.zarr/0.0.0"), [200u8; 64]).unwrap();
+    // A level store cut 100 bytes short, and a camera path that is a JSON array.
+    let mut cut = std::fs::read(&store).unwrap();
+    cut.truncate(cut.len() - 100);
+    std::fs::write(d.join("cut.mvl"), cut).unwrap();
+    std::fs::write(d.join("array_top.json"), "[2]").unwrap();
 }
 
 /// Runs `args` with `env` and a deadline; returns the exit code and the output (stdout, then

@@ -27,6 +27,7 @@ use super::super::format::{
 use super::super::StoreError;
 use crate::bricks::{BrickGrid, DownsampleFilter, ValueRange, MAX_BRICK_SIZE};
 use crate::cache::{min_brick_size_for_levels, stored_brick_edge, stored_bricks_per_axis};
+use crate::store::LEVEL_STORE;
 use crate::volume::ScalarType;
 use glam::{UVec3, Vec3};
 use std::path::Path;
@@ -212,7 +213,8 @@ pub fn parse_header(
     actual_len: u64,
     path: &Path,
 ) -> Result<LevelStoreHeader, StoreError> {
-    let err = |field: &'static str, message: String| format_error(path, field, message);
+    let err =
+        |field: &'static str, message: String| format_error(LEVEL_STORE, path, field, message);
     if bytes.len() < LEVEL_MAGIC.len() || bytes[..LEVEL_MAGIC.len()] != LEVEL_MAGIC {
         return Err(err(
             "magic",
@@ -301,7 +303,7 @@ pub fn parse_header(
     }
     let grid =
         BrickGrid::new(dims, brick_size).map_err(|e| err("dims", format!("cannot brick: {e}")))?;
-    let filter = parse_filter_field(bytes, 92, path)?;
+    let filter = parse_filter_field(LEVEL_STORE, bytes, 92, path)?;
     let Some(expected) =
         canonical_level_header(&grid, levels, scalar, spacing, value_range, filter)
     else {
@@ -376,7 +378,8 @@ pub fn parse_table(
     table: &[u8],
     path: &Path,
 ) -> Result<Vec<LevelEntry>, StoreError> {
-    let err = |field: &'static str, message: String| format_error(path, field, message);
+    let err =
+        |field: &'static str, message: String| format_error(LEVEL_STORE, path, field, message);
     let expected_len = header.stored_count.saturating_mul(LEVEL_ENTRY_BYTES);
     if table.len() as u64 != expected_len {
         return Err(err(

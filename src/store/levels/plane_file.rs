@@ -6,6 +6,7 @@
 
 use crate::pyramid::{downsample_sum, downsample_taps, LevelGrid, SamplePlacement};
 use crate::store::StoreError;
+use crate::store::LEVEL_STORE;
 use glam::{IVec3, UVec3};
 use std::collections::VecDeque;
 use std::fs::File;
@@ -31,6 +32,7 @@ impl Drop for PlaneFile {
 fn io(path: &Path, action: &'static str) -> impl FnOnce(std::io::Error) -> StoreError {
     let path = path.to_path_buf();
     move |source| StoreError::Io {
+        kind: LEVEL_STORE,
         path,
         action,
         source,

@@ -10,6 +10,7 @@ use crate::pyramid::{LevelGrid, SamplePlacement};
 use crate::store::format::{brick_crc, format_error};
 use crate::store::reader::open_regular_file;
 use crate::store::StoreError;
+use crate::store::LEVEL_STORE;
 use crate::volume::formats::{RemoteObject, RemoteOptions};
 use glam::{IVec3, UVec3};
 use std::fs::File;
@@ -45,7 +46,7 @@ impl LevelStore {
     /// [`StoreError::Format`] naming the field, an OS failure a [`StoreError::Io`].
     pub fn open(path: impl AsRef<Path>) -> Result<Self, StoreError> {
         let path = path.as_ref().to_path_buf();
-        let (file, len) = open_regular_file(&path, "a level store")?;
+        let (file, len) = open_regular_file(&path, LEVEL_STORE)?;
         Self::open_source(path, Source::Local(file), len)
     }
 
@@ -91,7 +92,7 @@ impl LevelStore {
         let entries = parse_table(&header, &header_bytes, &table, &path)?;
         let grid = header
             .grid()
-            .ok_or_else(|| format_error(&path, "dims", "cannot brick".into()))?;
+            .ok_or_else(|| format_error(LEVEL_STORE, &path, "dims", "cannot brick".into()))?;
         let mut level_starts = vec![0];
         for count in stored_per_level(&grid, header.levels) {
             level_starts.push(level_starts[level_starts.len() - 1] + count as usize);
@@ -202,7 +203,7 @@ impl LevelStore {
             &self.grid,
             self.header.levels,
             |level, first| self.read_stored(level, first),
-            |message| format_error(&self.path, "dims", message),
+            |message| format_error(LEVEL_STORE, &self.path, "dims", message),
         )
     }
 }
@@ -273,6 +274,7 @@ fn read_at(
         Source::Local(file) => file
             .read_exact_at(buf, offset)
             .map_err(|source| StoreError::Io {
+                kind: LEVEL_STORE,
                 path: path.to_path_buf(),
                 action,
                 source,

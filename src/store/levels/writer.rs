@@ -16,6 +16,7 @@ use crate::pyramid::{LevelGrid, SamplePlacement, VolumeLevels};
 use crate::store::format::brick_crc;
 use crate::store::writer::{commit_partial, create_partial};
 use crate::store::StoreError;
+use crate::store::LEVEL_STORE;
 use crate::volume::{ScalarType, Volume};
 use glam::{UVec3, Vec3};
 use std::fs::File;
@@ -167,6 +168,7 @@ impl TexelSink<'_> {
         self.out
             .write_all(&bytes)
             .map_err(|source| StoreError::Io {
+                kind: LEVEL_STORE,
                 path: self.partial.to_path_buf(),
                 action: "write stored bricks",
                 source,
@@ -225,10 +227,11 @@ pub(super) fn assemble_level_store(
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<LevelWriteSummary, StoreError> {
     let start = Instant::now();
-    let (file, partial) = create_partial(path)?;
+    let (file, partial) = create_partial(LEVEL_STORE, path)?;
     let io = |action: &'static str| {
         let p = partial.clone();
         move |source| StoreError::Io {
+            kind: LEVEL_STORE,
             path: p,
             action,
             source,
@@ -275,7 +278,7 @@ pub(super) fn assemble_level_store(
         file.sync_all().map_err(io("sync"))
     })();
     drop(file);
-    commit_partial(&partial, path, result)?;
+    commit_partial(LEVEL_STORE, &partial, path, result)?;
     Ok(LevelWriteSummary {
         path: path.to_path_buf(),
         header,

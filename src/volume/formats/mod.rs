@@ -310,6 +310,10 @@ pub struct VolumeMeta {
     /// NIfTI and DICOM: how the voxels were reordered to RAS+ (`None` for the other formats,
     /// which keep file order).
     pub reorientation: Option<Reorientation>,
+    /// A Zarr level read whole: how many of its chunks exist, and how many it has (`None` for
+    /// other formats). A missing chunk is the fill value (the Zarr spec), but none or few found
+    /// usually means chunks stored under other names (review D7), which a caller should say.
+    pub chunks_found: Option<(u64, u64)>,
 }
 
 impl VolumeMeta {
@@ -325,6 +329,7 @@ impl VolumeMeta {
             scale_inter: 0.0,
             scale_applied: false,
             reorientation: None,
+            chunks_found: None,
         }
     }
 

@@ -142,6 +142,13 @@ impl ZarrLevel {
             .object_name(self.array.chunk_key(indices).as_str())
     }
 
+    /// The chunks of the level read so far that exist, and the chunks the level has.
+    pub(super) fn chunks_found(&self) -> (u64, u64) {
+        let chunks: u64 = self.array.chunk_grid_shape().iter().product();
+        let found = self.found_chunks.load(std::sync::atomic::Ordering::Relaxed);
+        (found, chunks)
+    }
+
     /// Reads volume z planes `z` into a new buffer (reserved fallibly), x fastest, each stored
     /// value mapped by `map`.
     pub(super) fn read_all<T: ElementOwned + Copy, U: Copy + Default>(
@@ -399,6 +406,8 @@ impl ZarrLevel {
             }
             return Ok(());
         };
+        self.found_chunks
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let values = self.decode_chunk::<T>(indices, encoded, decoded_bytes, outer)?;
         let full: Vec<usize> = chunk_shape.iter().map(|d| d.get() as usize).collect();
         let (fy, fx) = (full[ndim - 2], full[ndim - 1]);

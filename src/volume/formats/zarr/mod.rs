@@ -181,9 +181,11 @@ pub fn load_zarr_at(
         StoredType::F32 => VoxelData::F32(level.read_all::<f32, f32>(z, |v| v)?),
         StoredType::F64 => VoxelData::F32(level.read_all::<f64, f32>(z, |v| v as f32)?),
     };
+    let mut meta = level.meta.clone();
+    meta.chunks_found = Some(level.chunks_found());
     Ok(LoadedVolume {
         volume: Volume::new(level.layout.dims, level.spacing, data).map_err(|e| e.in_file(root))?,
-        meta: level.meta,
+        meta,
     })
 }
 
@@ -205,6 +207,8 @@ pub(super) struct ZarrLevel {
     pub(super) meta: VolumeMeta,
     /// Levels of the image (1 for a plain array).
     pub(super) levels: usize,
+    /// Chunks read so far that exist (a missing one reads as the fill value).
+    pub(super) found_chunks: std::sync::atomic::AtomicU64,
 }
 
 /// Opens level `level` of the image at `location` (see [`load_zarr_level`]) without reading a
@@ -372,5 +376,6 @@ pub(super) fn open_level(
         spacing: spacing_f32,
         meta,
         levels,
+        found_chunks: std::sync::atomic::AtomicU64::new(0),
     })
 }

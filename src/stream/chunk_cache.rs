@@ -24,6 +24,8 @@ pub struct ChunkCacheStats {
     pub hits: u64,
     /// Chunks read from the source (missing ones, the fill value, included).
     pub fetches: u64,
+    /// Of those, chunks that do not exist (read as the fill value, no bytes fetched).
+    pub absent_chunks: u64,
     /// Chunks evicted.
     pub evictions: u64,
     /// Chunks whose fetch or decode failed (remembered, not fetched again).
@@ -166,6 +168,9 @@ impl ChunkCache {
                 got[i] = Some(match result {
                     Ok(chunk) => {
                         state.stats.fetches += 1;
+                        if chunk.stored_bytes == 0 {
+                            state.stats.absent_chunks += 1;
+                        }
                         let chunk = Arc::new(chunk);
                         state.insert(key, chunk.clone());
                         Ok(chunk)

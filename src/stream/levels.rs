@@ -194,6 +194,7 @@ impl ZarrLevels {
             sum.resident_chunks += s.resident_chunks;
             sum.hits += s.hits;
             sum.fetches += s.fetches;
+            sum.absent_chunks += s.absent_chunks;
             sum.evictions += s.evictions;
             sum.failed_chunks += s.failed_chunks;
         }

@@ -495,6 +495,9 @@ fn render_view(
     if scene.planned {
         let converged = converge(renderer, scene, camera, settings, args)?;
         print_converged(renderer, scene, &converged);
+        if let Some(zarr) = &scene.zarr {
+            crate::stream::check_absent_chunks(zarr, &args.volume)?;
+        }
     }
     // Warm-up: llvmpipe compiles shaders at the first draw.
     let (mut frame, _) = frame_row(renderer, ctx, 0, camera, settings, args)?;

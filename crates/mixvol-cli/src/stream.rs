@@ -74,14 +74,40 @@ pub fn open_zarr_levels(
     Ok(Arc::new(levels))
 }
 
-/// What the chunk caches of a streamed image did: chunks fetched, stored bytes, cache hits,
-/// the peak against the budget, failed chunks.
+/// Review D7 for a streamed image: an error when no chunk it fetched exists (every voxel drawn
+/// would be the fill value: chunks stored under other names than the array's
+/// `dimension_separator` / `chunk_key_encoding` say, or a server answering 404), a warning on
+/// stderr with the count when some are absent.
+pub fn check_absent_chunks(zarr: &ZarrLevels, location: &str) -> Result<()> {
+    let c = zarr.cache_stats();
+    let why = "missing chunks, or chunks stored under other names than the array's \
+               dimension_separator / chunk_key_encoding says";
+    if c.fetches > 0 && c.absent_chunks == c.fetches {
+        return Err(Error::InvalidInput(format!(
+            "{location}: none of the {} chunks fetched exists, so the image would be the fill \
+             value throughout ({why}, or a server that answers 404 for them); no image written",
+            c.fetches
+        )));
+    }
+    if c.absent_chunks > 0 {
+        eprintln!(
+            "warning: {location}: {} of the {} chunks fetched do not exist and read as the fill \
+             value ({why})",
+            c.absent_chunks, c.fetches
+        );
+    }
+    Ok(())
+}
+
+/// What the chunk caches of a streamed image did: chunks fetched (and absent), stored bytes,
+/// cache hits, the peak against the budget, failed chunks.
 pub fn chunk_line(zarr: &ZarrLevels) -> String {
     let c = zarr.cache_stats();
     format!(
-        "fetched {} chunks, {:.2} MB stored bytes ({} cache hits, chunk cache peak {:.2} MB of \
-         {:.2} MB, {} failed chunks)",
+        "fetched {} chunks ({} absent: the fill value), {:.2} MB stored bytes ({} cache hits, \
+         chunk cache peak {:.2} MB of {:.2} MB, {} failed chunks)",
         c.fetches,
+        c.absent_chunks,
         zarr.bytes_fetched() as f64 / 1e6,
         c.hits,
         c.peak_bytes as f64 / 1e6,

@@ -131,6 +131,7 @@ const CASES: &[Case] = &[
     // Issue 42, item 6 (review D7): a Zarr level whose chunks are all absent is an error, one
     // with some absent a warning (both gave a blank image, exit 0, without a word).
     Case { name: "Zarr chunks under another separator", args: &["render", "--volume", "{d}/separator.zarr", "--width", "16", "--height", "16"], env: NO_ENV, code: 1, fragments: &["separator.zarr", "none of the 1 chunks of the level exists", "dimension_separator"], absent: &["wrote "] },
+    Case { name: "streamed Zarr chunks under another separator", args: &["render", "--volume", "{d}/separator.zarr", "--stream", "--brick-size", "4", "--width", "16", "--height", "16"], env: NO_ENV, code: 1, fragments: &["separator.zarr", "none of the 1 chunks fetched exists", "dimension_separator", "no image written"], absent: &["wrote "] },
     Case { name: "Zarr level with a chunk absent", args: &["render", "--volume", "{d}/half.zarr", "--width", "16", "--height", "16"], env: NO_ENV, code: 0, fragments: &["warning: ", "half.zarr: 1 of 2 chunks exist; the rest read as the fill value"], absent: &[] },
     Case { name: "--device matching nothing", args: &["render", "--volume", "ml", "--dims", "8,8,8", "--device", "no-such-gpu-x"], env: NO_ENV, code: 1, fragments: &["matching 'no-such-gpu-x'", "devices present: "], absent: &["rejected: []"] },
 ];

@@ -52,7 +52,12 @@ fn ok(out: &Output) -> String {
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
-    String::from_utf8_lossy(&out.stdout).into_owned()
+    // stdout, then stderr (warnings).
+    format!(
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
 }
 
 #[test]
@@ -216,9 +221,14 @@ fn render_stream_over_http_draws_the_converted_store_and_fetches_only_chunks() {
     // Drawn through the level cache from the image's own (one-level) pyramid: nothing waits.
     assert!(text.contains("from the image's pyramid"), "{text}");
     assert!(text.contains(", 0 bricks still waiting"), "{text}");
-    // Every chunk read once (3 x 3 x 3), the missing one costing no bytes: 26 of 8^3 u16.
+    // Every chunk read once (3 x 3 x 3), the missing one costing no bytes: 26 of 8^3 u16. The
+    // missing one is counted, and said on stderr (review D7).
     assert!(
-        text.contains("fetched 27 chunks, 0.03 MB stored bytes"),
+        text.contains("fetched 27 chunks (1 absent: the fill value), 0.03 MB stored bytes"),
+        "{text}"
+    );
+    assert!(
+        text.contains("warning: ") && text.contains("1 of the 27 chunks fetched do not exist"),
         "{text}"
     );
     let stored = dir.0.join("store.png");

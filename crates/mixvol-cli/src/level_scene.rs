@@ -1,5 +1,5 @@
 //! Scenes drawn through the three-level cache from stored bricks read in the background: a
-//! level store, or an OME-Zarr image's own pyramid (`--stream --levels camera`); and the
+//! level store, or an OME-Zarr image's own pyramid (`--stream`); and the
 //! plans, budgets and report lines every three-level scene shares.
 
 use crate::args::{LevelsArg, RenderArgs};
